@@ -1,0 +1,19 @@
+"""The two Craftax variants CrafText runs on."""
+
+from enum import StrEnum
+
+
+class Variant(StrEnum):
+    """`full`: Craftax (43 actions, 9 floors); `classic`: Craftax-Classic (17 actions)."""
+
+    FULL = "full"
+    CLASSIC = "classic"
+
+    @property
+    def craftax_name(self) -> str:
+        """The craftax environment id this variant wraps."""
+        return "Craftax-Symbolic-v1" if self is Variant.FULL else "Craftax-Classic-Symbolic-v1"
+
+    @property
+    def num_actions(self) -> int:
+        return 43 if self is Variant.FULL else 17

@@ -1,0 +1,102 @@
+"""Backend registry: a model spec such as `hf:smollm2-135m` names a backend and a model.
+
+Backends are imported lazily, so the core installs and runs without torch, vLLM or openai.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+from typing import Any
+
+from pydantic import BaseModel
+
+from env.errors import UserError
+from llm_agents.backends.base import ChatMessage, GenerateConfig, ModelAPI, ModelOutput
+
+__all__ = [
+    "BACKENDS",
+    "BackendNotInstalled",
+    "ChatMessage",
+    "GenerateConfig",
+    "ModelAPI",
+    "ModelOutput",
+    "ModelSpec",
+    "get_model",
+    "parse_model_spec",
+]
+
+#: backend name -> "module:Class"
+BACKENDS: dict[str, str] = {
+    "mock": "llm_agents.backends.mock:MockModel",
+    "hf": "llm_agents.backends.hf:HFModel",
+    "vllm": "llm_agents.backends.vllm:VLLMModel",
+    "openai": "llm_agents.backends.openai:OpenAIModel",
+}
+
+#: backend name -> the extra that installs its dependencies
+EXTRAS: dict[str, str] = {"hf": "hf", "vllm": "vllm", "openai": "openai"}
+
+
+class BackendNotInstalled(UserError):
+    """A backend's optional dependencies are missing."""
+
+
+class ModelSpec(BaseModel):
+    """A parsed model spec: `backend:name`, with `@base_url` for HTTP backends."""
+
+    backend: str
+    """Registry name of the backend."""
+    name: str
+    """Model name, path or (for mock) script."""
+    base_url: str | None = None
+    """Server URL for the openai backend."""
+
+
+def parse_model_spec(spec: str) -> ModelSpec:
+    """Split `backend:name[@base_url]`, checking the backend exists."""
+    backend, sep, rest = spec.partition(":")
+    if not sep:
+        raise UserError(
+            f"model spec {spec!r} has no backend; write BACKEND:MODEL, e.g. hf:smollm2-135m "
+            f"(backends: {', '.join(BACKENDS)})"
+        )
+    backend = backend.strip().lower()
+    if backend not in BACKENDS:
+        close = difflib.get_close_matches(backend, BACKENDS, n=2)
+        hint = f"; did you mean {' or '.join(close)}?" if close else ""
+        raise UserError(
+            f"unknown backend {backend!r} in model spec {spec!r}{hint} (backends: {', '.join(BACKENDS)})"
+        )
+    base_url = None
+    if backend == "openai" and "@" in rest:
+        rest, _, base_url = rest.rpartition("@")
+    if not rest and backend != "mock":
+        raise UserError(f"model spec {spec!r} names no model after {backend}:")
+    return ModelSpec(backend=backend, name=rest, base_url=base_url)
+
+
+def load_backend_class(backend: str) -> type[ModelAPI]:
+    """Import a backend's class, turning a missing optional dependency into an install hint."""
+    module_name, _, class_name = BACKENDS[backend].partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        extra = EXTRAS.get(backend)
+        if extra is None or (err.name or "").startswith("llm_agents"):
+            raise
+        raise BackendNotInstalled(
+            f"the {backend} backend needs the package {err.name!r}: "
+            f"pip install 'craftext-llm[{extra}]'"
+        ) from err
+    cls: type[ModelAPI] = getattr(module, class_name)
+    return cls
+
+
+def get_model(spec: str, config: GenerateConfig | None = None, **options: Any) -> ModelAPI:
+    """Build the backend a model spec names."""
+    parsed = parse_model_spec(spec)
+    cls = load_backend_class(parsed.backend)
+    if parsed.base_url is not None:
+        options.setdefault("base_url", parsed.base_url)
+    return cls(parsed.name, config, **options)

@@ -1,0 +1,123 @@
+"""A scripted, deterministic backend for tests and offline pipeline runs.
+
+Spec forms (`mock:<script>`):
+- `mock:` or `mock:noop` answers "NOOP" forever;
+- `mock:cycle:A|B|C` answers A, B, C, A, ... (one counter over all requests, in order);
+- `mock:list:A|B|C` answers A, B, C, then fails with an error output;
+- `mock:file:PATH` reads a JSON list of answers and cycles through it.
+From Python, `MockModel(outputs=callable)` answers `callable(conversation)`.
+Every request is recorded in `requests`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from env.errors import UserError
+from llm_agents.backends.base import (
+    ChatMessage,
+    Conversation,
+    GenerateConfig,
+    ModelAPI,
+    ModelOutput,
+)
+
+Responder = Callable[[Sequence[ChatMessage]], str]
+
+
+class MockModel(ModelAPI):
+    """Answers from a script; optional fixed latency per batch for benchmarks."""
+
+    backend_name = "mock"
+
+    def __init__(
+        self,
+        model_name: str = "",
+        config: GenerateConfig | None = None,
+        *,
+        outputs: Sequence[str] | Responder | None = None,
+        cycle: bool = True,
+        latency_s: float = 0.0,
+        **options: Any,
+    ):
+        super().__init__(model_name or "noop", config, **options)
+        self.latency_s = latency_s
+        self.requests: list[tuple[list[ChatMessage], list[str] | None]] = []
+        self._count = 0
+        self._responder: Responder | None = None
+        self._outputs: list[str] = []
+        self._cycle = cycle
+        if callable(outputs):
+            self._responder = outputs
+        elif outputs is not None:
+            self._outputs = list(outputs)
+        else:
+            self._outputs, self._cycle = _parse_script(model_name)
+
+    def generate(
+        self,
+        conversations: Sequence[Conversation],
+        choices: Sequence[str] | None = None,
+    ) -> list[ModelOutput]:
+        if self.latency_s:
+            time.sleep(self.latency_s)
+        results = []
+        for conversation in conversations:
+            self.requests.append((list(conversation), list(choices) if choices else None))
+            results.append(self._answer(conversation, choices))
+        return results
+
+    def _answer(self, conversation: Conversation, choices: Sequence[str] | None) -> ModelOutput:
+        index = self._count
+        self._count += 1
+        if self._responder is not None:
+            text = self._responder(conversation)
+        elif self._cycle and self._outputs:
+            text = self._outputs[index % len(self._outputs)]
+        elif index < len(self._outputs):
+            text = self._outputs[index]
+        else:
+            return ModelOutput(
+                text="", finish_reason="error", error=f"mock script exhausted after {index} answers"
+            )
+        prompt_words = sum(len(m.content.split()) for m in conversation)
+        if choices:
+            finish = "choice"
+            if text not in choices:
+                text = choices[0]
+        else:
+            finish = "stop"
+        return ModelOutput(
+            text=text,
+            prompt_tokens=prompt_words,
+            completion_tokens=len(text.split()),
+            latency_s=self.latency_s,
+            finish_reason=finish,
+        )
+
+
+def _parse_script(script: str) -> tuple[list[str], bool]:
+    kind, _, arg = script.partition(":")
+    if kind in ("", "noop"):
+        return ["NOOP"], True
+    if kind in ("cycle", "list"):
+        outputs = [part for part in arg.split("|") if part]
+        if not outputs:
+            raise UserError(f"mock script {script!r} lists no answers; write mock:{kind}:A|B")
+        return outputs, kind == "cycle"
+    if kind == "file":
+        path = Path(arg)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise UserError(f"cannot read mock script file {path}: {err}") from err
+        if not isinstance(data, list) or not all(isinstance(x, str) for x in data) or not data:
+            raise UserError(f"mock script file {path} must hold a non-empty JSON list of strings")
+        return data, True
+    raise UserError(
+        f"unknown mock script {script!r}; use noop, cycle:A|B, list:A|B or file:PATH"
+    )
