@@ -1,0 +1,124 @@
+"""Run metrics: success rates with Wilson intervals, terminations, invalid actions, cost.
+
+Success rates come with Wilson score intervals rather than normal-approximation ones because
+runs are small and rates near 0 are common, where the normal interval collapses to a point or
+leaves [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import Counter, defaultdict
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from pydantic import BaseModel, Field
+
+from env.errors import UserError
+
+if TYPE_CHECKING:
+    # records.py needs `Summary` at import time, so this import only serves type checking.
+    from llm_agents.records import EpisodeRecord
+
+__all__ = ["SuccessRate", "Summary", "summarize", "wilson_interval"]
+
+
+def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion of `successes` out of `trials`."""
+    if trials <= 0:
+        raise ValueError(f"trials must be positive, got {trials}")
+    if not 0 <= successes <= trials:
+        raise ValueError(f"successes must lie in [0, {trials}], got {successes}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
+    z = statistics.NormalDist().inv_cdf(0.5 + confidence / 2)
+    p = successes / trials
+    z2_n = z * z / trials
+    centre = (p + z2_n / 2) / (1 + z2_n)
+    half_width = z / (1 + z2_n) * math.sqrt(p * (1 - p) / trials + z2_n / (4 * trials))
+    # Rounding can push the bounds a hair past [0, 1] at k = 0 or k = n.
+    return max(0.0, centre - half_width), min(1.0, centre + half_width)
+
+
+class SuccessRate(BaseModel):
+    """Successes out of episodes, with a 95% Wilson interval."""
+
+    successes: int = Field(ge=0)
+    """Episodes whose goal was met."""
+    episodes: int = Field(ge=1)
+    """Episodes counted."""
+    rate: float = Field(ge=0.0, le=1.0)
+    """successes / episodes."""
+    low: float = Field(ge=0.0, le=1.0)
+    """Lower bound of the 95% Wilson interval."""
+    high: float = Field(ge=0.0, le=1.0)
+    """Upper bound of the 95% Wilson interval."""
+
+    @classmethod
+    def of(cls, successes: int, episodes: int) -> SuccessRate:
+        low, high = wilson_interval(successes, episodes)
+        return cls(
+            successes=successes, episodes=episodes, rate=successes / episodes, low=low, high=high
+        )
+
+
+class Summary(BaseModel):
+    """Metrics over a set of finished episodes."""
+
+    overall: SuccessRate
+    """Success over every episode."""
+    by_category: dict[str, SuccessRate]
+    """Success per goal category present (`one`, `combo`, `new_objects`, `paraphrased`)."""
+    by_goal: dict[str, SuccessRate]
+    """Success per goal id."""
+    terminations: dict[str, int]
+    """Episodes per termination reason (`success`, `death`, `timeout`), zeros included."""
+    invalid_action_rate: float = Field(ge=0.0, le=1.0)
+    """Share of all steps whose action was the fallback because none could be parsed."""
+    steps_to_success_mean: float | None
+    """Mean steps of successful episodes; None without successes."""
+    steps_to_success_median: float | None
+    """Median steps of successful episodes; None without successes."""
+    prompt_tokens_per_step: float = Field(ge=0.0)
+    """Prompt tokens per agent step, over all episodes."""
+    completion_tokens_per_step: float = Field(ge=0.0)
+    """Generated tokens (reasoning included) per agent step, over all episodes."""
+
+
+def _success_rates(groups: dict[str, list[bool]]) -> dict[str, SuccessRate]:
+    return {key: SuccessRate.of(sum(outcomes), len(outcomes)) for key, outcomes in groups.items()}
+
+
+def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
+    """Metrics over `episodes`; raises `UserError` when there are none."""
+    # Imported here because records.py imports this module for `Summary`.
+    from llm_agents.records import CATEGORIES, TERMINATIONS
+
+    if not episodes:
+        raise UserError("no finished episodes to summarize")
+    by_category: dict[str, list[bool]] = defaultdict(list)
+    by_goal: dict[str, list[bool]] = defaultdict(list)
+    for episode in episodes:
+        by_category[episode.category].append(episode.success)
+        by_goal[episode.goal_id].append(episode.success)
+    terminations = Counter(episode.termination for episode in episodes)
+    success_steps = [episode.steps for episode in episodes if episode.success]
+    total_steps = sum(episode.steps for episode in episodes)
+
+    def per_step(total: int) -> float:
+        return total / total_steps if total_steps else 0.0
+
+    return Summary(
+        overall=SuccessRate.of(len(success_steps), len(episodes)),
+        by_category=_success_rates(
+            {category: by_category[category] for category in CATEGORIES if category in by_category}
+        ),
+        by_goal=_success_rates(dict(sorted(by_goal.items()))),
+        terminations={reason: terminations[reason] for reason in TERMINATIONS},
+        invalid_action_rate=per_step(sum(episode.invalid_actions for episode in episodes)),
+        steps_to_success_mean=statistics.fmean(success_steps) if success_steps else None,
+        steps_to_success_median=statistics.median(success_steps) if success_steps else None,
+        prompt_tokens_per_step=per_step(sum(episode.prompt_tokens for episode in episodes)),
+        completion_tokens_per_step=per_step(sum(episode.completion_tokens for episode in episodes)),
+    )
