@@ -1,0 +1,243 @@
+"""The action catalogue: every action of both Craftax variants with its id and what it does.
+
+Ids and names are those of craftax's `Action` enums (tests check them against craftax), kept
+here as plain data so that the agent side never imports JAX. The descriptions are ours,
+written from craftax's game logic: "nearby" means one of the 8 cells around the player,
+"facing" means the cell the player looks at (the last direction it moved or tried to move).
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+from pydantic import BaseModel, ConfigDict
+
+from env.errors import UserError
+from env.variant import Variant
+
+
+class ActionSpec(BaseModel):
+    """One action of a variant."""
+
+    model_config = ConfigDict(frozen=True)
+
+    id: int
+    """The integer id craftax's `Action` enum gives it."""
+    name: str
+    """The enum member's name, e.g. `MAKE_WOOD_PICKAXE`."""
+    description: str
+    """Its effect and preconditions in a sentence or two, for prompts."""
+
+
+_MOVES: tuple[tuple[str, str], ...] = (
+    ("LEFT", "west"),
+    ("RIGHT", "east"),
+    ("UP", "north"),
+    ("DOWN", "south"),
+)
+
+
+def _move_descriptions(variant: Variant) -> list[str]:
+    if variant is Variant.FULL:
+        blocked = "(water, lava, a solid block or a creature)"
+        hazard = ""
+    else:
+        blocked = "(water, a solid block or a creature)"
+        hazard = " Stepping into lava kills you."
+    return [
+        f"Face {heading} and step one cell {heading}; if that cell is blocked {blocked} "
+        f"you only turn to face it.{hazard}"
+        for _, heading in _MOVES
+    ]
+
+
+_CLASSIC_DESCRIPTIONS: tuple[str, ...] = (
+    "Do nothing for one step.",
+    *_move_descriptions(Variant.CLASSIC),
+    "Interact with the faced cell: attack a zombie, skeleton or cow (a killed cow is eaten), "
+    "collect wood from a tree, stone or coal (needs a wood pickaxe), iron (needs a stone "
+    "pickaxe) or diamond (needs an iron pickaxe), drink water, eat a ripe plant, or search "
+    "grass for a sapling (10% chance).",
+    "Fall asleep to restore energy; you wake up by yourself when energy is full.",
+    "Put 1 stone on the faced cell (free ground or water).",
+    "Spend 2 wood to build a crafting table on the faced free cell.",
+    "Spend 1 stone to build a furnace on the faced free cell.",
+    "Plant 1 sapling on the faced grass cell; it ripens into food later.",
+    "Craft a wood pickaxe from 1 wood; needs a crafting table nearby.",
+    "Craft a stone pickaxe from 1 wood and 1 stone; needs a crafting table nearby.",
+    "Craft an iron pickaxe from 1 wood, 1 stone, 1 coal and 1 iron; needs a crafting table "
+    "and a furnace nearby.",
+    "Craft a wood sword from 1 wood; needs a crafting table nearby.",
+    "Craft a stone sword from 1 wood and 1 stone; needs a crafting table nearby.",
+    "Craft an iron sword from 1 wood, 1 stone, 1 coal and 1 iron; needs a crafting table and "
+    "a furnace nearby.",
+)
+
+_FULL_DESCRIPTIONS: tuple[str, ...] = (
+    "Do nothing for one step.",
+    *_move_descriptions(Variant.FULL),
+    "Interact with the faced cell: attack a creature (killed cows are eaten), collect wood "
+    "from a tree, stone or coal (needs a wood pickaxe), iron (needs a stone pickaxe), diamond "
+    "(needs an iron pickaxe), sapphire or ruby (need a diamond pickaxe), drink water, eat a "
+    "ripe plant, open a chest, or search grass for a sapling (10% chance).",
+    "Fall asleep to restore energy; you wake up by yourself when energy is full.",
+    "Put 1 stone on the faced cell (free ground, water or lava).",
+    "Spend 2 wood to build a crafting table on the faced free cell.",
+    "Spend 1 stone to build a furnace on the faced free cell.",
+    "Plant 1 sapling on the faced grass cell; it ripens into food later.",
+    "Craft a wood pickaxe from 1 wood; needs a crafting table nearby and no better pickaxe.",
+    "Craft a stone pickaxe from 1 wood and 1 stone; needs a crafting table nearby.",
+    "Craft an iron pickaxe from 1 wood, 1 stone, 1 coal and 1 iron; needs a crafting table "
+    "and a furnace nearby.",
+    "Craft a wood sword from 1 wood; needs a crafting table nearby and no better sword.",
+    "Craft a stone sword from 1 wood and 1 stone; needs a crafting table nearby.",
+    "Craft an iron sword from 1 wood, 1 stone, 1 coal and 1 iron; needs a crafting table and "
+    "a furnace nearby.",
+    "Rest to recover health until it is full (stops if food or drink run out).",
+    "Go down a floor; you must stand on a down ladder and have killed 8 creatures on this floor.",
+    "Go up a floor; you must stand on an up ladder.",
+    "Craft a diamond pickaxe from 1 wood and 3 diamonds; needs a crafting table nearby.",
+    "Craft a diamond sword from 1 wood and 2 diamonds; needs a crafting table nearby.",
+    "Craft one piece of iron armour from 3 iron and 3 coal; needs a crafting table and a "
+    "furnace nearby.",
+    "Craft one piece of diamond armour from 3 diamonds; needs a crafting table nearby.",
+    "Shoot an arrow in the facing direction; needs a bow and at least 1 arrow.",
+    "Craft 2 arrows from 1 wood and 1 stone; needs a crafting table nearby.",
+    "Cast a fireball in the facing direction; needs the learned fireball spell and 2 mana.",
+    "Cast an iceball in the facing direction; needs the learned iceball spell and 2 mana.",
+    "Put 1 torch on the faced free cell to light the area.",
+    "Drink a red potion (needs one); each colour has a random effect on health, mana or energy.",
+    "Drink a green potion (needs one).",
+    "Drink a blue potion (needs one).",
+    "Drink a pink potion (needs one).",
+    "Drink a cyan potion (needs one).",
+    "Drink a yellow potion (needs one).",
+    "Read a book (needs one) to learn a new spell.",
+    "Enchant your sword while facing an enchantment table; costs 9 mana and 1 ruby (fire "
+    "table) or 1 sapphire (ice table).",
+    "Enchant your armour while facing an enchantment table; costs 9 mana and 1 ruby or sapphire.",
+    "Craft 4 torches from 1 wood and 1 coal; needs a crafting table nearby.",
+    "Spend 1 experience point to raise dexterity.",
+    "Spend 1 experience point to raise strength.",
+    "Spend 1 experience point to raise intelligence.",
+    "Enchant your bow while facing an enchantment table; costs 9 mana and 1 ruby or sapphire.",
+)
+
+_CLASSIC_NAMES: tuple[str, ...] = (
+    "NOOP",
+    "LEFT",
+    "RIGHT",
+    "UP",
+    "DOWN",
+    "DO",
+    "SLEEP",
+    "PLACE_STONE",
+    "PLACE_TABLE",
+    "PLACE_FURNACE",
+    "PLACE_PLANT",
+    "MAKE_WOOD_PICKAXE",
+    "MAKE_STONE_PICKAXE",
+    "MAKE_IRON_PICKAXE",
+    "MAKE_WOOD_SWORD",
+    "MAKE_STONE_SWORD",
+    "MAKE_IRON_SWORD",
+)
+
+_FULL_NAMES: tuple[str, ...] = (
+    *_CLASSIC_NAMES,
+    "REST",
+    "DESCEND",
+    "ASCEND",
+    "MAKE_DIAMOND_PICKAXE",
+    "MAKE_DIAMOND_SWORD",
+    "MAKE_IRON_ARMOUR",
+    "MAKE_DIAMOND_ARMOUR",
+    "SHOOT_ARROW",
+    "MAKE_ARROW",
+    "CAST_FIREBALL",
+    "CAST_ICEBALL",
+    "PLACE_TORCH",
+    "DRINK_POTION_RED",
+    "DRINK_POTION_GREEN",
+    "DRINK_POTION_BLUE",
+    "DRINK_POTION_PINK",
+    "DRINK_POTION_CYAN",
+    "DRINK_POTION_YELLOW",
+    "READ_BOOK",
+    "ENCHANT_SWORD",
+    "ENCHANT_ARMOUR",
+    "MAKE_TORCH",
+    "LEVEL_UP_DEXTERITY",
+    "LEVEL_UP_STRENGTH",
+    "LEVEL_UP_INTELLIGENCE",
+    "ENCHANT_BOW",
+)
+
+#: Compass heading of each movement action, as the prompts and observations name it.
+MOVE_HEADINGS: dict[str, str] = dict(_MOVES)
+
+
+def _build(names: tuple[str, ...], descriptions: tuple[str, ...]) -> tuple[ActionSpec, ...]:
+    return tuple(
+        ActionSpec(id=i, name=name, description=description)
+        for i, (name, description) in enumerate(zip(names, descriptions, strict=True))
+    )
+
+
+_CATALOGUES: dict[Variant, tuple[ActionSpec, ...]] = {
+    Variant.CLASSIC: _build(_CLASSIC_NAMES, _CLASSIC_DESCRIPTIONS),
+    Variant.FULL: _build(_FULL_NAMES, _FULL_DESCRIPTIONS),
+}
+
+
+def as_variant(variant: Variant | str) -> Variant:
+    """Accept a `Variant` or its value (`"full"`, `"classic"`)."""
+    try:
+        return Variant(variant)
+    except ValueError:
+        known = ", ".join(v.value for v in Variant)
+        raise UserError(f"unknown variant {variant!r}; known: {known}") from None
+
+
+def action_catalogue(variant: Variant | str) -> tuple[ActionSpec, ...]:
+    """All actions of a variant, in id order."""
+    return _CATALOGUES[as_variant(variant)]
+
+
+def action_names(variant: Variant | str) -> tuple[str, ...]:
+    """The action names of a variant, in id order (index = action id)."""
+    return _names(as_variant(variant))
+
+
+@cache
+def _names(variant: Variant) -> tuple[str, ...]:
+    return tuple(spec.name for spec in _CATALOGUES[variant])
+
+
+@cache
+def _ids(variant: Variant) -> dict[str, int]:
+    return {spec.name: spec.id for spec in _CATALOGUES[variant]}
+
+
+def action_id(name: str, variant: Variant | str) -> int:
+    """The id of an action name (exact enum name, case-insensitive) in a variant."""
+    resolved = as_variant(variant)
+    key = name.strip().upper()
+    ids = _ids(resolved)
+    if key not in ids:
+        raise UserError(
+            f"unknown action {name!r} for the {resolved.value} variant; "
+            f"known: {', '.join(_names(resolved))}"
+        )
+    return ids[key]
+
+
+def action_name(action: int, variant: Variant | str) -> str:
+    """The name of an action id in a variant."""
+    names = _names(as_variant(variant))
+    if not 0 <= action < len(names):
+        raise UserError(
+            f"action id {action} is out of range for the {Variant(variant).value} variant "
+            f"(0-{len(names) - 1})"
+        )
+    return names[action]
