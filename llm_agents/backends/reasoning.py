@@ -1,0 +1,184 @@
+"""Thinking text of reasoning models, shared by every backend.
+
+Reasoning models write `<think>...</think>` before their answer. Backends pass each raw completion
+through `split_reasoning` so only the answer reaches the parser, and keep the thinking in
+`ModelOutput.reasoning` for logs. Chat templates that open the thinking block in the prompt
+(the completion then starts inside it) are handled with `thinking_open_in_prompt=True`, or
+detected from a closing tag without an opening one.
+
+A completion cut off by the token limit while the model was thinking (or just after) has no
+usable answer. `resolve_truncated` makes one "answer only" follow-up request for exactly those
+outputs (wording: `prompts/answer_only.j2`) and counts it in `ModelOutput.followups`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import jinja2
+from pydantic import BaseModel, ConfigDict
+
+from llm_agents.backends.base import ChatMessage, Conversation, ModelOutput
+
+THINK_OPEN = "<think>"
+THINK_CLOSE = "</think>"
+ANSWER_ONLY_TEMPLATE = "answer_only.j2"
+
+#: One batched backend call: conversations in, one raw output per conversation out.
+BatchGenerate = Callable[[Sequence[Conversation]], list[ModelOutput]]
+
+
+class ReasoningSplit(BaseModel):
+    """A completion separated into thinking and answer."""
+
+    model_config = ConfigDict(frozen=True)
+
+    answer: str
+    """The text after the thinking block (stripped); empty when the thinking never closed."""
+    reasoning: str | None
+    """The thinking text (stripped), or None when the completion had no thinking block."""
+    thinking_finished: bool
+    """False when the completion stopped inside the thinking block (no closing tag)."""
+
+
+def split_reasoning(
+    text: str,
+    *,
+    thinking_open_in_prompt: bool = False,
+    open_tag: str = THINK_OPEN,
+    close_tag: str = THINK_CLOSE,
+) -> ReasoningSplit:
+    """Separate the thinking block from the answer in one raw completion."""
+    start = text.find(open_tag)
+    end = text.find(close_tag)
+    if thinking_open_in_prompt or (end != -1 and (start == -1 or start > end)):
+        # The prompt opened the block, so the completion starts inside it.
+        body_start = 0
+    elif start != -1:
+        body_start = start + len(open_tag)
+        # Text before the opening tag is part of the answer, not the thinking.
+        preamble = text[:start]
+        if end == -1:
+            return ReasoningSplit(
+                answer=preamble.strip(),
+                reasoning=text[body_start:].strip(),
+                thinking_finished=False,
+            )
+        return ReasoningSplit(
+            answer=(preamble + text[end + len(close_tag) :]).strip(),
+            reasoning=text[body_start:end].strip(),
+            thinking_finished=True,
+        )
+    else:
+        return ReasoningSplit(answer=text.strip(), reasoning=None, thinking_finished=True)
+    if end == -1:
+        return ReasoningSplit(
+            answer="", reasoning=text[body_start:].strip(), thinking_finished=False
+        )
+    return ReasoningSplit(
+        answer=text[end + len(close_tag) :].strip(),
+        reasoning=text[body_start:end].strip(),
+        thinking_finished=True,
+    )
+
+
+def with_reasoning_split(
+    output: ModelOutput,
+    *,
+    thinking_open_in_prompt: bool = False,
+    reasoning: str | None = None,
+) -> ModelOutput:
+    """Return `output` with its thinking moved from `text` to `reasoning`.
+
+    `reasoning` is thinking the server already separated (e.g. a `reasoning_content` field);
+    it is kept ahead of any thinking still found in the text.
+    """
+    split = split_reasoning(output.text, thinking_open_in_prompt=thinking_open_in_prompt)
+    parts = [part for part in (reasoning, split.reasoning) if part]
+    return output.model_copy(
+        update={"text": split.answer, "reasoning": "\n\n".join(parts) if parts else None}
+    )
+
+
+def needs_answer_followup(output: ModelOutput) -> bool:
+    """True when the token limit cut a reasoning model off before or during its answer.
+
+    Outputs without reasoning are left alone: a plain truncated answer is the parser's job.
+    """
+    return output.finish_reason == "length" and output.reasoning is not None
+
+
+def answer_only_conversation(conversation: Conversation, output: ModelOutput) -> list[ChatMessage]:
+    """The follow-up request: the conversation, the cut-off attempt, then "answer only".
+
+    The thinking is replayed as plain assistant text, not inside think tags, because many chat
+    templates drop tagged thinking from earlier turns and the model would lose its work.
+    """
+    attempt = "\n\n".join(part for part in (output.reasoning, output.text) if part)
+    request = _answer_only_text(has_partial_answer=bool(output.text.strip()))
+    messages = list(conversation)
+    if attempt:
+        messages.append(ChatMessage(role="assistant", content=attempt))
+    messages.append(ChatMessage(role="user", content=request))
+    return messages
+
+
+def merge_followup(first: ModelOutput, followup: ModelOutput) -> ModelOutput:
+    """Combine a cut-off output with its follow-up: the follow-up's answer, both costs."""
+    if followup.finish_reason == "error":
+        # The cut-off answer is still better than nothing; the parser decides if it is usable.
+        return first.model_copy(update={"followups": first.followups + 1})
+    reasoning = [part for part in (first.reasoning, followup.reasoning) if part]
+    return followup.model_copy(
+        update={
+            "reasoning": "\n\n".join(reasoning) if reasoning else None,
+            "prompt_tokens": first.prompt_tokens + followup.prompt_tokens,
+            "completion_tokens": first.completion_tokens + followup.completion_tokens,
+            "latency_s": first.latency_s + followup.latency_s,
+            "followups": first.followups + followup.followups + 1,
+        }
+    )
+
+
+def resolve_truncated(
+    conversations: Sequence[Conversation],
+    outputs: list[ModelOutput],
+    generate: BatchGenerate,
+) -> list[ModelOutput]:
+    """Make one batched "answer only" follow-up for every output cut off while reasoning.
+
+    `outputs` must already be split (`with_reasoning_split`); `generate` is the backend's raw
+    batched call, and its outputs must be split too. Never more than one follow-up per answer.
+    """
+    pending = [i for i, output in enumerate(outputs) if needs_answer_followup(output)]
+    if not pending:
+        return outputs
+    followups = generate([answer_only_conversation(conversations[i], outputs[i]) for i in pending])
+    resolved = list(outputs)
+    for i, followup in zip(pending, followups, strict=True):
+        resolved[i] = merge_followup(outputs[i], followup)
+    return resolved
+
+
+def _answer_only_text(*, has_partial_answer: bool) -> str:
+    template = _template_environment().get_template(ANSWER_ONLY_TEMPLATE)
+    return template.render(has_partial_answer=has_partial_answer).strip()
+
+
+_ENVIRONMENT: jinja2.Environment | None = None
+
+
+def _template_environment() -> jinja2.Environment:
+    global _ENVIRONMENT
+    if _ENVIRONMENT is None:
+        import prompts
+
+        folder = Path(prompts.__file__).parent
+        _ENVIRONMENT = jinja2.Environment(
+            loader=jinja2.FileSystemLoader(folder),
+            undefined=jinja2.StrictUndefined,
+            keep_trailing_newline=False,
+            autoescape=False,
+        )
+    return _ENVIRONMENT
