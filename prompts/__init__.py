@@ -1,0 +1,157 @@
+"""Jinja2 prompt templates (the `*.j2` files beside this module) and their loader.
+
+Any template renders through `render_template(name, context)`. A user folder passed as
+`templates_dir` overrides templates by file name; the rest still come from this package.
+Rendering is strict: an undefined variable is an error, never an empty string. Every
+problem with a template (missing, bad syntax, undefined variable) raises `UserError`
+naming the file.
+
+Two ways to get chat messages:
+- `render_messages(context, system="system", user="step")`: one template per role;
+- `render_blocks(name, context)`: one template with `{% block system %}` and
+  `{% block user %}` blocks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import jinja2
+
+from env.errors import UserError
+from llm_agents.backends.base import ChatMessage, Role
+
+__all__ = [
+    "PACKAGE_TEMPLATES_DIR",
+    "load_template",
+    "render_blocks",
+    "render_messages",
+    "render_template",
+    "template_path",
+    "template_source",
+]
+
+#: The folder holding the built-in templates.
+PACKAGE_TEMPLATES_DIR = Path(__file__).resolve().parent
+
+_SUFFIX = ".j2"
+
+
+def _file_name(name: str) -> str:
+    return name if name.endswith(_SUFFIX) else name + _SUFFIX
+
+
+@cache
+def _environment(templates_dir: Path | None) -> jinja2.Environment:
+    search_path = [str(PACKAGE_TEMPLATES_DIR)]
+    if templates_dir is not None:
+        search_path.insert(0, str(templates_dir))
+    return jinja2.Environment(
+        loader=jinja2.FileSystemLoader(search_path),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=False,
+        autoescape=False,
+    )
+
+
+def _checked_dir(templates_dir: str | Path | None) -> Path | None:
+    if templates_dir is None:
+        return None
+    folder = Path(templates_dir).expanduser().resolve()
+    if not folder.is_dir():
+        raise UserError(f"templates folder {templates_dir} does not exist or is not a folder")
+    return folder
+
+
+def template_path(name: str, templates_dir: str | Path | None = None) -> Path:
+    """The file a template name resolves to: the user's override if present, else ours."""
+    folder = _checked_dir(templates_dir)
+    file_name = _file_name(name)
+    for candidate_dir in (folder, PACKAGE_TEMPLATES_DIR):
+        if candidate_dir is not None and (candidate_dir / file_name).is_file():
+            return candidate_dir / file_name
+    searched = ", ".join(str(d) for d in (folder, PACKAGE_TEMPLATES_DIR) if d is not None)
+    raise UserError(f"prompt template {file_name!r} not found (searched {searched})")
+
+
+def template_source(name: str, templates_dir: str | Path | None = None) -> str:
+    """The raw text of the template a name resolves to (for hashing into run records)."""
+    return template_path(name, templates_dir).read_text(encoding="utf-8")
+
+
+def load_template(name: str, templates_dir: str | Path | None = None) -> jinja2.Template:
+    """Compile a template by name (`step` or `step.j2`); templates_dir files win over ours."""
+    path = template_path(name, templates_dir)
+    environment = _environment(_checked_dir(templates_dir))
+    try:
+        return environment.get_template(path.name)
+    except jinja2.TemplateSyntaxError as err:
+        where = err.filename or str(path)
+        raise UserError(
+            f"prompt template {where} has a syntax error at line {err.lineno}: {err.message}"
+        ) from err
+
+
+def _render_error(template: jinja2.Template, err: jinja2.TemplateError) -> UserError:
+    if isinstance(err, jinja2.TemplateSyntaxError):
+        return UserError(
+            f"prompt template {err.filename or template.filename} has a syntax error at line "
+            f"{err.lineno}: {err.message}"
+        )
+    return UserError(f"prompt template {template.filename} failed to render: {err}")
+
+
+def render_template(
+    name: str,
+    context: Mapping[str, Any] | None = None,
+    templates_dir: str | Path | None = None,
+) -> str:
+    """Render any template with any variables into text, without surrounding whitespace."""
+    template = load_template(name, templates_dir)
+    try:
+        return template.render(dict(context or {})).strip()
+    except jinja2.TemplateError as err:
+        raise _render_error(template, err) from err
+
+
+def render_messages(
+    context: Mapping[str, Any],
+    *,
+    system: str | None = "system",
+    user: str = "step",
+    templates_dir: str | Path | None = None,
+) -> list[ChatMessage]:
+    """[system, user] messages from one template per role (no system message if None)."""
+    messages = []
+    if system is not None:
+        messages.append(
+            ChatMessage(role="system", content=render_template(system, context, templates_dir))
+        )
+    messages.append(ChatMessage(role="user", content=render_template(user, context, templates_dir)))
+    return messages
+
+
+def render_blocks(
+    name: str,
+    context: Mapping[str, Any],
+    templates_dir: str | Path | None = None,
+) -> list[ChatMessage]:
+    """Messages from a template's `system` and `user` blocks, in that order (absent: skipped)."""
+    template = load_template(name, templates_dir)
+    roles: tuple[Role, ...] = ("system", "user")
+    if not any(role in template.blocks for role in roles):
+        raise UserError(f"prompt template {template.filename} has no system or user block")
+    try:
+        jinja_context = template.new_context(dict(context))
+        return [
+            ChatMessage(role=role, content="".join(template.blocks[role](jinja_context)).strip())
+            for role in roles
+            if role in template.blocks
+        ]
+    except jinja2.TemplateError as err:
+        raise _render_error(template, err) from err
