@@ -272,7 +272,7 @@ def load_dataset(source: str | Path | None = None) -> Dataset:
     (official repository clone or unpacked wheel), a `.whl` file, or a `.json` file."""
     if source is None:
         return _load_default_wheel(cache_dir())
-    path = Path(source).expanduser()
+    path = Path(source).expanduser().resolve()
     if path.is_dir():
         return _parse_tree(_DirectoryFiles(path), kind="directory", label=path)
     if not path.exists():

@@ -258,6 +258,19 @@ def test_official_layout_equals_reference(
     assert official_dataset.source.version == FAKE_COMMIT
 
 
+def test_relative_imports_resolve(
+    official_clone: Path, official_dataset: Dataset, tmp_path: Path
+) -> None:
+    copy = shutil.copytree(official_clone, tmp_path / "copy")
+    small = copy / "craftext" / "dataset" / "scenarious" / "SMALL"
+    absolute = "from craftext.dataset.scenarious.jax_conditional_achievements import ("
+    source = (small / "test.py").read_text(encoding="utf-8")
+    assert absolute in source
+    relative = source.replace(absolute, "from ..jax_conditional_achievements import (")
+    (small / "test.py").write_text(relative, encoding="utf-8")
+    assert load_dataset(str(copy)).goals == official_dataset.goals
+
+
 def test_category_rule_on_reference(reference: dict[str, Any]) -> None:
     train = reference["splits"]["easy_train"]
     ours = [category_of("easy_train", goal["required"], goal["forbidden"]) for goal in train]
