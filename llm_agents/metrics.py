@@ -37,8 +37,10 @@ def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tu
     z2_n = z * z / trials
     centre = (p + z2_n / 2) / (1 + z2_n)
     half_width = z / (1 + z2_n) * math.sqrt(p * (1 - p) / trials + z2_n / (4 * trials))
-    # Rounding can push the bounds a hair past [0, 1] at k = 0 or k = n.
-    return max(0.0, centre - half_width), min(1.0, centre + half_width)
+    # At k = 0 (k = n) the bound is exactly 0 (1) in theory; rounding leaves a hair off it.
+    low = 0.0 if successes == 0 else max(0.0, centre - half_width)
+    high = 1.0 if successes == trials else min(1.0, centre + half_width)
+    return low, high
 
 
 class SuccessRate(BaseModel):

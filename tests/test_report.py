@@ -1,0 +1,230 @@
+"""The results table and chart, rebuilt from run directories: finished, partial, torn or empty."""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import struct
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+from scipy.stats import binomtest
+
+from env.errors import UserError
+from llm_agents.metrics import summarize
+from llm_agents.records import EpisodeRecord, RunResults, append_records, write_results
+from llm_agents.report import PUBLISHED, format_table, plot_success, report_run
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def episode(index: int, category: str, success: bool) -> EpisodeRecord:
+    return EpisodeRecord.model_validate(
+        {
+            "episode_id": f"ep{index}",
+            "goal_id": f"{category}-goal",
+            "instruction": "place a table",
+            "instruction_variant": 2 if category == "paraphrased" else 0,
+            "category": category,
+            "seed": index,
+            "episode_index": index,
+            "success": success,
+            "steps": 12,
+            "termination": "success" if success else "death",
+            "episode_return": 0.0,
+        }
+    )
+
+
+def episodes_with(counts: dict[str, tuple[int, int]]) -> list[EpisodeRecord]:
+    """Episodes with `k` successes out of `n` per category."""
+    index = itertools.count()
+    return [
+        episode(next(index), category, success=i < k)
+        for category, (k, n) in counts.items()
+        for i in range(n)
+    ]
+
+
+def expected_cell(k: int, n: int) -> str:
+    ci = binomtest(k, n).proportion_ci(method="wilson")
+    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n}"
+
+
+def table_rows(table: str) -> dict[str, dict[str, str]]:
+    """The table as {row label: {column header: cell}}."""
+    lines = table.splitlines()
+    header = [cell.strip() for cell in lines[0].split("|")]
+    rows: dict[str, dict[str, str]] = {}
+    for line in lines[2:]:
+        if "|" not in line:
+            break
+        cells = [cell.strip() for cell in line.split("|")]
+        rows[cells[0]] = dict(zip(header[1:], cells[1:], strict=False))
+    return rows
+
+
+def make_run(
+    run_dir: Path, episodes: list[EpisodeRecord], results: RunResults | None = None
+) -> Path:
+    run_dir.mkdir(parents=True, exist_ok=True)
+    append_records(run_dir / "episodes.jsonl", episodes)
+    if results is not None:
+        write_results(run_dir / "results.json", results)
+    return run_dir
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE
+    assert data[12:16] == b"IHDR"
+    width, height = struct.unpack(">II", data[16:24])
+    return width, height
+
+
+def test_table_puts_our_rates_beside_the_published_ones() -> None:
+    counts = {"one": (3, 10), "combo": (1, 8), "new_objects": (0, 6)}
+    table = format_table(summarize(episodes_with(counts)), "mock:random")
+    rows = table_rows(table)
+
+    assert list(next(iter(rows.values()))) == ["one", "combo", "New objects", "overall"]
+    ours = rows["mock:random (this run)"]
+    assert ours["one"] == expected_cell(3, 10)
+    assert ours["combo"] == expected_cell(1, 8)
+    assert ours["New objects"] == expected_cell(0, 6)
+    assert ours["overall"] == expected_cell(4, 24)
+    assert rows["Qwen QwQ-32B (published)"] == {
+        "one": "0.21",
+        "combo": "0.10",
+        "New objects": "0.07",
+        "overall": "-",
+    }
+    assert rows["Mistral-Small-24B (published)"]["New objects"] == "0.09"
+    assert rows["DeepSeek-R1-Distill-Qwen-32B (published)"]["one"] == "0.15"
+    assert len(rows) == 1 + len(PUBLISHED)
+
+
+def test_table_adds_paraphrased_and_marks_missing_categories() -> None:
+    counts = {"one": (2, 5), "paraphrased": (1, 4)}
+    rows = table_rows(format_table(summarize(episodes_with(counts)), "m", partial=True))
+
+    ours = rows["m (this run, partial)"]
+    assert ours["paraphrased"] == expected_cell(1, 4)
+    assert ours["combo"] == "-"
+    assert ours["New objects"] == "-"
+    for result in PUBLISHED:
+        assert rows[f"{result.model} (published)"]["paraphrased"] == "-"
+
+
+def test_table_has_no_overall_column_for_a_single_category() -> None:
+    rows = table_rows(format_table(summarize(episodes_with({"combo": (1, 3)})), "m"))
+    assert "overall" not in rows["m (this run)"]
+    assert "paraphrased" not in rows["m (this run)"]
+
+
+def test_chart_is_a_png(tmp_path: Path) -> None:
+    path = tmp_path / "chart.png"
+    summary = summarize(episodes_with({"one": (3, 10), "paraphrased": (0, 4)}))
+    plot_success(summary, "mock:random", path)
+    width, height = png_size(path)
+    assert width > 400 and height > 300
+
+
+def test_chart_to_an_unwritable_place_is_a_user_error(tmp_path: Path) -> None:
+    summary = summarize(episodes_with({"one": (1, 2)}))
+    with pytest.raises(UserError, match="cannot write chart"):
+        plot_success(summary, "m", tmp_path / "no" / "such" / "dir" / "chart.png")
+
+
+def test_report_of_a_finished_run_names_the_model_and_draws_the_chart(tmp_path: Path) -> None:
+    episodes = episodes_with({"one": (4, 9), "combo": (2, 7), "new_objects": (1, 5)})
+    results = RunResults(
+        config={"model": "hf:Qwen/QwQ-32B", "variant": "full"},
+        summary=summarize(episodes),
+        started_at=datetime(2025, 1, 1, tzinfo=UTC),
+        finished_at=datetime(2025, 1, 2, tzinfo=UTC),
+        complete=True,
+    )
+    run_dir = make_run(tmp_path / "run", episodes, results)
+
+    rows = table_rows(report_run(run_dir))
+    ours = rows["hf:Qwen/QwQ-32B (this run)"]
+    assert ours["one"] == expected_cell(4, 9)
+    assert ours["overall"] == expected_cell(7, 21)
+    png_size(run_dir / "success.png")
+
+
+def test_report_of_a_partial_run_without_results(tmp_path: Path) -> None:
+    run_dir = make_run(tmp_path / "run", episodes_with({"one": (1, 3)}))
+    rows = table_rows(report_run(str(run_dir)))
+    assert rows["this model (this run, partial)"]["one"] == expected_cell(1, 3)
+    assert (run_dir / "success.png").is_file()
+
+
+def test_report_skips_a_torn_last_line_with_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    run_dir = make_run(tmp_path / "run", episodes_with({"one": (2, 4)}))
+    torn = episode(99, "one", success=True).model_dump_json()[:40]
+    with (run_dir / "episodes.jsonl").open("a") as handle:
+        handle.write(torn)
+
+    with caplog.at_level(logging.WARNING):
+        table = report_run(run_dir)
+
+    assert table_rows(table)["this model (this run, partial)"]["one"] == expected_cell(2, 4)
+    assert any("last line 5" in message for message in caplog.messages)
+
+
+def test_report_rejects_a_corrupt_line_before_the_end(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    make_run(run_dir, episodes_with({"one": (1, 1)}))
+    with (run_dir / "episodes.jsonl").open("a") as handle:
+        handle.write("not json\n")
+    make_run(run_dir, [episode(7, "one", success=False)])
+
+    with pytest.raises(UserError, match=r"episodes\.jsonl, line 2"):
+        report_run(run_dir)
+
+
+def test_a_redone_episode_counts_once_with_its_last_outcome(tmp_path: Path) -> None:
+    run_dir = make_run(tmp_path / "run", [episode(0, "one", False), episode(1, "one", False)])
+    make_run(run_dir, [episode(1, "one", True)])
+    rows = table_rows(report_run(run_dir))
+    assert rows["this model (this run, partial)"]["one"] == expected_cell(1, 2)
+
+
+@pytest.mark.parametrize("contents", [None, "", "\n\n", '{"episode_id": "ep0", "goal'])
+def test_report_without_finished_episodes_is_a_user_error(
+    tmp_path: Path, contents: str | None
+) -> None:
+    if contents is not None:
+        (tmp_path / "episodes.jsonl").write_text(contents)
+    with pytest.raises(UserError, match="episodes"):
+        report_run(tmp_path)
+    assert not (tmp_path / "success.png").exists()
+
+
+def test_report_of_a_missing_directory_is_a_user_error(tmp_path: Path) -> None:
+    with pytest.raises(UserError, match="does not exist"):
+        report_run(tmp_path / "nowhere")
+
+
+def test_report_rejects_a_broken_results_file(tmp_path: Path) -> None:
+    run_dir = make_run(tmp_path / "run", episodes_with({"one": (1, 2)}))
+    (run_dir / "results.json").write_text('{"config": ')
+    with pytest.raises(UserError, match=r"results\.json"):
+        report_run(run_dir)
+
+
+def test_episode_records_round_trip_and_stay_consistent() -> None:
+    record = episode(3, "combo", success=True).model_copy(update={"invalid_actions": 3})
+    line = record.model_dump_json()
+    assert '"invalid_action_rate":0.25' in line
+    assert EpisodeRecord.model_validate_json(line) == record
+    with pytest.raises(ValidationError, match="contradicts"):
+        EpisodeRecord.model_validate({**record.model_dump(), "termination": "death"})
+    with pytest.raises(ValidationError, match="exceeds"):
+        EpisodeRecord.model_validate({**record.model_dump(), "invalid_actions": 13})
