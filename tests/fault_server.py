@@ -1,0 +1,179 @@
+"""A fault-injecting OpenAI-compatible chat server on loopback, for the HTTP backend's tests.
+
+Faults are planned per conversation (keyed by the last message's text), so a plan holds even
+when requests arrive concurrently and in any order. Each request pops the next fault of its key;
+when a key's plan is empty the server answers normally. The server only ever binds 127.0.0.1 and
+refuses to serve more than `max_requests` requests, so a retry loop gone wrong stays bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any, Literal
+
+FaultKind = Literal["drop", "status", "slow", "malformed"]
+
+
+@dataclass(frozen=True)
+class Fault:
+    """What the server does to one request instead of answering it normally."""
+
+    kind: FaultKind
+    status: int = 500
+    """HTTP status for `status` faults."""
+    retry_after: str | None = None
+    """`Retry-After` header value for `status` faults."""
+    delay_s: float = 0.0
+    """Seconds a `slow` fault waits before answering normally."""
+    body: str = ""
+    """Extra text in a `status` fault's body."""
+
+
+@dataclass(frozen=True)
+class Request:
+    """One request as the server saw it."""
+
+    key: str
+    body: dict[str, Any]
+    headers: dict[str, str]
+    received_at: float
+
+
+Answerer = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+def echo_answer(body: dict[str, Any]) -> dict[str, Any]:
+    """Echoes the last message; under a structured choice, picks the last choice."""
+    choice = (body.get("structured_outputs") or {}).get("choice")
+    content = choice[-1] if choice else f"echo: {body['messages'][-1]['content']}"
+    return {"role": "assistant", "content": content}
+
+
+@dataclass
+class FaultServer:
+    """The server's state; `url` is the base URL to give the backend (ends in /v1)."""
+
+    plan: dict[str, list[Fault]] = field(default_factory=dict)
+    answer: Answerer = echo_answer
+    reject_structured_outputs: bool = False
+    """Answer 400 to any request asking for structured outputs, like a server that lacks them."""
+    echo_authorization: bool = False
+    """Put the request's Authorization header in every error body, like a careless proxy."""
+    max_requests: int = 200
+    requests: list[Request] = field(default_factory=list)
+    in_flight: int = 0
+    max_in_flight: int = 0
+    url: str = ""
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _httpd: ThreadingHTTPServer | None = None
+
+    def count(self, key: str) -> int:
+        """Requests received for one conversation key."""
+        return sum(1 for r in self.requests if r.key == key)
+
+    def times(self, key: str) -> list[float]:
+        """Arrival times (monotonic) of the requests for one conversation key."""
+        return [r.received_at for r in self.requests if r.key == key]
+
+    def start(self) -> FaultServer:
+        state = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def log_message(self, format: str, *args: Any) -> None:
+                return None
+
+            def do_POST(self) -> None:
+                length = int(self.headers.get("Content-Length") or 0)
+                body = json.loads(self.rfile.read(length) or b"{}")
+                key = str(body.get("messages", [{}])[-1].get("content", ""))
+                with state._lock:
+                    if len(state.requests) >= state.max_requests:
+                        self._send(503, {"error": "fault server request budget spent"})
+                        return
+                    state.requests.append(
+                        Request(key, body, dict(self.headers.items()), time.monotonic())
+                    )
+                    pending = state.plan.get(key)
+                    fault = pending.pop(0) if pending else None
+                    state.in_flight += 1
+                    state.max_in_flight = max(state.max_in_flight, state.in_flight)
+                try:
+                    self._serve(body, fault)
+                except (BrokenPipeError, ConnectionResetError):
+                    pass  # the client gave up first, as a timed-out client does
+                finally:
+                    with state._lock:
+                        state.in_flight -= 1
+
+            def _serve(self, body: dict[str, Any], fault: Fault | None) -> None:
+                if fault is not None and fault.kind == "drop":
+                    self.close_connection = True
+                    self.connection.shutdown(socket.SHUT_RDWR)
+                    return
+                if fault is not None and fault.kind == "status":
+                    headers = {"Retry-After": fault.retry_after} if fault.retry_after else {}
+                    self._send(
+                        fault.status, self._error(f"injected {fault.status} {fault.body}"), headers
+                    )
+                    return
+                if fault is not None and fault.kind == "slow":
+                    time.sleep(fault.delay_s)
+                if fault is not None and fault.kind == "malformed":
+                    self._send_raw(200, b'{"choices": [{"message": ')
+                    return
+                if state.reject_structured_outputs and "structured_outputs" in body:
+                    self._send(400, self._error("unknown field structured_outputs"))
+                    return
+                message = state.answer(body)
+                self._send(
+                    200,
+                    {
+                        "object": "chat.completion",
+                        "model": body.get("model"),
+                        "choices": [{"index": 0, "message": message, "finish_reason": "stop"}],
+                        "usage": {"prompt_tokens": 7, "completion_tokens": 3, "total_tokens": 10},
+                    },
+                )
+
+            def _error(self, message: str) -> dict[str, Any]:
+                if state.echo_authorization:
+                    message += f" (you sent Authorization: {self.headers.get('Authorization')})"
+                return {"error": {"message": message}}
+
+            def _send(
+                self, status: int, payload: Any, headers: dict[str, str] | None = None
+            ) -> None:
+                self._send_raw(status, json.dumps(payload).encode(), headers)
+
+            def _send_raw(
+                self, status: int, data: bytes, headers: dict[str, str] | None = None
+            ) -> None:
+                self.send_response(status)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(data)))
+                for name, value in (headers or {}).items():
+                    self.send_header(name, value)
+                self.end_headers()
+                self.wfile.write(data)
+
+        httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        httpd.daemon_threads = True
+        self._httpd = httpd
+        # A short poll keeps shutdown (once per test) quick.
+        threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True).start()
+        self.url = f"http://127.0.0.1:{httpd.server_address[1]}/v1"
+        return self
+
+    def stop(self) -> None:
+        if self._httpd is not None:
+            self._httpd.shutdown()
+            self._httpd.server_close()
+            self._httpd = None

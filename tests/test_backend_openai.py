@@ -1,0 +1,245 @@
+"""The openai backend against a local fault-injecting server: retries, timeouts, choice mode, secrets."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
+from email.utils import format_datetime
+from typing import Any
+
+import pytest
+from fault_server import Fault, FaultServer
+
+from env.errors import UserError
+from llm_agents.backends import get_model
+from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.openai import OpenAIModel
+from llm_agents.backends.retry import RetryPolicy, backoff_wait, parse_retry_after
+
+#: Retries fast enough for tests; the timeout is short so "slow" faults stay cheap.
+FAST = {"backoff_initial_s": 0.01, "backoff_max_s": 0.05, "jitter_s": 0.0}
+SECRET = "sk-test-0123456789-very-secret"
+
+
+@pytest.fixture
+def server() -> Iterator[FaultServer]:
+    fault_server = FaultServer().start()
+    yield fault_server
+    fault_server.stop()
+
+
+@pytest.fixture(autouse=True)
+def no_ambient_openai_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    monkeypatch.delenv("OPENAI_BASE_URL", raising=False)
+
+
+def conv(text: str) -> list[ChatMessage]:
+    return [ChatMessage(role="system", content="be brief"), ChatMessage(role="user", content=text)]
+
+
+def model(
+    server: FaultServer, *, api_key_env: str = "OPENAI_API_KEY", **config: Any
+) -> OpenAIModel:
+    """A backend on the fault server; keyword arguments are `GenerateConfig` fields."""
+    settings = GenerateConfig(**{"timeout_s": 2.0, "max_retries": 3, **config})
+    return OpenAIModel("test-model", settings, base_url=server.url, api_key_env=api_key_env, **FAST)
+
+
+def test_answers_every_conversation_in_order_with_bounded_concurrency(server: FaultServer) -> None:
+    # Earlier conversations answer later, so gather order and completion order differ.
+    keys = [f"q{i}" for i in range(8)]
+    server.plan = {key: [Fault("slow", delay_s=0.05 * (8 - i))] for i, key in enumerate(keys)}
+    outputs = model(server, max_concurrency=3).generate([conv(k) for k in keys])
+    assert [o.text for o in outputs] == [f"echo: {k}" for k in keys]
+    assert all(o.finish_reason == "stop" and o.error is None for o in outputs)
+    assert outputs[0].prompt_tokens == 7 and outputs[0].completion_tokens == 3
+    assert 2 <= server.max_in_flight <= 3
+    sent = server.requests[0].body
+    assert (
+        sent["model"] == "test-model" and sent["temperature"] == 0.0 and sent["max_tokens"] == 256
+    )
+    assert "Authorization" not in server.requests[0].headers
+
+
+@pytest.mark.parametrize(
+    "fault",
+    [
+        Fault("drop"),
+        Fault("status", status=500),
+        Fault("status", status=503),
+        Fault("status", status=429),
+        Fault("malformed"),
+        Fault("slow", delay_s=1.5),
+    ],
+    ids=["dropped-connection", "500", "503", "429", "malformed-json", "timeout"],
+)
+def test_transient_failures_are_retried_until_an_answer(server: FaultServer, fault: Fault) -> None:
+    server.plan = {"flaky": [fault, fault]}
+    outputs = model(server, timeout_s=0.5).generate([conv("flaky"), conv("fine")])
+    assert [o.text for o in outputs] == ["echo: flaky", "echo: fine"]
+    assert server.count("flaky") == 3
+    assert server.count("fine") == 1
+
+
+def test_retry_after_is_honoured(server: FaultServer) -> None:
+    server.plan = {
+        "limited": [Fault("status", status=429, retry_after="1")],
+        "plain": [Fault("status", status=429)],
+    }
+    outputs = model(server).generate([conv("limited"), conv("plain")])
+    assert all(o.finish_reason == "stop" for o in outputs)
+    limited, plain = server.times("limited"), server.times("plain")
+    assert limited[1] - limited[0] >= 0.95
+    # Without the header the backoff of the test config applies: far shorter.
+    assert plain[1] - plain[0] < 0.5
+
+
+@pytest.mark.parametrize("status", [400, 401, 404, 422])
+def test_client_errors_are_not_retried(server: FaultServer, status: int) -> None:
+    server.plan = {"bad": [Fault("status", status=status, body="nope")]}
+    [output] = model(server).generate([conv("bad")])
+    assert server.count("bad") == 1
+    assert output.finish_reason == "error" and output.text == ""
+    assert output.error is not None and f"HTTP {status}" in output.error and "nope" in output.error
+
+
+def test_exhausted_retries_give_a_clear_error_without_losing_the_batch(
+    server: FaultServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    server.plan = {"down": [Fault("status", status=503)] * 10}
+    with caplog.at_level(logging.WARNING, logger="llm_agents.backends.retry"):
+        outputs = model(server, max_retries=2).generate([conv("ok-1"), conv("down"), conv("ok-2")])
+    assert [o.finish_reason for o in outputs] == ["stop", "error", "stop"]
+    error = outputs[1].error or ""
+    assert "3 attempts" in error and "HTTP 503" in error and "/chat/completions" in error
+    assert server.count("down") == 3
+    assert len([r for r in caplog.records if "retrying" in r.getMessage()]) == 2
+
+
+def test_exhausted_timeouts_name_the_timeout(server: FaultServer) -> None:
+    server.plan = {"stuck": [Fault("slow", delay_s=1.0)] * 3}
+    start = time.monotonic()
+    [output] = model(server, timeout_s=0.3, max_retries=1).generate([conv("stuck")])
+    assert output.finish_reason == "error"
+    assert "2 attempts" in (output.error or "") and "0.3 s" in (output.error or "")
+    assert time.monotonic() - start < 1.5
+
+
+def test_api_key_is_sent_but_never_leaks(
+    server: FaultServer, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    monkeypatch.setenv("MY_PROVIDER_KEY", SECRET)
+    server.echo_authorization = True
+    server.plan = {
+        "retried": [Fault("status", status=500)] * 5,
+        "refused": [Fault("status", status=401)],
+    }
+    backend = model(server, api_key_env="MY_PROVIDER_KEY", max_retries=1)
+    with caplog.at_level(logging.DEBUG):
+        outputs = backend.generate([conv("retried"), conv("refused"), conv("fine")])
+    assert server.requests[0].headers["Authorization"] == f"Bearer {SECRET}"
+    assert outputs[2].text == "echo: fine"
+    errors = " ".join(o.error or "" for o in outputs)
+    assert "Authorization: Bearer ***" in errors  # the echoed header arrived, scrubbed
+    visible = [errors, caplog.text, repr(backend), str(backend.info()), str(backend.__dict__)]
+    visible += [o.model_dump_json() for o in outputs]
+    assert not any(SECRET in text for text in visible)
+
+
+def test_choice_mode_uses_structured_outputs(server: FaultServer) -> None:
+    choices = ["NOOP", "MOVE_LEFT", "DO"]
+    outputs = model(server).generate([conv("a"), conv("b")], choices=choices)
+    assert [o.text for o in outputs] == ["DO", "DO"]
+    assert all(o.finish_reason == "choice" for o in outputs)
+    assert server.requests[0].body["structured_outputs"] == {"choice": choices}
+
+
+def test_choice_mode_falls_back_to_free_text_when_the_server_rejects_it(
+    server: FaultServer,
+) -> None:
+    server.reject_structured_outputs = True
+    server.answer = lambda body: {"role": "assistant", "content": " MOVE_LEFT\n"}
+    backend = model(server)
+    [first] = backend.generate([conv("a")], choices=["NOOP", "MOVE_LEFT"])
+    assert first.text == "MOVE_LEFT" and first.finish_reason == "choice"
+    assert server.count("a") == 2  # the rejected constrained request, then free text
+    server.answer = lambda body: {"role": "assistant", "content": "I would go left"}
+    [second] = backend.generate([conv("b")], choices=["NOOP", "MOVE_LEFT"])
+    assert server.count("b") == 1  # no constrained request any more
+    assert "structured_outputs" not in server.requests[-1].body
+    assert second.text == "I would go left" and second.finish_reason == "stop"
+
+
+def test_reasoning_content_is_kept_apart_from_the_answer(server: FaultServer) -> None:
+    server.answer = lambda body: {
+        "role": "assistant",
+        "content": "NOOP",
+        "reasoning_content": "nothing to do here",
+    }
+    [output] = model(server).generate([conv("think")])
+    assert output.text == "NOOP" and output.reasoning == "nothing to do here"
+
+
+def test_generate_works_inside_a_running_event_loop(server: FaultServer) -> None:
+    backend = model(server)
+
+    async def caller() -> list[str]:
+        return [o.text for o in backend.generate([conv("x")])]
+
+    assert asyncio.run(caller()) == ["echo: x"]
+
+
+def test_spec_and_environment_pick_the_server(
+    server: FaultServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    by_spec = get_model(f"openai:some/model@{server.url}")
+    assert isinstance(by_spec, OpenAIModel) and by_spec.model_name == "some/model"
+    assert by_spec.generate([conv("spec")])[0].text == "echo: spec"
+    monkeypatch.setenv("OPENAI_BASE_URL", server.url + "/")
+    by_env = get_model("openai:other")
+    assert by_env.generate([conv("env")])[0].text == "echo: env"
+    assert server.requests[-1].body["model"] == "other"
+
+
+def test_configuration_mistakes_are_user_errors(monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(UserError, match="OPENAI_BASE_URL"):
+        get_model("openai:m")
+    with pytest.raises(UserError, match="ftp://x"):
+        get_model("openai:m@ftp://x")
+    with pytest.raises(UserError, match="NOT_SET_KEY"):
+        get_model("openai:m@http://127.0.0.1:9/v1", api_key_env="NOT_SET_KEY")
+    with pytest.raises(UserError, match="backof_initial_s"):
+        get_model("openai:m@http://127.0.0.1:9/v1", backof_initial_s=1)
+
+
+def test_parse_retry_after_reads_seconds_and_dates() -> None:
+    now = datetime(2030, 1, 1, tzinfo=UTC)
+    date = format_datetime(now + timedelta(seconds=30), usegmt=True)
+    assert parse_retry_after("7") == 7.0
+    assert parse_retry_after("0.5") == 0.5
+    assert parse_retry_after(date, now=now.timestamp()) == pytest.approx(30.0)
+    assert (
+        parse_retry_after(
+            format_datetime(now - timedelta(seconds=5), usegmt=True), now=now.timestamp()
+        )
+        == 0.0
+    )
+    for unreadable in [None, "", "soon", "nan"]:
+        assert parse_retry_after(unreadable) is None
+
+
+def test_backoff_grows_exponentially_with_bounded_jitter_and_caps() -> None:
+    policy = RetryPolicy(
+        backoff_initial_s=1.0, backoff_max_s=10.0, jitter_s=0.5, retry_after_max_s=60
+    )
+    for attempt, base in [(1, 1.0), (2, 2.0), (3, 4.0), (5, 10.0), (9, 10.0)]:
+        waits = [backoff_wait(policy, attempt) for _ in range(50)]
+        assert all(base <= w <= base + 0.5 for w in waits)
+        assert len(set(waits)) > 1  # jittered
+    assert backoff_wait(policy, 1, retry_after_s=20.0) == 20.0
+    assert backoff_wait(policy, 1, retry_after_s=3600.0) == 60.0
+    assert 1.0 <= backoff_wait(policy, 1, retry_after_s=0.1) <= 1.5
