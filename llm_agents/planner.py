@@ -25,7 +25,6 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
-import jinja2
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from tqdm import tqdm
 
@@ -34,6 +33,7 @@ from env.errors import UserError
 from env.variant import Variant
 from llm_agents.actions import action_catalogue, action_names
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
+from prompts import render_blocks, template_source
 
 __all__ = [
     "PlanCheck",
@@ -45,12 +45,14 @@ __all__ = [
     "check_plan",
     "craftax_vocabulary",
     "goal_instructions",
+    "is_known",
     "load_plans",
     "missing_plans",
     "parse_plan",
     "plan_instructions",
     "run_planner",
     "unknown_words",
+    "word_tokens",
 ]
 
 PLANNER_TEMPLATE = "planner.j2"
@@ -225,6 +227,8 @@ class PlannerConfig(BaseModel):
     """Send one repair request for every plan that breaks the rules."""
     drop_failed: bool = False
     """Leave plans that still break the rules after repair out of the plans file."""
+    templates_dir: Path | None = None
+    """A folder whose `planner.j2` / `plan_repair.j2` replace ours (their hashes are recorded)."""
     batch_size: int = Field(32, ge=1)
     """Conversations per backend call."""
     restart: bool = False
@@ -332,11 +336,19 @@ def _known(word: str, vocabulary: frozenset[str]) -> bool:
     return any(stem in vocabulary or stem in COMMON_WORDS for stem in stems)
 
 
+def word_tokens(text: str) -> list[str]:
+    """The lower-case words of a text that the vocabulary check looks at (no numbers)."""
+    return _WORD.findall(text.lower())
+
+
+def is_known(word: str, variant: Variant = Variant.FULL) -> bool:
+    """Whether a lower-case word is a Craftax name of the variant, a common word, or a form of one."""
+    return _known(word, craftax_vocabulary(variant))
+
+
 def unknown_words(text: str, variant: Variant = Variant.FULL) -> list[str]:
-    """Words of `text` that are neither Craftax names of the variant nor common words."""
-    vocabulary = craftax_vocabulary(variant)
-    found = [w for w in _WORD.findall(text.lower()) if not _known(w, vocabulary)]
-    return list(dict.fromkeys(found))
+    """Words of `text` that are neither Craftax names of the variant nor common words, each once."""
+    return list(dict.fromkeys(w for w in word_tokens(text) if not is_known(w, variant)))
 
 
 # ---------------------------------------------------------------- parsing and checking
@@ -412,47 +424,18 @@ def goal_instructions(goals: Iterable[Goal]) -> list[str]:
     return list(dict.fromkeys(text for goal in goals for text in goal.texts))
 
 
-@cache
-def _template_environment() -> jinja2.Environment:
-    spec = importlib.util.find_spec("prompts")
-    if spec is None or not spec.submodule_search_locations:
-        raise UserError("the prompts package is missing; reinstall craftext-llm")
-    folder = next(iter(spec.submodule_search_locations))
-    return jinja2.Environment(
-        loader=jinja2.FileSystemLoader(folder),
-        undefined=jinja2.StrictUndefined,
-        trim_blocks=True,
-        lstrip_blocks=True,
-        autoescape=False,
-    )
-
-
-def _render(template_name: str, **variables: Any) -> list[ChatMessage]:
-    """Render a template's `system` and `user` blocks into chat messages."""
-    template = _template_environment().get_template(template_name)
-    context = template.new_context(variables)
-    messages = []
-    for role in ("system", "user"):
-        if role in template.blocks:
-            content = "".join(template.blocks[role](context)).strip()
-            messages.append(ChatMessage(role=role, content=content))
-    return messages
-
-
-def _template_hashes() -> dict[str, str]:
-    environment = _template_environment()
-    assert environment.loader is not None
-    hashes = {}
-    for name in (PLANNER_TEMPLATE, REPAIR_TEMPLATE):
-        source, _, _ = environment.loader.get_source(environment, name)
-        hashes[name] = hashlib.sha256(source.encode("utf-8")).hexdigest()
-    return hashes
+def _template_hashes(templates_dir: Path | None) -> dict[str, str]:
+    return {
+        name: hashlib.sha256(template_source(name, templates_dir).encode("utf-8")).hexdigest()
+        for name in (PLANNER_TEMPLATE, REPAIR_TEMPLATE)
+    }
 
 
 class _Prompter:
     """Renders plan and repair requests with the limits and the variant's names."""
 
-    def __init__(self, limits: PlanLimits, variant: Variant):
+    def __init__(self, limits: PlanLimits, variant: Variant, templates_dir: Path | None):
+        self.templates_dir = templates_dir
         self.common = {
             "things": [name.lower().replace("_", " ") for name in _things(variant)],
             "actions": [
@@ -464,16 +447,17 @@ class _Prompter:
         }
 
     def plan(self, instruction: str) -> list[ChatMessage]:
-        return _render(PLANNER_TEMPLATE, instruction=instruction, **self.common)
+        context = {"instruction": instruction, **self.common}
+        return render_blocks(PLANNER_TEMPLATE, context, self.templates_dir)
 
     def repair(self, instruction: str, answer: str, check: PlanCheck) -> list[ChatMessage]:
-        return _render(
-            REPAIR_TEMPLATE,
-            instruction=instruction,
-            plan=answer,
-            problems=[issue.detail for issue in check.issues],
+        context = {
+            "instruction": instruction,
+            "plan": answer,
+            "problems": [issue.detail for issue in check.issues],
             **self.common,
-        )
+        }
+        return render_blocks(REPAIR_TEMPLATE, context, self.templates_dir)
 
 
 # ---------------------------------------------------------------- files
@@ -612,7 +596,7 @@ def _settings(model: ModelAPI, config: PlannerConfig) -> PlanSettings:
         backend=model.backend_name,
         model=model.model_name,
         generation=model.config.model_dump(mode="json", exclude=transport),
-        templates=_template_hashes(),
+        templates=_template_hashes(config.templates_dir),
         limits=config.limits,
         variant=config.variant,
         repair=config.repair,
@@ -694,7 +678,7 @@ def plan_instructions(
     journal_path, sidecar_path = _paths(config.output)
     journal = _Journal(journal_path, settings, config.restart)
     todo = [text for text in wanted if text not in journal.records]
-    prompter = _Prompter(config.limits, config.variant)
+    prompter = _Prompter(config.limits, config.variant, config.templates_dir)
     usage = _Usage()
     try:
         with tqdm(

@@ -361,3 +361,29 @@ def test_official_plan_file_loads_and_mostly_keeps_the_limits() -> None:
     # which the vocabulary check is meant to catch.
     assert within_limits / len(plans) > 0.9
     assert 0.2 < fully_valid / len(plans) < within_limits / len(plans)
+
+
+def test_compare_plans_measures_coverage_length_and_vocabulary() -> None:
+    from benchmarks.compare_plans import plan_stats
+
+    plans = {"a": "1. Collect wood.\n2. Smelt ore.", "unused": GOOD}
+    stats = plan_stats(plans, ["a", "b"], PlanLimits(), Variant.FULL)
+    assert (stats.instructions, stats.covered, stats.coverage) == (2, 1, 0.5)
+    assert (stats.steps_per_plan, stats.words_per_step) == (2.0, 2.0)
+    assert stats.oov_rate == pytest.approx(2 / 4)  # smelt, ore
+    assert (stats.plans_with_oov, stats.within_limits, stats.valid) == (1.0, 1.0, 0.0)
+
+
+def test_user_templates_replace_ours_and_are_hashed(tmp_path: Path) -> None:
+    folder = tmp_path / "templates"
+    folder.mkdir()
+    custom = "{% block user %}Plan this: {{ instruction }} in {{ max_steps }} steps{% endblock %}"
+    (folder / "planner.j2").write_text(custom)
+    model = MockModel(outputs=[GOOD])
+    summary = plan_instructions(["Collect wood."], model, config(tmp_path, templates_dir=folder))
+    (conversation, _), *_ = model.requests
+    assert [(m.role, m.content) for m in conversation] == [
+        ("user", "Plan this: Collect wood. in 5 steps")
+    ]
+    templates = json.loads(summary.sidecar.read_text())["settings"]["templates"]
+    assert templates["planner.j2"] == hashlib.sha256(custom.encode()).hexdigest()
