@@ -1,10 +1,13 @@
 """The template loader: overrides, strict rendering, clear errors; snapshots of the agent's prompts."""
 
+import os
 from pathlib import Path
 
 import pytest
 
 from env.errors import UserError
+from env.variant import Variant
+from llm_agents.agent import HistoryEntry, ZeroShotAgent
 from prompts import (
     PACKAGE_TEMPLATES_DIR,
     load_template,
@@ -83,3 +86,55 @@ def test_block_templates_give_system_and_user_messages(tmp_path: Path) -> None:
         render_blocks("flat", {}, tmp_path)
     with pytest.raises(UserError, match="goal"):
         render_blocks("two", {}, tmp_path)
+
+
+# ---------------------------------------------------------------- snapshots of the agent's prompts
+
+SNAPSHOTS = Path(__file__).resolve().parent / "snapshots"
+UPDATE_ENV = "UPDATE_SNAPSHOTS"
+SNAPSHOT_OBSERVATION = "You face grass.\nA tree is 2 north, 1 west.\nInventory: wood 1."
+
+
+def agent_prompt(variant: Variant, *, choice_mode: bool, with_plan: bool) -> str:
+    agent = ZeroShotAgent(variant, renderer=str, choice_mode=choice_mode)
+    history = [
+        HistoryEntry(step=3, action="LEFT", outcome="moved west"),
+        HistoryEntry(step=4, action="DO", outcome="gained 1 wood"),
+    ]
+    context = agent.step_context(
+        SNAPSHOT_OBSERVATION,
+        "Collect wood and then place a table.",
+        plan="1. collect wood\n2. place table" if with_plan else None,
+        history=history if with_plan else (),
+    )
+    user = render_template("step", context)
+    return f"=== system ===\n{agent.system_message.content}\n=== user ===\n{user}\n"
+
+
+SNAPSHOT_CASES = {
+    f"{variant.value}_{mode}": (variant, mode == "choice", mode == "plan")
+    for variant in Variant
+    for mode in ("first_step", "plan", "choice")
+}
+
+
+@pytest.mark.parametrize("case", sorted(SNAPSHOT_CASES))
+def test_rendered_prompts_match_snapshots(case: str) -> None:
+    variant, choice_mode, with_plan = SNAPSHOT_CASES[case]
+    rendered = agent_prompt(variant, choice_mode=choice_mode, with_plan=with_plan)
+    path = SNAPSHOTS / f"prompt_{case}.txt"
+    if os.environ.get(UPDATE_ENV):
+        path.write_text(rendered, encoding="utf-8")
+    assert path.is_file(), f"no snapshot {path}; create it with {UPDATE_ENV}=1 pytest {__file__}"
+    assert rendered == path.read_text(encoding="utf-8"), (
+        f"prompt {case} changed; if intended, regenerate with {UPDATE_ENV}=1"
+    )
+
+
+def test_snapshots_differ_where_the_prompts_must() -> None:
+    full = agent_prompt(Variant.FULL, choice_mode=False, with_plan=True)
+    classic = agent_prompt(Variant.CLASSIC, choice_mode=False, with_plan=True)
+    assert "DESCEND" in full and "DESCEND" not in classic
+    assert "step 4: DO: gained 1 wood" in full and "1. collect wood" in full
+    assert "ACTION: <NAME>" in full
+    assert "ACTION:" not in agent_prompt(Variant.FULL, choice_mode=True, with_plan=False)

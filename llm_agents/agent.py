@@ -1,0 +1,269 @@
+"""The zero-shot LLM agent: one object plays a batch of episodes (slots) in lockstep.
+
+Each step it renders every slot's observation, builds [system, user] messages from the
+templates, makes one batched `model.generate` call, parses each answer and falls back to a
+fixed action on an unparseable one. It remembers, per slot, the last actions and what they
+visibly did (moved or blocked, items gained or spent, achievements, health lost), read off
+consecutive observations.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+from collections.abc import Callable, Collection, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+from pydantic import BaseModel, ConfigDict
+
+from env.errors import UserError
+from env.variant import Variant
+from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names, as_variant
+from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
+from llm_agents.parser import ParseResult, parse_action
+from prompts import render_template
+
+SYSTEM_TEMPLATE = "system"
+STEP_TEMPLATE = "step"
+
+
+class ObservationLike(Protocol):
+    """The fields of the textualizer's `Observation` that outcomes are computed from."""
+
+    @property
+    def position(self) -> Sequence[int]: ...
+    @property
+    def inventory(self) -> Mapping[str, int]: ...
+    @property
+    def achievements(self) -> Collection[str]: ...
+    @property
+    def health(self) -> float: ...
+
+
+Renderer = Callable[[Any], str]
+
+
+class HistoryEntry(BaseModel):
+    """One past action of an episode and what it visibly did."""
+
+    model_config = ConfigDict(frozen=True)
+
+    step: int
+    """The episode step (0-based) the action was taken at."""
+    action: str
+    """The action's name."""
+    outcome: str
+    """What changed between the observation before it and the one after it."""
+
+
+class Decision(BaseModel):
+    """The agent's choice for one slot at one step, with everything needed to audit it."""
+
+    model_config = ConfigDict(frozen=True)
+
+    slot: int
+    """The slot (episode index in the batch)."""
+    action: int
+    """The action id sent to the environment."""
+    name: str
+    """The action's name."""
+    parse: ParseResult
+    """What the parser read from the model's answer."""
+    output: ModelOutput
+    """The model's output as the backend returned it."""
+    observation_text: str
+    """The rendered observation shown to the model."""
+    prompt_hash: str
+    """sha256 of the rendered messages (roles and contents) sent for this decision."""
+    fallback_used: bool
+    """True when the answer was unparseable and the fallback action was taken."""
+
+
+class _Episode:
+    def __init__(self, instruction: str, plan: str | None):
+        self.instruction = instruction
+        self.plan = plan
+        self.step = 0
+        self.history: list[HistoryEntry] = []
+        self.pending: tuple[str, Any] | None = None
+
+
+def describe_outcome(action: str, before: ObservationLike, after: ObservationLike) -> str:
+    """What an action visibly did, from the observations before and after it."""
+    effects: list[str] = []
+    if action in MOVE_HEADINGS:
+        heading = MOVE_HEADINGS[action]
+        moved = tuple(before.position) != tuple(after.position)
+        effects.append(f"moved {heading}" if moved else f"blocked, now facing {heading}")
+    items = sorted(set(before.inventory) | set(after.inventory))
+    for item in items:
+        change = after.inventory.get(item, 0) - before.inventory.get(item, 0)
+        if change:
+            verb = "gained" if change > 0 else "spent"
+            effects.append(f"{verb} {abs(change)} {item.replace('_', ' ')}")
+    for achievement in sorted(set(after.achievements) - set(before.achievements)):
+        effects.append(f"achievement {achievement.lower().replace('_', ' ')}")
+    lost = before.health - after.health
+    if lost > 0:
+        effects.append(f"lost {lost:g} health")
+    return ", ".join(effects) if effects else "no visible effect"
+
+
+def _textualizer_renderer(style: str) -> Renderer:
+    # Looked up at run time: the agent depends only on the documented `render(obs, style)`.
+    render = importlib.import_module("textualizer").render
+
+    def render_style(observation: Any) -> str:
+        return str(render(observation, style))
+
+    return render_style
+
+
+def messages_hash(messages: Sequence[ChatMessage]) -> str:
+    """sha256 over the messages' roles and contents, stable across processes."""
+    payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
+    return hashlib.sha256(payload.encode("utf-8")).hexdigest()
+
+
+class ZeroShotAgent:
+    """Plays many episodes at once with one LLM call per step for the whole batch."""
+
+    def __init__(
+        self,
+        variant: Variant | str = Variant.FULL,
+        renderer: str | Renderer = "objects",
+        templates_dir: str | Path | None = None,
+        history_length: int = 5,
+        fallback_action: str = "NOOP",
+        choice_mode: bool = False,
+    ):
+        """`renderer`: a textualizer style name or a function observation -> text.
+
+        `choice_mode` passes the action names as `choices` to the model, for backends that
+        pick an answer from a list instead of writing one.
+        """
+        self.variant = as_variant(variant)
+        if history_length < 0:
+            raise UserError(f"history_length must be >= 0, got {history_length}")
+        self.history_length = history_length
+        self.fallback_name = action_names(self.variant)[action_id(fallback_action, self.variant)]
+        self.fallback_id = action_id(self.fallback_name, self.variant)
+        self.choice_mode = choice_mode
+        self.templates_dir = templates_dir
+        self.render_observation = (
+            _textualizer_renderer(renderer) if isinstance(renderer, str) else renderer
+        )
+        self.choices = list(action_names(self.variant)) if choice_mode else None
+        self.system_message = ChatMessage(
+            role="system",
+            content=render_template(SYSTEM_TEMPLATE, self.system_context(), templates_dir),
+        )
+        self._episodes: dict[int, _Episode] = {}
+
+    def system_context(self) -> dict[str, Any]:
+        """The variables `system.j2` is rendered with."""
+        return {
+            "variant": self.variant.value,
+            "actions": [spec.model_dump() for spec in action_catalogue(self.variant)],
+        }
+
+    def step_context(
+        self,
+        observation_text: str,
+        instruction: str,
+        plan: str | None = None,
+        history: Sequence[HistoryEntry] = (),
+    ) -> dict[str, Any]:
+        """The variables `step.j2` is rendered with."""
+        return {
+            "variant": self.variant.value,
+            "observation": observation_text,
+            "instruction": instruction,
+            "plan": plan,
+            "history": [entry.model_dump() for entry in history],
+            "choice_mode": self.choice_mode,
+        }
+
+    def start_episode(self, slot: int, instruction: str, plan: str | None = None) -> None:
+        """Begin a new episode in a slot, forgetting the slot's previous one."""
+        self._episodes[slot] = _Episode(instruction, plan)
+
+    def end_episode(self, slot: int) -> None:
+        """Forget a slot's episode."""
+        self._episodes.pop(slot, None)
+
+    def history(self, slot: int) -> list[HistoryEntry]:
+        """The slot's recorded actions and outcomes so far (all of them, oldest first)."""
+        return list(self._episode(slot).history)
+
+    def _episode(self, slot: int) -> _Episode:
+        if slot not in self._episodes:
+            raise UserError(f"slot {slot} has no episode; call start_episode({slot}, ...) first")
+        return self._episodes[slot]
+
+    def build_messages(self, slot: int, observation: Any) -> tuple[list[ChatMessage], str]:
+        """The slot's messages for this observation, and the observation's text.
+
+        Also closes the slot's previous step: its outcome is read off this observation.
+        """
+        episode = self._episode(slot)
+        if episode.pending is not None:
+            action, before = episode.pending
+            outcome = describe_outcome(action, before, observation)
+            episode.history.append(
+                HistoryEntry(step=episode.step - 1, action=action, outcome=outcome)
+            )
+            episode.pending = None
+        text = self.render_observation(observation)
+        recent = episode.history[-self.history_length :] if self.history_length else []
+        context = self.step_context(text, episode.instruction, episode.plan, recent)
+        user = ChatMessage(
+            role="user", content=render_template(STEP_TEMPLATE, context, self.templates_dir)
+        )
+        return [self.system_message, user], text
+
+    def act(
+        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
+    ) -> list[Decision]:
+        """Choose an action for every slot with one batched model call."""
+        if len(slots) != len(observations):
+            raise ValueError(f"{len(slots)} slots but {len(observations)} observations")
+        if len(set(slots)) != len(slots):
+            raise ValueError(f"slots repeat: {list(slots)}")
+        built = [
+            self.build_messages(slot, obs) for slot, obs in zip(slots, observations, strict=True)
+        ]
+        conversations = [messages for messages, _ in built]
+        outputs = model.generate(conversations, choices=self.choices)
+        if len(outputs) != len(conversations):
+            raise RuntimeError(
+                f"backend {model.backend_name} returned {len(outputs)} outputs "
+                f"for {len(conversations)} conversations"
+            )
+        decisions = []
+        for slot, observation, (messages, text), output in zip(
+            slots, observations, built, outputs, strict=True
+        ):
+            prompt = "\n".join(m.content for m in messages)
+            parsed = parse_action(output.text, self.variant, prompt=prompt)
+            fallback = parsed.action is None
+            action = self.fallback_id if parsed.action is None else parsed.action
+            name = self.fallback_name if parsed.name is None else parsed.name
+            episode = self._episodes[slot]
+            episode.pending = (name, observation)
+            episode.step += 1
+            decisions.append(
+                Decision(
+                    slot=slot,
+                    action=action,
+                    name=name,
+                    parse=parsed,
+                    output=output,
+                    observation_text=text,
+                    prompt_hash=messages_hash(messages),
+                    fallback_used=fallback,
+                )
+            )
+        return decisions

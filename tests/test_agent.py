@@ -1,0 +1,197 @@
+"""ZeroShotAgent with mock backends: batching, parsing and fallback, history outcomes."""
+
+import hashlib
+import json
+from collections.abc import Sequence
+
+import pytest
+from pydantic import BaseModel, Field
+
+from env.errors import UserError
+from env.variant import Variant
+from llm_agents.agent import Decision, ZeroShotAgent, describe_outcome
+from llm_agents.backends import get_model
+from llm_agents.backends.base import ChatMessage, ModelOutput
+from llm_agents.backends.mock import MockModel
+
+
+class FakeObservation(BaseModel):
+    """Stands in for the textualizer's Observation: the fields outcomes are read from."""
+
+    position: tuple[int, int] = (10, 10)
+    inventory: dict[str, int] = Field(default_factory=dict)
+    achievements: frozenset[str] = frozenset()
+    health: float = 9.0
+    label: str = "grass around"
+
+
+def render_fake(observation: FakeObservation) -> str:
+    return f"You stand at {observation.position}; {observation.label}."
+
+
+def make_agent(**options: object) -> ZeroShotAgent:
+    return ZeroShotAgent(Variant.CLASSIC, renderer=render_fake, **options)  # type: ignore[arg-type]
+
+
+def user_text(conversation: Sequence[ChatMessage]) -> str:
+    return conversation[-1].content
+
+
+def test_one_batched_call_per_step_with_a_shared_system_prompt() -> None:
+    model = get_model("mock:cycle:LEFT|DO|MAKE_WOOD_PICKAXE")
+    assert isinstance(model, MockModel)
+    agent = make_agent()
+    for slot in range(3):
+        agent.start_episode(slot, f"goal number {slot}")
+    observations = [FakeObservation(label=f"slot {slot}") for slot in range(3)]
+    first = agent.act(model, [0, 1, 2], observations)
+    second = agent.act(model, [0, 1, 2], observations)
+    assert [d.name for d in first + second] == ["LEFT", "DO", "MAKE_WOOD_PICKAXE"] * 2
+    assert [d.action for d in first] == [1, 5, 11]
+    assert len(model.requests) == 6
+    systems = {conversation[0].content for conversation, _ in model.requests}
+    assert len(systems) == 1 and "MAKE_WOOD_PICKAXE" in systems.pop()
+    for slot, (conversation, choices) in enumerate(model.requests[:3]):
+        assert [m.role for m in conversation] == ["system", "user"]
+        assert f"goal number {slot}" in user_text(conversation)
+        assert f"slot {slot}" in user_text(conversation)
+        assert choices is None
+
+
+def test_calls_generate_once_per_act() -> None:
+    calls: list[int] = []
+
+    class CountingModel(MockModel):
+        def generate(
+            self,
+            conversations: Sequence[Sequence[ChatMessage]],
+            choices: Sequence[str] | None = None,
+        ) -> list[ModelOutput]:
+            calls.append(len(conversations))
+            return super().generate(conversations, choices)
+
+    agent = make_agent()
+    for slot in (4, 7):
+        agent.start_episode(slot, "collect wood")
+    agent.act(CountingModel(outputs=["DO"]), [4, 7], [FakeObservation(), FakeObservation()])
+    assert calls == [2]
+
+
+def test_unparseable_answers_fall_back_and_are_flagged() -> None:
+    def answer(conversation: Sequence[ChatMessage]) -> str:
+        return "I refuse." if "bad" in user_text(conversation) else "<think>x</think>ACTION: SLEEP"
+
+    agent = make_agent(fallback_action="do")
+    agent.start_episode(0, "bad slot")
+    agent.start_episode(1, "good slot")
+    decisions = agent.act(MockModel(outputs=answer), [0, 1], [FakeObservation()] * 2)
+    bad, good = decisions
+    assert (bad.name, bad.action, bad.fallback_used, bad.parse.stage) == ("DO", 5, True, "invalid")
+    assert (good.name, good.fallback_used, good.parse.stage) == ("SLEEP", False, "field")
+    assert good.output.text == "<think>x</think>ACTION: SLEEP"
+
+
+def test_echoed_prompt_is_not_taken_as_an_answer() -> None:
+    agent = make_agent()
+    agent.start_episode(0, "place a table near the water")
+    decision = agent.act(
+        MockModel(outputs=lambda conversation: user_text(conversation)), [0], [FakeObservation()]
+    )[0]
+    assert decision.fallback_used and decision.name == "NOOP"
+
+
+def test_prompt_hash_is_sha256_of_the_messages_sent() -> None:
+    model = MockModel(outputs=["NOOP"])
+    agent = make_agent()
+    agent.start_episode(0, "eat a cow")
+    agent.start_episode(1, "eat a cow")
+    same = agent.act(model, [0, 1], [FakeObservation(), FakeObservation()])
+    sent = model.requests[0][0]
+    payload = json.dumps([[m.role, m.content] for m in sent], ensure_ascii=False)
+    assert same[0].prompt_hash == hashlib.sha256(payload.encode()).hexdigest()
+    assert same[0].prompt_hash == same[1].prompt_hash
+    other = agent.act(model, [0], [FakeObservation(label="a cow 1 north")])[0]
+    assert other.prompt_hash != same[0].prompt_hash
+    assert other.observation_text == "You stand at (10, 10); a cow 1 north."
+
+
+def test_history_records_outcomes_from_consecutive_observations() -> None:
+    script = iter(["LEFT", "UP", "DO", "MAKE_WOOD_PICKAXE", "NOOP", "NOOP"])
+    model = MockModel(outputs=lambda conversation: next(script))
+    agent = make_agent(history_length=3)
+    agent.start_episode(0, "make a wood pickaxe")
+    observations = [
+        FakeObservation(position=(10, 10)),
+        FakeObservation(position=(10, 9)),  # LEFT moved west
+        FakeObservation(position=(10, 9)),  # UP blocked
+        FakeObservation(position=(10, 9), inventory={"wood": 1}, health=7),
+        FakeObservation(
+            position=(10, 9),
+            inventory={"wood": 0, "wood_pickaxe": 1},
+            achievements=frozenset({"MAKE_WOOD_PICKAXE"}),
+            health=7,
+        ),
+        FakeObservation(position=(10, 9), inventory={"wood_pickaxe": 1}, health=7),
+    ]
+    decisions: list[Decision] = []
+    for observation in observations:
+        decisions += agent.act(model, [0], [observation])
+    outcomes = [(entry.step, entry.action, entry.outcome) for entry in agent.history(0)]
+    assert outcomes == [
+        (0, "LEFT", "moved west"),
+        (1, "UP", "blocked, now facing north"),
+        (2, "DO", "gained 1 wood, lost 2 health"),
+        (
+            3,
+            "MAKE_WOOD_PICKAXE",
+            "spent 1 wood, gained 1 wood pickaxe, achievement make wood pickaxe",
+        ),
+        (4, "NOOP", "no visible effect"),
+    ]
+    last_prompt = user_text(model.requests[-1][0])
+    assert "step 1: UP: blocked, now facing north" not in last_prompt  # only the last 3 are shown
+    assert "step 2: DO: gained 1 wood, lost 2 health" in last_prompt
+    assert "step 4: NOOP: no visible effect" in last_prompt
+    assert "first step" in user_text(model.requests[0][0])
+
+
+def test_new_episode_in_a_slot_starts_a_fresh_history_and_plan() -> None:
+    model = MockModel(outputs=["RIGHT"])
+    agent = make_agent()
+    agent.start_episode(0, "old goal")
+    agent.act(model, [0], [FakeObservation()])
+    agent.act(model, [0], [FakeObservation(position=(10, 11))])
+    assert len(agent.history(0)) == 1
+    agent.start_episode(0, "new goal", plan="1. find water\n2. drink")
+    agent.act(model, [0], [FakeObservation()])
+    prompt = user_text(model.requests[-1][0])
+    assert agent.history(0) == []
+    assert "new goal" in prompt and "old goal" not in prompt
+    assert "1. find water" in prompt and "step 0" not in prompt
+
+
+def test_choice_mode_passes_the_variant_action_names() -> None:
+    model = MockModel(outputs=["not a name"])
+    agent = ZeroShotAgent(Variant.FULL, renderer=render_fake, choice_mode=True)
+    agent.start_episode(0, "descend")
+    decision = agent.act(model, [0], [FakeObservation()])[0]
+    choices = model.requests[0][1]
+    assert choices is not None and len(choices) == 43 and choices[18] == "DESCEND"
+    assert decision.name == "NOOP" and decision.parse.stage == "exact"  # mock picks choices[0]
+    assert "ACTION:" not in user_text(model.requests[0][0])
+
+
+def test_user_mistakes_raise_user_error() -> None:
+    with pytest.raises(UserError, match="MAKE_DIAMOND_SWORD"):
+        make_agent(fallback_action="MAKE_DIAMOND_SWORD")
+    with pytest.raises(UserError, match="history_length"):
+        make_agent(history_length=-1)
+    agent = make_agent()
+    with pytest.raises(UserError, match="slot 3"):
+        agent.act(MockModel(), [3], [FakeObservation()])
+
+
+def test_describe_outcome_of_a_non_move_action_ignores_position() -> None:
+    before = FakeObservation(position=(1, 1))
+    after = FakeObservation(position=(1, 2), achievements=frozenset({"COLLECT_DRINK"}))
+    assert describe_outcome("DO", before, after) == "achievement collect drink"
