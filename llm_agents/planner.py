@@ -419,11 +419,6 @@ def check_plan(
 # ---------------------------------------------------------------- prompts
 
 
-def goal_instructions(goals: Iterable[Goal]) -> list[str]:
-    """Every instruction and paraphrase of the goals, each once, in dataset order."""
-    return list(dict.fromkeys(text for goal in goals for text in goal.texts))
-
-
 def _template_hashes(templates_dir: Path | None) -> dict[str, str]:
     return {
         name: hashlib.sha256(template_source(name, templates_dir).encode("utf-8")).hexdigest()
@@ -723,6 +718,11 @@ def plan_instructions(
     }
     _write_json_atomically(sidecar_path, sidecar)
     return summary
+
+
+def goal_instructions(goals: Iterable[Goal]) -> list[str]:
+    """Every instruction and paraphrase of the goals, each once, in dataset order."""
+    return list(dict.fromkeys(text for goal in goals for text in goal.texts))
 
 
 def run_planner(config: PlannerConfig, model: ModelAPI) -> PlanSummary:
