@@ -281,7 +281,29 @@ class _Vocabulary:
 
 
 def _alternation(phrases: list[str]) -> str:
-    return "|".join(re.escape(p) for p in sorted(phrases, key=len, reverse=True))
+    """A regex matching any of the phrases, longest first, shaped as a trie.
+
+    A flat `a|b|c` alternation retries every phrase at every position; the trie shares
+    prefixes, so matching costs the length of the text, not that times the phrase count.
+    """
+    trie: dict[str, dict] = {}
+    for phrase in phrases:
+        node = trie
+        for char in phrase:
+            node = node.setdefault(char, {})
+        node[""] = {}
+    return _trie_regex(trie)
+
+
+def _trie_regex(node: dict[str, dict]) -> str:
+    branches = [
+        re.escape(char) + _trie_regex(child) for char, child in sorted(node.items()) if char
+    ]
+    if not branches:
+        return ""
+    body = branches[0] if len(branches) == 1 else "(?:" + "|".join(branches) + ")"
+    # A phrase ending here is optional continuation: greedy `?` prefers the longer phrase.
+    return f"(?:{body})?" if "" in node else body
 
 
 @cache
