@@ -29,17 +29,38 @@ SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"
 
 
+class _PositionLike(Protocol):
+    @property
+    def x(self) -> int: ...
+    @property
+    def y(self) -> int: ...
+
+
+class _InventoryLike(Protocol):
+    @property
+    def materials(self) -> Mapping[str, int]: ...
+    @property
+    def tools(self) -> Collection[str]: ...
+
+
+class _VitalsLike(Protocol):
+    @property
+    def health(self) -> float: ...
+
+
 class ObservationLike(Protocol):
-    """The fields of the textualizer's `Observation` that outcomes are computed from."""
+    """The fields of `textualizer.Observation` that outcomes are computed from."""
 
     @property
-    def position(self) -> Sequence[int]: ...
+    def position(self) -> _PositionLike: ...
     @property
-    def inventory(self) -> Mapping[str, int]: ...
+    def floor(self) -> object: ...
+    @property
+    def inventory(self) -> _InventoryLike: ...
     @property
     def achievements(self) -> Collection[str]: ...
     @property
-    def health(self) -> float: ...
+    def vitals(self) -> _VitalsLike: ...
 
 
 Renderer = Callable[[Any], str]
@@ -90,22 +111,29 @@ class _Episode:
         self.pending: tuple[str, Any] | None = None
 
 
+def _items(observation: ObservationLike) -> dict[str, int]:
+    inventory = observation.inventory
+    return {**dict.fromkeys(inventory.tools, 1), **inventory.materials}
+
+
 def describe_outcome(action: str, before: ObservationLike, after: ObservationLike) -> str:
     """What an action visibly did, from the observations before and after it."""
     effects: list[str] = []
-    if action in MOVE_HEADINGS:
+    if before.floor != after.floor:
+        effects.append("changed floor")
+    elif action in MOVE_HEADINGS:
         heading = MOVE_HEADINGS[action]
-        moved = tuple(before.position) != tuple(after.position)
+        moved = (before.position.x, before.position.y) != (after.position.x, after.position.y)
         effects.append(f"moved {heading}" if moved else f"blocked, now facing {heading}")
-    items = sorted(set(before.inventory) | set(after.inventory))
-    for item in items:
-        change = after.inventory.get(item, 0) - before.inventory.get(item, 0)
+    items_before, items_after = _items(before), _items(after)
+    for item in sorted(set(items_before) | set(items_after)):
+        change = items_after.get(item, 0) - items_before.get(item, 0)
         if change:
             verb = "gained" if change > 0 else "spent"
             effects.append(f"{verb} {abs(change)} {item.replace('_', ' ')}")
     for achievement in sorted(set(after.achievements) - set(before.achievements)):
         effects.append(f"achievement {achievement.lower().replace('_', ' ')}")
-    lost = before.health - after.health
+    lost = before.vitals.health - after.vitals.health
     if lost > 0:
         effects.append(f"lost {lost:g} health")
     return ", ".join(effects) if effects else "no visible effect"

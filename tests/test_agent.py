@@ -15,18 +15,53 @@ from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
 
 
-class FakeObservation(BaseModel):
-    """Stands in for the textualizer's Observation: the fields outcomes are read from."""
+class FakePosition(BaseModel):
+    x: int
+    y: int
 
-    position: tuple[int, int] = (10, 10)
-    inventory: dict[str, int] = Field(default_factory=dict)
-    achievements: frozenset[str] = frozenset()
+
+class FakeInventory(BaseModel):
+    materials: dict[str, int] = Field(default_factory=dict)
+    tools: list[str] = Field(default_factory=list)
+
+
+class FakeVitals(BaseModel):
     health: float = 9.0
+
+
+class FakeObservation(BaseModel):
+    """Stands in for textualizer's Observation, with the fields outcomes are read from."""
+
+    position: FakePosition = FakePosition(x=10, y=10)
+    floor: int | None = None
+    inventory: FakeInventory = FakeInventory()
+    achievements: list[str] = Field(default_factory=list)
+    vitals: FakeVitals = FakeVitals()
     label: str = "grass around"
 
 
+def fake(
+    x: int = 10,
+    y: int = 10,
+    materials: dict[str, int] | None = None,
+    tools: tuple[str, ...] = (),
+    achievements: tuple[str, ...] = (),
+    health: float = 9,
+    floor: int | None = None,
+) -> FakeObservation:
+    return FakeObservation(
+        position=FakePosition(x=x, y=y),
+        floor=floor,
+        inventory=FakeInventory(materials=materials or {}, tools=list(tools)),
+        achievements=list(achievements),
+        vitals=FakeVitals(health=health),
+    )
+
+
 def render_fake(observation: FakeObservation) -> str:
-    return f"You stand at {observation.position}; {observation.label}."
+    return (
+        f"You stand at ({observation.position.x}, {observation.position.y}); {observation.label}."
+    )
 
 
 def make_agent(**options: object) -> ZeroShotAgent:
@@ -121,17 +156,12 @@ def test_history_records_outcomes_from_consecutive_observations() -> None:
     agent = make_agent(history_length=3)
     agent.start_episode(0, "make a wood pickaxe")
     observations = [
-        FakeObservation(position=(10, 10)),
-        FakeObservation(position=(10, 9)),  # LEFT moved west
-        FakeObservation(position=(10, 9)),  # UP blocked
-        FakeObservation(position=(10, 9), inventory={"wood": 1}, health=7),
-        FakeObservation(
-            position=(10, 9),
-            inventory={"wood": 0, "wood_pickaxe": 1},
-            achievements=frozenset({"MAKE_WOOD_PICKAXE"}),
-            health=7,
-        ),
-        FakeObservation(position=(10, 9), inventory={"wood_pickaxe": 1}, health=7),
+        fake(x=10),
+        fake(x=9),  # LEFT moved west
+        fake(x=9),  # UP blocked
+        fake(x=9, materials={"wood": 1}, health=7),
+        fake(x=9, tools=("wood_pickaxe",), achievements=("MAKE_WOOD_PICKAXE",), health=7),
+        fake(x=9, tools=("wood_pickaxe",), achievements=("MAKE_WOOD_PICKAXE",), health=7),
     ]
     decisions: list[Decision] = []
     for observation in observations:
@@ -160,7 +190,7 @@ def test_new_episode_in_a_slot_starts_a_fresh_history_and_plan() -> None:
     agent = make_agent()
     agent.start_episode(0, "old goal")
     agent.act(model, [0], [FakeObservation()])
-    agent.act(model, [0], [FakeObservation(position=(10, 11))])
+    agent.act(model, [0], [fake(x=11)])
     assert len(agent.history(0)) == 1
     agent.start_episode(0, "new goal", plan="1. find water\n2. drink")
     agent.act(model, [0], [FakeObservation()])
@@ -192,6 +222,6 @@ def test_user_mistakes_raise_user_error() -> None:
 
 
 def test_describe_outcome_of_a_non_move_action_ignores_position() -> None:
-    before = FakeObservation(position=(1, 1))
-    after = FakeObservation(position=(1, 2), achievements=frozenset({"COLLECT_DRINK"}))
-    assert describe_outcome("DO", before, after) == "achievement collect drink"
+    after = fake(x=2, achievements=("COLLECT_DRINK",))
+    assert describe_outcome("DO", fake(x=1), after) == "achievement collect drink"
+    assert describe_outcome("DESCEND", fake(floor=0), fake(floor=1, x=3)) == "changed floor"
