@@ -1,0 +1,370 @@
+"""craftax state (numpy leaves) -> `Observation`, exactly what the player can see.
+
+Visibility follows craftax's own symbolic observation: the view is `OBS_DIM` tiles centred on
+the player, tiles past the map edge read as `out_of_bounds`, and in full Craftax a tile (with
+its items and mobs) is hidden when its light-map value is not above 0.05 (which is also the case
+for every tile past the map edge). Mobs come from the state's mob arrays, never the observation
+vector, which can lose a visible mob when an off-screen one is written over it.
+"""
+
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from env.achievements import ACHIEVEMENTS
+from env.errors import UserError
+from env.variant import Variant
+from textualizer import vocabulary as voc
+from textualizer.observation import (
+    Attributes,
+    Floor,
+    Inventory,
+    Mob,
+    Observation,
+    Offset,
+    Position,
+    Vitals,
+)
+
+_ROW_COL_STEPS: dict[int, tuple[int, int]] = {1: (0, -1), 2: (0, 1), 3: (-1, 0), 4: (1, 0)}
+"""`player_direction` -> (row, col) step, as craftax `DIRECTIONS`."""
+
+
+class _View:
+    """Per-variant constants of the local view, computed once."""
+
+    def __init__(self, variant: Variant) -> None:
+        rows, cols = voc.VIEW_SHAPE[variant]
+        self.half_rows, self.half_cols = rows // 2, cols // 2
+        self.row_offsets = np.arange(-self.half_rows, self.half_rows + 1)
+        self.col_offsets = np.arange(-self.half_cols, self.half_cols + 1)
+        cells = [(r, c) for r in self.row_offsets.tolist() for c in self.col_offsets.tolist()]
+        # Nearest first; ties go to upper rows, then left to right, so text is stable.
+        order = sorted(
+            range(len(cells)), key=lambda i: (abs(cells[i][0]) + abs(cells[i][1]), *cells[i])
+        )
+        self.order = np.array(order)
+        self.offsets: list[Offset] = [(cells[i][1], -cells[i][0]) for i in order]
+        self.size = (cols, rows)
+
+
+@cache
+def _view(variant: Variant) -> _View:
+    return _View(variant)
+
+
+def _as_variant(variant: Variant | str) -> Variant:
+    try:
+        return Variant(variant)
+    except ValueError:
+        known = ", ".join(v.value for v in Variant)
+        raise UserError(f"unknown variant {variant!r}; known: {known}") from None
+
+
+def _check_state(state: Any, variant: Variant) -> None:
+    is_full = hasattr(state, "player_level")
+    is_classic = hasattr(state, "zombies")
+    if not (is_full or is_classic):
+        raise UserError(f"expected a craftax EnvState, got {type(state).__name__}")
+    if is_full != (variant is Variant.FULL):
+        kind = "full Craftax" if is_full else "Craftax-Classic"
+        raise UserError(f"state is a {kind} state but variant is {variant.value!r}")
+    if np.ndim(state.player_position) != 1:
+        raise UserError(
+            "observe() takes one episode's state; use observe_batch() for a batched state "
+            f"(player_position has shape {np.shape(state.player_position)})"
+        )
+
+
+def _window(grid: np.ndarray, row: int, col: int, view: _View, fill: float) -> np.ndarray:
+    """The view-sized window of `grid` centred on (row, col), `fill` past the edges."""
+    rows = row + view.row_offsets
+    cols = col + view.col_offsets
+    row_in = (rows >= 0) & (rows < grid.shape[0])
+    col_in = (cols >= 0) & (cols < grid.shape[1])
+    window = np.full((rows.size, cols.size), fill, dtype=grid.dtype)
+    window[np.ix_(row_in, col_in)] = grid[np.ix_(rows[row_in], cols[col_in])]
+    return window
+
+
+def _group(
+    values: list[int], names: tuple[str, ...], view: _View, skip: int | None
+) -> dict[str, list[Offset]]:
+    grouped: dict[str, list[Offset]] = {}
+    for value, offset in zip(values, view.offsets, strict=True):
+        if value != skip:
+            grouped.setdefault(names[value], []).append(offset)
+    return grouped
+
+
+def _mobs_of(
+    mobs: Any,
+    names: tuple[str, ...],
+    level: int | None,
+    row: int,
+    col: int,
+    view: _View,
+    lit: np.ndarray | None,
+    with_health: bool,
+) -> list[Mob]:
+    """Visible mobs of one craftax `Mobs` group; `names` by type id (Classic groups have one)."""
+    position = np.asarray(mobs.position)
+    mask = np.asarray(mobs.mask)
+    health = np.asarray(mobs.health)
+    type_id = np.asarray(mobs.type_id) if hasattr(mobs, "type_id") else np.zeros_like(mask, int)
+    if level is not None:
+        position, mask, health, type_id = (
+            position[level],
+            mask[level],
+            health[level],
+            type_id[level],
+        )
+    found = []
+    for index in np.flatnonzero(mask).tolist():
+        dr = int(position[index, 0]) - row
+        dc = int(position[index, 1]) - col
+        if abs(dr) > view.half_rows or abs(dc) > view.half_cols:
+            continue
+        if lit is not None and not lit[dr + view.half_rows, dc + view.half_cols]:
+            continue
+        found.append(
+            Mob(
+                kind=names[int(type_id[index])],
+                dx=dc,
+                dy=-dr,
+                health=round(float(health[index]), 2) if with_health else None,
+            )
+        )
+    return found
+
+
+def _nearest_first(mob: Mob) -> tuple[int, int, int]:
+    return (abs(mob.dx) + abs(mob.dy), -mob.dy, mob.dx)
+
+
+def _classic_inventory(inventory: Any) -> Inventory:
+    materials = {
+        name: int(getattr(inventory, name))
+        for name in ("wood", "stone", "coal", "iron", "diamond", "sapling")
+        if int(getattr(inventory, name)) > 0
+    }
+    tools = [
+        f"{tier}_{tool}"
+        for tool in ("pickaxe", "sword")
+        for tier in ("iron", "stone", "wood")
+        if int(getattr(inventory, f"{tier}_{tool}")) > 0
+    ]
+    return Inventory(materials=materials, tools=tools, enchantments={})
+
+
+def _full_inventory(state: Any) -> Inventory:
+    inventory = state.inventory
+    counts = {
+        "wood": inventory.wood,
+        "stone": inventory.stone,
+        "coal": inventory.coal,
+        "iron": inventory.iron,
+        "diamond": inventory.diamond,
+        "sapphire": inventory.sapphire,
+        "ruby": inventory.ruby,
+        "sapling": inventory.sapling,
+        "torch": inventory.torches,
+        "arrow": inventory.arrows,
+        "book": inventory.books,
+    }
+    potions = np.asarray(inventory.potions)
+    for colour, count in zip(voc.POTION_COLOURS, potions.tolist(), strict=True):
+        counts[f"{colour}_potion"] = count
+    materials = {name: int(count) for name, count in counts.items() if int(count) > 0}
+    tools: list[str] = []
+    enchantments: dict[str, str] = {}
+    pickaxe, sword, bow = int(inventory.pickaxe), int(inventory.sword), int(inventory.bow)
+    if pickaxe > 0:
+        tools.append(f"{voc.TIERS[pickaxe]}_pickaxe")
+    if sword > 0:
+        tools.append(f"{voc.TIERS[sword]}_sword")
+        if int(state.sword_enchantment) > 0:
+            enchantments["sword"] = voc.ENCHANTMENTS[int(state.sword_enchantment)]
+    if bow > 0:
+        tools.append("bow")
+        if int(state.bow_enchantment) > 0:
+            enchantments["bow"] = voc.ENCHANTMENTS[int(state.bow_enchantment)]
+    armour = np.asarray(inventory.armour).tolist()
+    armour_enchantments = np.asarray(state.armour_enchantments).tolist()
+    for slot, tier, enchantment in zip(voc.ARMOUR_SLOTS, armour, armour_enchantments, strict=True):
+        if tier > 0:
+            tools.append(f"{voc.ARMOUR_TIERS[tier]}_{slot}")
+            if enchantment > 0:
+                enchantments[slot] = voc.ENCHANTMENTS[enchantment]
+    return Inventory(materials=materials, tools=tools, enchantments=enchantments)
+
+
+def observe(state: Any, variant: Variant | str) -> Observation:
+    """The observation of one episode's craftax `EnvState` whose leaves are numpy arrays."""
+    variant = _as_variant(variant)
+    _check_state(state, variant)
+    view = _view(variant)
+    full = variant is Variant.FULL
+    level = int(state.player_level) if full else 0
+    world = np.asarray(state.map)[level] if full else np.asarray(state.map)
+    mob_level = level if full else None
+    row, col = (int(v) for v in np.asarray(state.player_position))
+
+    blocks_window = _window(world, row, col, view, voc.OUT_OF_BOUNDS)
+    lit: np.ndarray | None = None
+    unlit: list[Offset] = []
+    items: dict[str, list[Offset]] = {}
+    if full:
+        light = _window(np.asarray(state.light_map)[level], row, col, view, 0.0)
+        lit = light > voc.LIGHT_THRESHOLD
+        lit_in_order = lit.ravel()[view.order].tolist()
+        unlit = [
+            offset for offset, seen in zip(view.offsets, lit_in_order, strict=True) if not seen
+        ]
+        hidden = -1
+        block_values = np.where(lit, blocks_window, hidden).ravel()[view.order].tolist()
+        item_window = _window(np.asarray(state.item_map)[level], row, col, view, 0)
+        item_values = np.where(lit, item_window, 0).ravel()[view.order].tolist()
+        items = _group(item_values, voc.ITEM_NAMES, view, skip=0)
+        blocks = _group(block_values, voc.BLOCK_NAMES, view, skip=hidden)
+    else:
+        blocks = _group(
+            blocks_window.ravel()[view.order].tolist(), voc.BLOCK_NAMES, view, skip=None
+        )
+
+    if full:
+        player_shots = tuple(f"player_{name}" for name in voc.PROJECTILE_NAMES)
+        groups: tuple[tuple[Any, tuple[str, ...], bool], ...] = (
+            (state.melee_mobs, voc.MELEE_MOB_NAMES, True),
+            (state.passive_mobs, voc.PASSIVE_MOB_NAMES, True),
+            (state.ranged_mobs, voc.RANGED_MOB_NAMES, True),
+            (state.mob_projectiles, voc.PROJECTILE_NAMES, False),
+            (state.player_projectiles, player_shots, False),
+        )
+    else:
+        groups = (
+            (state.zombies, ("zombie",), True),
+            (state.cows, ("cow",), True),
+            (state.skeletons, ("skeleton",), True),
+            (state.arrows, ("arrow",), False),
+        )
+    mobs = [
+        mob
+        for group, names, with_health in groups
+        for mob in _mobs_of(group, names, mob_level, row, col, view, lit, with_health)
+    ]
+    mobs.sort(key=_nearest_first)
+
+    direction = int(state.player_direction)
+    step_row, step_col = _ROW_COL_STEPS[direction]
+    facing_row, facing_col = view.half_rows + step_row, view.half_cols + step_col
+    facing_block: str | None = voc.BLOCK_NAMES[int(blocks_window[facing_row, facing_col])]
+    if lit is not None and not lit[facing_row, facing_col]:
+        facing_block = None
+
+    achieved = np.flatnonzero(np.asarray(state.achievements)).tolist()
+    daylight = round(float(state.light_level), 3)
+    if full:
+        strength, dexterity = int(state.player_strength), int(state.player_dexterity)
+        intelligence = int(state.player_intelligence)
+        vitals = _vitals(
+            state,
+            mana=int(state.player_mana),
+            max_health=8 + strength,
+            max_food=7 + 2 * dexterity,
+            max_mana=6 + 3 * intelligence,
+        )
+        attributes: Attributes | None = Attributes(
+            xp=int(state.player_xp),
+            dexterity=dexterity,
+            strength=strength,
+            intelligence=intelligence,
+        )
+        floor: Floor | None = Floor(
+            level=level,
+            name=voc.FLOOR_NAMES[level],
+            ladder_open=int(np.asarray(state.monsters_killed)[level])
+            >= voc.MONSTERS_TO_OPEN_LADDER,
+        )
+        inventory = _full_inventory(state)
+        spells = [
+            name
+            for name, known in zip(
+                voc.SPELLS, np.asarray(state.learned_spells).tolist(), strict=True
+            )
+            if known
+        ]
+        achievements = [voc.FULL_ACHIEVEMENTS[i] for i in achieved]
+    else:
+        vitals = _vitals(state, mana=None, max_health=9, max_food=9, max_mana=None)
+        attributes, floor, spells = None, None, []
+        inventory = _classic_inventory(state.inventory)
+        achievements = [ACHIEVEMENTS[i] for i in achieved]
+
+    return Observation(
+        variant=variant,
+        step=int(state.timestep),
+        position=Position(x=col, y=world.shape[0] - 1 - row),
+        floor=floor,
+        facing=voc.DIRECTION_NAMES[direction],
+        facing_block=facing_block,
+        vitals=vitals,
+        attributes=attributes,
+        sleeping=bool(state.is_sleeping),
+        resting=bool(state.is_resting) if full else False,
+        daylight=daylight,
+        night=level == 0 and daylight < 0.5,
+        inventory=inventory,
+        spells=spells,
+        achievements=achievements,
+        view_size=view.size,
+        blocks=blocks,
+        items=items,
+        mobs=mobs,
+        unlit=unlit,
+    )
+
+
+def _vitals(
+    state: Any, mana: int | None, max_health: int, max_food: int, max_mana: int | None
+) -> Vitals:
+    return Vitals(
+        health=round(float(state.player_health), 2),
+        food=int(state.player_food),
+        drink=int(state.player_drink),
+        energy=int(state.player_energy),
+        mana=mana,
+        max_health=max_health,
+        max_food=max_food,
+        max_mana=max_mana,
+        hunger=round(float(state.player_hunger), 2),
+        thirst=round(float(state.player_thirst), 2),
+        fatigue=round(float(state.player_fatigue), 2),
+        recover=round(float(state.player_recover), 2),
+    )
+
+
+class _Episode:
+    """One episode of a batched state: attribute access indexes the leading axis lazily."""
+
+    def __init__(self, batch: Any, index: int) -> None:
+        self._batch = batch
+        self._index = index
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(self._batch, name)
+        if isinstance(value, np.ndarray) or hasattr(value, "__array__"):
+            return np.asarray(value)[self._index]
+        return _Episode(value, self._index)
+
+
+def observe_batch(states: Any, variant: Variant | str) -> list[Observation]:
+    """One observation per episode of a craftax `EnvState` with a leading episode axis."""
+    variant = _as_variant(variant)
+    shape = np.shape(getattr(states, "player_position", ()))
+    if len(shape) != 2:
+        raise UserError(
+            f"observe_batch() takes a batched state (player_position of shape (N, 2)), got shape {shape}"
+        )
+    return [observe(_Episode(states, i), variant) for i in range(shape[0])]
