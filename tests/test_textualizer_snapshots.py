@@ -120,10 +120,10 @@ CLASSIC_OBJECTS = """\
 You: at x=32 y=31; facing up: tree.
 Health 9/9, food 9/9, drink 9/9, energy 9/9; day (light 1.00).
 Inventory: nothing; tools: none.
-In view (9x7; offsets (dx,dy): +dx right/E, +dy up/N; not listed: grass, path, sand):
-tree: (0,+1) 1 N; (-3,+2)
+In view (9x7, offsets (dx,dy): dx right, dy up; grass not listed):
+tree: (0,1) 1 N; (-3,2)
 water: (-2,0) 2 W
-zombie: (+2,-1) 3 SE hp 5"""
+zombie: (2,-1) 3 SE hp 5"""
 
 CLASSIC_GRID = """\
 View 9x7: dx -4..+4 left to right, dy +3..-3 top to bottom.
@@ -141,10 +141,10 @@ You: at x=24 y=23, floor 0 (overworld, ladder down open); facing up: tree.
 Health 9/9, food 9/9, drink 9/9, energy 9/9, mana 9/9; day (light 1.00).
 XP 0; dexterity 1, strength 1, intelligence 1.
 Inventory: nothing; tools: none.
-In view (11x9; offsets (dx,dy): +dx right/E, +dy up/N; not listed: fire_grass, grass, ice_grass, path, sand):
-tree: (0,+1) 1 N; (-3,+2)
+In view (11x9, offsets (dx,dy): dx right, dy up; grass not listed):
+tree: (0,1) 1 N; (-3,2)
 water: (-2,0) 2 W
-zombie: (+2,-1) 3 SE hp 5"""
+zombie: (2,-1) 3 SE hp 5"""
 
 
 def test_tree_in_front_and_a_zombie(reset_state: tuple[str, Any]) -> None:
@@ -226,12 +226,12 @@ def test_dark_floor(reset_state: tuple[str, Any]) -> None:
         == "You: at x=24 y=23, floor 1 (dungeon, ladder down closed); facing up: path."
     )
     assert text.splitlines()[-3:] == [
-        "stone: (+1,0) 1 E",
-        "ladder_up: (+2,+1) 3 NE",
+        "stone: (1,0) 1 E",
+        "ladder_up: (2,1) 3 NE",
         "unlit (unknown) tiles: 87 of 99 (NW 19, SW 19, NE 18, SE 18, W 4, N 3, S 3, E 3)",
     ]
     assert "night" not in text and "day" not in text
     grid = render(obs, "grid").splitlines()
-    assert grid[4] == "+1 - - - - . . . < - - -"
-    assert grid[5] == " 0 - - - - . @ s . - - -"
-    assert grid[-1] == "Legend: @ you (facing up), - unlit, . path, < ladder_up, s stone"
+    assert grid[4] == "+1 - - - - _ _ _ < - - -"
+    assert grid[5] == " 0 - - - - _ @ s _ - - -"
+    assert grid[-1] == "Legend: @ you (facing up), - unlit, _ path, < ladder_up, s stone"

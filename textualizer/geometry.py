@@ -22,8 +22,8 @@ def signed(value: int) -> str:
 
 
 def format_offset(offset: Offset) -> str:
-    """`(+2,-1)`."""
-    return f"({signed(offset[0])},{signed(offset[1])})"
+    """`(2,-1)`: compact, because offsets are most of the `objects` text."""
+    return f"({offset[0]},{offset[1]})"
 
 
 def number(value: float) -> str:

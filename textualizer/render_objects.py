@@ -12,6 +12,9 @@ from textualizer import vocabulary as voc
 from textualizer.geometry import compass, format_offset, number, signed, steps
 from textualizer.observation import Mob, Observation, Offset
 
+MAX_LISTED = 6
+"""Kinds with more tiles than this are given as runs per row instead of one offset each."""
+
 _EDGE_DIRECTIONS: tuple[tuple[str, Offset], ...] = (
     ("left", (-1, 0)),
     ("right", (1, 0)),
@@ -24,9 +27,27 @@ def _annotated(offset: Offset) -> str:
     return f"{format_offset(offset)} {steps(offset)} {compass(offset)}"
 
 
+def _runs(values: list[int]) -> str:
+    """`-5..-1, 3, 5..6` for sorted integers."""
+    runs: list[list[int]] = []
+    for value in values:
+        if runs and value == runs[-1][1] + 1:
+            runs[-1][1] = value
+        else:
+            runs.append([value, value])
+    return ", ".join(f"{low}..{high}" if high > low else f"{low}" for low, high in runs)
+
+
 def _offsets_line(name: str, offsets: list[Offset]) -> str:
     first, *rest = offsets
-    return f"{name}: " + "; ".join([_annotated(first), *map(format_offset, rest)])
+    if len(offsets) <= MAX_LISTED:
+        return f"{name}: " + "; ".join([_annotated(first), *map(format_offset, rest)])
+    # Many tiles of one kind (a cave wall, a lake) read shorter as runs along each row.
+    rows: dict[int, list[int]] = {}
+    for dx, dy in sorted(offsets, key=lambda offset: (-offset[1], offset[0])):
+        rows.setdefault(dy, []).append(dx)
+    runs = "; ".join(f"dy {dy}: dx {_runs(dxs)}" for dy, dxs in rows.items())
+    return f"{name} ({len(offsets)} tiles): nearest {_annotated(first)}; rows {runs}"
 
 
 def _mob_text(mob: Mob) -> str:
@@ -114,9 +135,11 @@ def render_objects(obs: Observation) -> str:
     background = voc.BACKGROUND_BLOCKS[obs.variant]
     lines = _status_lines(obs)
     columns, rows = obs.view_size
+    hidden = [name for name in obs.blocks if name in background]
     lines.append(
-        f"In view ({columns}x{rows}; offsets (dx,dy): +dx right/E, +dy up/N; "
-        f"not listed: {', '.join(sorted(background))}):"
+        f"In view ({columns}x{rows}, offsets (dx,dy): dx right, dy up"
+        + (f"; {', '.join(hidden)} not listed" if hidden else "")
+        + "):"
     )
     things = [
         _offsets_line(name, offsets)
