@@ -1,0 +1,301 @@
+"""The CrafText environment: Craftax plus the conditional-achievements success checker.
+
+`CrafTextEnv` is functional and JAX-pure (`reset`, `step`), so it can be jitted and vmapped like a
+gymnax env. `VectorEnv` drives a fixed-size batch of episodes from the host: one compiled step
+for all slots, finished slots refilled in place, and everything the caller needs pulled to numpy
+once per step.
+
+Determinism: an episode's randomness comes only from its episode key (see `episode_key`); step t
+uses `fold_in(episode_key, t)`, so a trajectory does not depend on the batch size or on which slot
+the episode runs in.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from enum import IntEnum
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from pydantic import BaseModel, ConfigDict, Field
+
+from env.achievements import NUM_ACHIEVEMENTS
+from env.checker import goal_reached
+from env.jax_cache import enable_compilation_cache
+from env.variant import Variant
+
+#: Each success is worth this much more than Craftax's own per-step reward, which is divided by it.
+CRAFTAX_REWARD_SCALE = 50.0
+
+
+class Termination(IntEnum):
+    """Why an episode ended; RUNNING while it has not."""
+
+    RUNNING = 0
+    SUCCESS = 1
+    DEATH = 2
+    TIMEOUT = 3
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+class EnvConfig(BaseModel):
+    """Settings of the CrafText environment."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    variant: Variant = Variant.FULL
+    """Craftax variant: `full` (Craftax-Symbolic-v1, 43 actions) or `classic` (17 actions)."""
+    max_steps: int = Field(250, ge=1)
+    """Step cap per episode (250 in the official LLM baseline code)."""
+
+
+@struct.dataclass
+class Task:
+    """The goal of one episode as achievement masks over the 22 shared achievement ids."""
+
+    required: jax.Array
+    forbidden: jax.Array
+
+
+@struct.dataclass
+class EpisodeState:
+    """Craftax state plus CrafText bookkeeping for one episode (or a batch, with a leading axis)."""
+
+    game: Any
+    task: Task
+    episode_key: jax.Array
+    steps: jax.Array
+    termination: jax.Array
+
+    @property
+    def done(self) -> jax.Array:
+        return self.termination != Termination.RUNNING
+
+
+@struct.dataclass
+class StepInfo:
+    """What one step produced."""
+
+    reward: jax.Array
+    done: jax.Array
+    termination: jax.Array
+    craftax_reward: jax.Array
+    new_achievements: jax.Array
+
+
+def make_task(required: Any, forbidden: Any) -> Task:
+    """A task from boolean masks of length 22 (numpy or JAX)."""
+    return Task(
+        required=jnp.asarray(required, dtype=jnp.bool_),
+        forbidden=jnp.asarray(forbidden, dtype=jnp.bool_),
+    )
+
+
+class CrafTextEnv:
+    """Craftax with a CrafText instruction's success checker. Create one per process and reuse it:
+    jit caches compiled functions per env instance."""
+
+    def __init__(self, config: EnvConfig | None = None, *, compilation_cache: bool = True):
+        if compilation_cache:
+            enable_compilation_cache()
+        self.config = config or EnvConfig()
+        from craftax.craftax_env import make_craftax_env_from_name
+
+        self.craftax = make_craftax_env_from_name(
+            self.config.variant.craftax_name, auto_reset=False
+        )
+        self.params = self.craftax.default_params
+
+    @property
+    def variant(self) -> Variant:
+        return self.config.variant
+
+    @property
+    def num_actions(self) -> int:
+        return self.variant.num_actions
+
+    def reset(self, key: jax.Array, task: Task) -> EpisodeState:
+        """A fresh world for `task`; `key` is the episode key."""
+        # The craftax symbolic observation is computed by reset_env/step_env but never returned
+        # from our jitted functions, so XLA drops it: we textualize from the state instead.
+        _, game = self.craftax.reset_env(jax.random.fold_in(key, 0x7E5E7), self.params)
+        # Craftax's reset leaves some leaves weakly typed while step returns them strongly typed;
+        # matching types keeps the first step from compiling twice.
+        game = jax.tree.map(lambda leaf: jnp.asarray(leaf).astype(jnp.asarray(leaf).dtype), game)
+        return EpisodeState(
+            game=game,
+            task=task,
+            episode_key=key,
+            steps=jnp.int32(0),
+            termination=jnp.int32(Termination.RUNNING),
+        )
+
+    def step(
+        self, key: jax.Array, state: EpisodeState, action: jax.Array
+    ) -> tuple[EpisodeState, StepInfo]:
+        """One step. A finished episode stays frozen and earns nothing."""
+        _, game, craftax_reward, game_over, _ = self.craftax.step_env(
+            key, state.game, action, self.params
+        )
+        steps = state.steps + 1
+        previous = state.game.achievements[:NUM_ACHIEVEMENTS]
+        unlocked = game.achievements[:NUM_ACHIEVEMENTS]
+        success = goal_reached(unlocked, state.task.required, state.task.forbidden)
+        dead = game.player_health <= 0
+        termination = jnp.select(
+            [success, dead, game_over | (steps >= self.config.max_steps)],
+            [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
+            Termination.RUNNING,
+        ).astype(jnp.int32)
+        stepped = EpisodeState(
+            game=game,
+            task=state.task,
+            episode_key=state.episode_key,
+            steps=steps,
+            termination=termination,
+        )
+        was_done = state.done
+        next_state = jax.tree.map(lambda old, new: jnp.where(was_done, old, new), state, stepped)
+        craftax_reward = jnp.where(was_done, 0.0, craftax_reward).astype(jnp.float32)
+        reward = jnp.where(was_done, 0.0, success.astype(jnp.float32)) + (
+            craftax_reward / CRAFTAX_REWARD_SCALE
+        )
+        info = StepInfo(
+            reward=reward,
+            done=next_state.done,
+            termination=next_state.termination,
+            craftax_reward=craftax_reward,
+            new_achievements=jnp.where(was_done, False, unlocked & ~previous),
+        )
+        return next_state, info
+
+    def step_from_episode_key(
+        self, state: EpisodeState, action: jax.Array
+    ) -> tuple[EpisodeState, StepInfo]:
+        """`step` with the key derived from the episode key and step index (deterministic replay)."""
+        return self.step(jax.random.fold_in(state.episode_key, state.steps), state, action)
+
+
+def episode_key(seed: int, goal_id: str, instruction_index: int, episode_index: int) -> np.ndarray:
+    """The raw PRNG key (two uint32 words) of one episode.
+
+    Derived by hashing, so the world of (seed, goal, instruction variant, episode) is the same in
+    every run, whatever else the run contains or in which order it schedules episodes.
+    """
+    digest = hashlib.blake2b(
+        f"{seed}\x1f{goal_id}\x1f{instruction_index}\x1f{episode_index}".encode(), digest_size=8
+    ).digest()
+    return np.frombuffer(digest, dtype=np.uint32).copy()
+
+
+class HostBatch(struct.PyTreeNode):
+    """Everything the host needs after a reset or step, as numpy arrays with a leading slot axis."""
+
+    game: Any
+    reward: np.ndarray
+    done: np.ndarray
+    termination: np.ndarray
+    steps: np.ndarray
+    achievements: np.ndarray
+    new_achievements: np.ndarray
+
+
+class VectorEnv:
+    """A fixed batch of episodes stepped in lockstep with one compiled function.
+
+    Shapes never change (finished slots stay frozen until refilled), so nothing recompiles
+    after the first step.
+    """
+
+    def __init__(self, env: CrafTextEnv, batch_size: int):
+        if batch_size < 1:
+            raise ValueError("batch_size must be at least 1")
+        self.env = env
+        self.batch_size = batch_size
+        self._reset = jax.jit(jax.vmap(env.reset))
+        self._reset_one = jax.jit(env.reset)
+        self._step = jax.jit(jax.vmap(env.step_from_episode_key))
+        self._place = jax.jit(_place_episode)
+        self._state: EpisodeState | None = None
+
+    @property
+    def variant(self) -> Variant:
+        return self.env.variant
+
+    def reset(self, keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray) -> HostBatch:
+        """Start a new episode in every slot."""
+        self._state = self._reset(*self._device_inputs(keys, required, forbidden))
+        zeros = jnp.zeros(self.batch_size, jnp.float32)
+        no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
+        return self._to_host(self._state, zeros, no_new)
+
+    def refill(
+        self, slots: Sequence[int], keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray
+    ) -> HostBatch:
+        """Start new episodes in the given slots; the other slots are untouched.
+
+        `keys`, `required` and `forbidden` hold one row per refilled slot, in the order of `slots`.
+        """
+        state = self._require_state()
+        keys = np.asarray(keys, dtype=np.uint32).reshape(len(slots), 2)
+        required = np.asarray(required, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
+        forbidden = np.asarray(forbidden, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
+        # Worlds are generated one at a time: a batched reset would rebuild every slot's world.
+        for row, slot in enumerate(slots):
+            fresh = self._reset_one(
+                jnp.asarray(keys[row]), make_task(required[row], forbidden[row])
+            )
+            state = self._place(state, fresh, jnp.int32(slot))
+        self._state = state
+        zeros = jnp.zeros(self.batch_size, jnp.float32)
+        no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
+        return self._to_host(self._state, zeros, no_new)
+
+    def step(self, actions: np.ndarray) -> HostBatch:
+        """Step every slot; frozen (finished) slots ignore their action."""
+        state = self._require_state()
+        actions_device = jnp.asarray(np.asarray(actions, dtype=np.int32).reshape(self.batch_size))
+        self._state, info = self._step(state, actions_device)
+        return self._to_host(self._state, info.reward, info.new_achievements)
+
+    def _require_state(self) -> EpisodeState:
+        if self._state is None:
+            raise RuntimeError("call reset() before step() or refill()")
+        return self._state
+
+    def _device_inputs(
+        self, keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray
+    ) -> tuple[jax.Array, Task]:
+        keys = np.asarray(keys, dtype=np.uint32).reshape(self.batch_size, 2)
+        task = make_task(
+            np.asarray(required, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS),
+            np.asarray(forbidden, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS),
+        )
+        return jnp.asarray(keys), task
+
+    @staticmethod
+    def _to_host(state: EpisodeState, reward: jax.Array, new: jax.Array) -> HostBatch:
+        game, reward_np, termination, steps, new_np = jax.device_get(
+            (state.game, reward, state.termination, state.steps, new)
+        )
+        return HostBatch(
+            game=game,
+            reward=reward_np,
+            done=termination != Termination.RUNNING,
+            termination=termination,
+            steps=steps,
+            achievements=np.asarray(game.achievements)[:, :NUM_ACHIEVEMENTS],
+            new_achievements=new_np,
+        )
+
+
+def _place_episode(state: EpisodeState, episode: EpisodeState, slot: jax.Array) -> EpisodeState:
+    result: EpisodeState = jax.tree.map(lambda batch, one: batch.at[slot].set(one), state, episode)
+    return result

@@ -1,0 +1,54 @@
+"""Shared fixtures: one compiled env per variant for the whole session (compiles are the slow part)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """`../shared/data` beside the checkout (reference copies; never committed)."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"reference data not found at {SHARED_DATA}")
+    return SHARED_DATA
+
+
+@dataclass
+class CompiledEnv:
+    """A CrafText env with its single-episode functions jitted once."""
+
+    env: Any
+    reset: Any
+    step: Any
+
+
+def _compiled(variant: str) -> CompiledEnv:
+    import jax
+
+    from env import CrafTextEnv, EnvConfig, Variant
+
+    env = CrafTextEnv(EnvConfig(variant=Variant(variant)))
+    return CompiledEnv(env=env, reset=jax.jit(env.reset), step=jax.jit(env.step_from_episode_key))
+
+
+@pytest.fixture(scope="session")
+def classic_env() -> CompiledEnv:
+    return _compiled("classic")
+
+
+@pytest.fixture(scope="session")
+def full_env() -> CompiledEnv:
+    return _compiled("full")
+
+
+@pytest.fixture(scope="session", params=["classic", "full"])
+def any_env(
+    request: pytest.FixtureRequest, classic_env: CompiledEnv, full_env: CompiledEnv
+) -> CompiledEnv:
+    return classic_env if request.param == "classic" else full_env

@@ -1,0 +1,259 @@
+"""The CrafText env on real Craftax states: the checker's truth table, rewards, termination,
+batched vs single stepping, determinism and slot refills, in both variants."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from env import (
+    ACHIEVEMENT_IDS,
+    NUM_ACHIEVEMENTS,
+    CrafTextEnv,
+    EnvConfig,
+    Termination,
+    Variant,
+    VectorEnv,
+    episode_key,
+    make_task,
+)
+from env.checker import goal_reached
+
+NOOP = 0
+
+
+def masks(required: list[str], forbidden: list[str] = []) -> tuple[np.ndarray, np.ndarray]:  # noqa: B006
+    req = np.zeros(NUM_ACHIEVEMENTS, bool)
+    forb = np.zeros(NUM_ACHIEVEMENTS, bool)
+    for name in required:
+        req[ACHIEVEMENT_IDS[name]] = True
+    for name in forbidden:
+        forb[ACHIEVEMENT_IDS[name]] = True
+    return req, forb
+
+
+def with_achievements(state: Any, names: list[str]) -> Any:
+    achievements = np.asarray(state.game.achievements).copy()
+    for name in names:
+        achievements[ACHIEVEMENT_IDS[name]] = True
+    game = state.game.replace(achievements=jnp.asarray(achievements))
+    return state.replace(game=game)
+
+
+def key(i: int = 0) -> jax.Array:
+    return jnp.asarray(episode_key(7, "test", 0, i))
+
+
+@pytest.mark.parametrize(
+    ("unlocked", "required", "forbidden", "success"),
+    [
+        ([], ["COLLECT_WOOD"], [], False),
+        (["COLLECT_WOOD"], ["COLLECT_WOOD"], [], True),
+        (["COLLECT_WOOD"], ["COLLECT_WOOD", "PLACE_TABLE"], [], False),
+        (["PLACE_TABLE", "COLLECT_WOOD"], ["COLLECT_WOOD", "PLACE_TABLE"], [], True),
+        (["COLLECT_WOOD", "EAT_COW"], ["COLLECT_WOOD"], ["EAT_COW"], False),
+        (["COLLECT_WOOD"], ["COLLECT_WOOD"], ["EAT_COW"], True),
+        (["COLLECT_WOOD", "COLLECT_SAPLING", "WAKE_UP"], ["COLLECT_WOOD"], [], True),
+        (["MAKE_IRON_SWORD"], ["MAKE_IRON_SWORD"], ["COLLECT_DIAMOND"], True),
+    ],
+)
+def test_checker_truth_table_on_real_states(
+    any_env: Any, unlocked: list[str], required: list[str], forbidden: list[str], success: bool
+) -> None:
+    req, forb = masks(required, forbidden)
+    state = any_env.reset(key(), make_task(req, forb))
+    state = with_achievements(state, unlocked)
+    _, info = any_env.step(state, jnp.int32(NOOP))
+    assert (int(info.termination) == Termination.SUCCESS) == success
+    assert bool(info.done) == success
+    if success:
+        craftax_part = float(info.craftax_reward) / 50.0
+        assert float(info.reward) == pytest.approx(1.0 + craftax_part)
+    else:
+        assert float(info.reward) < 1.0
+
+
+def test_goal_reached_matches_set_semantics() -> None:
+    rng = np.random.default_rng(0)
+    unlocked = rng.random((500, NUM_ACHIEVEMENTS)) < 0.3
+    required = rng.random((500, NUM_ACHIEVEMENTS)) < 0.1
+    forbidden = (rng.random((500, NUM_ACHIEVEMENTS)) < 0.1) & ~required
+    got = np.asarray(
+        goal_reached(jnp.asarray(unlocked), jnp.asarray(required), jnp.asarray(forbidden))
+    )
+    expected = [
+        set(np.flatnonzero(r)) <= set(np.flatnonzero(u))
+        and not (set(np.flatnonzero(f)) & set(np.flatnonzero(u)))
+        for u, r, f in zip(unlocked, required, forbidden, strict=True)
+    ]
+    assert got.tolist() == expected
+    assert 0 < sum(expected) < 500
+
+
+def test_success_is_scored_once_and_the_episode_freezes(any_env: Any) -> None:
+    req, forb = masks(["COLLECT_WOOD"])
+    state = with_achievements(any_env.reset(key(), make_task(req, forb)), ["COLLECT_WOOD"])
+    done_state, info = any_env.step(state, jnp.int32(NOOP))
+    assert int(info.termination) == Termination.SUCCESS
+    later, later_info = any_env.step(done_state, jnp.int32(1))
+    assert float(later_info.reward) == 0.0
+    assert int(later.steps) == int(done_state.steps) == 1
+    assert np.array_equal(
+        np.asarray(later.game.player_position), np.asarray(done_state.game.player_position)
+    )
+
+
+def test_death_ends_the_episode(any_env: Any) -> None:
+    req, forb = masks(["COLLECT_DIAMOND"])
+    state = any_env.reset(key(), make_task(req, forb))
+    dying = state.replace(game=state.game.replace(player_health=state.game.player_health * 0))
+    _, info = any_env.step(dying, jnp.int32(NOOP))
+    assert bool(info.done)
+    assert int(info.termination) == Termination.DEATH
+
+
+def test_step_cap_times_out() -> None:
+    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=3))
+    reset, step = jax.jit(env.reset), jax.jit(env.step_from_episode_key)
+    req, forb = masks(["COLLECT_DIAMOND"])
+    state = reset(key(), make_task(req, forb))
+    terminations = []
+    for _ in range(4):
+        state, info = step(state, jnp.int32(NOOP))
+        terminations.append(int(info.termination))
+    assert terminations == [0, 0, Termination.TIMEOUT, Termination.TIMEOUT]
+    assert int(state.steps) == 3
+
+
+def _leaves_equal(a: Any, b: Any) -> bool:
+    return all(
+        np.array_equal(np.asarray(x), np.asarray(y))
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
+
+
+@pytest.mark.parametrize("variant", ["classic", "full"])
+def test_batched_stepping_equals_single_episodes(
+    variant: str, classic_env: Any, full_env: Any
+) -> None:
+    compiled = classic_env if variant == "classic" else full_env
+    batch = 3
+    steps = 12
+    keys = np.stack([episode_key(1, "goal", 0, i) for i in range(batch)])
+    req = np.zeros((batch, NUM_ACHIEVEMENTS), bool)
+    req[:, ACHIEVEMENT_IDS["COLLECT_DIAMOND"]] = True
+    forb = np.zeros_like(req)
+    actions = np.random.default_rng(3).integers(0, compiled.env.num_actions, (steps, batch))
+
+    vector = VectorEnv(compiled.env, batch)
+    host = vector.reset(keys, req, forb)
+    rewards = []
+    for t in range(steps):
+        host = vector.step(actions[t])
+        rewards.append(host.reward)
+
+    for i in range(batch):
+        state = compiled.reset(jnp.asarray(keys[i]), make_task(req[i], forb[i]))
+        single_rewards = []
+        for t in range(steps):
+            state, info = compiled.step(state, jnp.int32(actions[t, i]))
+            single_rewards.append(float(info.reward))
+        game_i = jax.tree.map(lambda x, i=i: x[i], host.game)
+        assert _leaves_equal(jax.device_get(state.game), game_i)
+        assert np.allclose([r[i] for r in rewards], single_rewards)
+        assert int(host.steps[i]) == steps
+
+
+def test_same_seed_same_world_and_trajectory(classic_env: Any) -> None:
+    req, forb = masks(["COLLECT_DIAMOND"])
+    task = make_task(req, forb)
+    actions = np.random.default_rng(5).integers(0, 17, 20)
+
+    def rollout(k: jax.Array) -> Any:
+        state = classic_env.reset(k, task)
+        for a in actions:
+            state, _ = classic_env.step(state, jnp.int32(a))
+        return jax.device_get(state.game)
+
+    first = rollout(key(0))
+    assert _leaves_equal(first, rollout(key(0)))
+    other = rollout(key(1))
+    assert not np.array_equal(np.asarray(first.map), np.asarray(other.map))
+
+
+def test_episode_key_depends_on_every_component() -> None:
+    base = episode_key(0, "COLLECT_WOOD", 0, 0)
+    assert base.dtype == np.uint32 and base.shape == (2,)
+    assert np.array_equal(base, episode_key(0, "COLLECT_WOOD", 0, 0))
+    variants = [
+        episode_key(1, "COLLECT_WOOD", 0, 0),
+        episode_key(0, "PLACE_TABLE", 0, 0),
+        episode_key(0, "COLLECT_WOOD", 1, 0),
+        episode_key(0, "COLLECT_WOOD", 0, 1),
+    ]
+    assert all(not np.array_equal(base, v) for v in variants)
+
+
+def test_refill_restarts_only_the_named_slots(classic_env: Any) -> None:
+    batch = 3
+    keys = np.stack([episode_key(2, "goal", 0, i) for i in range(batch)])
+    req = np.zeros((batch, NUM_ACHIEVEMENTS), bool)
+    req[:, ACHIEVEMENT_IDS["COLLECT_DIAMOND"]] = True
+    forb = np.zeros_like(req)
+    vector = VectorEnv(classic_env.env, batch)
+    vector.reset(keys, req, forb)
+    for _ in range(5):
+        before = vector.step(np.full(batch, 1))
+
+    new_key = episode_key(2, "goal", 0, 99)
+    new_req, new_forb = masks(["COLLECT_WOOD"])
+    after = vector.refill([1], new_key[None], new_req[None], new_forb[None])
+
+    assert after.steps.tolist() == [5, 0, 5]
+    fresh = jax.device_get(
+        classic_env.reset(jnp.asarray(new_key), make_task(new_req, new_forb)).game
+    )
+    assert _leaves_equal(fresh, jax.tree.map(lambda x: x[1], after.game))
+    for slot in (0, 2):
+        assert _leaves_equal(
+            jax.tree.map(lambda x, s=slot: x[s], before.game),
+            jax.tree.map(lambda x, s=slot: x[s], after.game),
+        )
+    # The refilled slot now plays the new task: unlocking wood succeeds there only.
+    game = after.game
+    achievements = np.asarray(game.achievements).copy()
+    achievements[:, ACHIEVEMENT_IDS["COLLECT_WOOD"]] = True
+    vector._state = vector._require_state().replace(
+        game=vector._require_state().game.replace(achievements=jnp.asarray(achievements))
+    )
+    stepped = vector.step(np.zeros(batch))
+    assert stepped.termination.tolist() == [0, Termination.SUCCESS, 0]
+
+
+def test_new_achievements_are_reported_on_the_unlocking_step_only(any_env: Any) -> None:
+    from craftax.craftax_classic.constants import BlockType
+
+    req, forb = masks(["COLLECT_DIAMOND"])
+    state = any_env.reset(key(), make_task(req, forb))
+    game = state.game
+    facing = {1: (0, -1), 2: (0, 1), 3: (-1, 0), 4: (1, 0)}[int(game.player_direction)]
+    target = np.asarray(game.player_position) + np.asarray(facing)
+    world = np.asarray(game.map).copy()
+    tree = BlockType.TREE.value
+    if world.ndim == 3:  # full Craftax: one map per floor
+        world[int(game.player_level), target[0], target[1]] = tree
+    else:
+        world[target[0], target[1]] = tree
+    state = state.replace(game=game.replace(map=jnp.asarray(world)))
+    do = 5
+    wood = ACHIEVEMENT_IDS["COLLECT_WOOD"]
+    state, info = any_env.step(state, jnp.int32(do))
+    new = np.asarray(info.new_achievements)
+    assert new[wood] and new.sum() == 1
+    assert float(info.reward) > 0  # Craftax's achievement reward, divided by 50
+    _, info = any_env.step(state, jnp.int32(do))
+    assert not np.asarray(info.new_achievements)[wood]
