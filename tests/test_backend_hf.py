@@ -131,6 +131,7 @@ def test_missing_model_folder_is_a_user_error(tmp_path: Path) -> None:
         resolve_model_path(str(tmp_path / "nope"))
     assert resolve_model_path(str(tmp_path)) == tmp_path
     assert resolve_model_path("someone/some-model") is None
+    assert resolve_model_path("Qwen/Qwen2.5-0.5B-Instruct") is None
 
 
 def test_uncached_hub_model_is_a_user_error_not_a_hang() -> None:

@@ -129,6 +129,7 @@ class HFModel(ModelAPI):
             "torch": torch.__version__,
             "device": str(self.device),
             "dtype": str(self.dtype).removeprefix("torch."),
+            "choice_scoring": self.choice_scoring,
         }
 
     def generate(
@@ -418,7 +419,7 @@ def resolve_model_path(model_name: str) -> Path | None:
     path = Path(model_name).expanduser()
     if path.is_dir():
         return path
-    if model_name.startswith((".", "/", "~")) or path.suffix:
+    if model_name.startswith((".", "/", "~")):
         raise UserError(f"hf model folder {model_name!r} does not exist")
     return None
 

@@ -14,12 +14,11 @@ outputs (wording: `prompts/answer_only.j2`) and counts it in `ModelOutput.follow
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from pathlib import Path
 
-import jinja2
 from pydantic import BaseModel, ConfigDict
 
 from llm_agents.backends.base import ChatMessage, Conversation, ModelOutput
+from prompts import render_template
 
 THINK_OPEN = "<think>"
 THINK_CLOSE = "</think>"
@@ -162,23 +161,4 @@ def resolve_truncated(
 
 
 def _answer_only_text(*, has_partial_answer: bool) -> str:
-    template = _template_environment().get_template(ANSWER_ONLY_TEMPLATE)
-    return template.render(has_partial_answer=has_partial_answer).strip()
-
-
-_ENVIRONMENT: jinja2.Environment | None = None
-
-
-def _template_environment() -> jinja2.Environment:
-    global _ENVIRONMENT
-    if _ENVIRONMENT is None:
-        import prompts
-
-        folder = Path(prompts.__file__).parent
-        _ENVIRONMENT = jinja2.Environment(
-            loader=jinja2.FileSystemLoader(folder),
-            undefined=jinja2.StrictUndefined,
-            keep_trailing_newline=False,
-            autoescape=False,
-        )
-    return _ENVIRONMENT
+    return render_template(ANSWER_ONLY_TEMPLATE, {"has_partial_answer": has_partial_answer})

@@ -1,0 +1,122 @@
+"""Model specs name a backend; a typo gets suggestions and a missing extra its install command."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from env.errors import UserError
+from llm_agents import backends
+from llm_agents.backends import (
+    BackendNotInstalled,
+    GenerateConfig,
+    ModelAPI,
+    ModelOutput,
+    get_model,
+    parse_model_spec,
+)
+from llm_agents.backends.base import ChatMessage
+from llm_agents.backends.mock import MockModel
+
+
+@pytest.mark.parametrize(
+    ("spec", "backend", "name", "base_url"),
+    [
+        ("hf:smollm2-135m", "hf", "smollm2-135m", None),
+        ("HF:/models/x", "hf", "/models/x", None),
+        ("openai:gpt-4o@http://localhost:8000/v1", "openai", "gpt-4o", "http://localhost:8000/v1"),
+        ("openai:org/model@name@http://h:1/v1", "openai", "org/model@name", "http://h:1/v1"),
+        ("vllm:Qwen/Qwen3-0.6B", "vllm", "Qwen/Qwen3-0.6B", None),
+        ("mock:cycle:A|B", "mock", "cycle:A|B", None),
+        ("mock:", "mock", "", None),
+    ],
+)
+def test_specs_are_split_into_backend_model_and_url(
+    spec: str, backend: str, name: str, base_url: str | None
+) -> None:
+    parsed = parse_model_spec(spec)
+    assert (parsed.backend, parsed.name, parsed.base_url) == (backend, name, base_url)
+
+
+@pytest.mark.parametrize(
+    ("spec", "suggestion"),
+    [("hff:smollm2-135m", "hf"), ("vlm:x", "vllm"), ("opneai:gpt@http://h", "openai")],
+)
+def test_a_mistyped_backend_gets_close_matches(spec: str, suggestion: str) -> None:
+    with pytest.raises(UserError, match=f"did you mean {suggestion}") as caught:
+        parse_model_spec(spec)
+    assert spec in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("smollm2-135m", "no backend"),
+        ("zzzzzz:model", "unknown backend 'zzzzzz'"),
+        ("hf:", "names no model"),
+    ],
+)
+def test_bad_specs_are_user_errors(spec: str, message: str) -> None:
+    with pytest.raises(UserError, match=message):
+        parse_model_spec(spec)
+
+
+def test_get_model_builds_the_backend_with_config_and_options() -> None:
+    model = get_model("mock:cycle:A|B", GenerateConfig(max_tokens=5), latency_s=0.0)
+    assert isinstance(model, MockModel)
+    assert model.config.max_tokens == 5
+    conversation = [ChatMessage(role="user", content="go")]
+    assert [o.text for o in model.generate([conversation] * 3)] == ["A", "B", "A"]
+
+
+class Recorder(ModelAPI):
+    """Records how the registry constructed it."""
+
+    backend_name = "openai"
+
+    def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
+        super().__init__(model_name, config, **options)
+
+    def generate(self, conversations: Any, choices: Any = None) -> list[ModelOutput]:
+        return []
+
+
+def test_the_base_url_reaches_the_http_backend(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(backends.BACKENDS, "openai", f"{__name__}:Recorder")
+    model = get_model("openai:gpt-4o@http://127.0.0.1:9/v1")
+    assert isinstance(model, Recorder)
+    assert model.model_name == "gpt-4o"
+    assert model.options == {"base_url": "http://127.0.0.1:9/v1"}
+
+
+@pytest.fixture
+def broken_backend_module(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
+    """A backend module whose third-party dependency is not installed."""
+    (tmp_path / "craftext_fake_backend.py").write_text(
+        "import craftext_dependency_that_is_not_installed\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "craftext_fake_backend", raising=False)
+    return "craftext_fake_backend:Model"
+
+
+def test_a_missing_extra_gives_the_install_command(
+    monkeypatch: pytest.MonkeyPatch, broken_backend_module: str
+) -> None:
+    monkeypatch.setitem(backends.BACKENDS, "vllm", broken_backend_module)
+    with pytest.raises(BackendNotInstalled, match=r"pip install 'craftext-llm\[vllm\]'") as caught:
+        get_model("vllm:some-model")
+    assert "craftext_dependency_that_is_not_installed" in str(caught.value)
+    assert isinstance(caught.value, UserError)
+
+
+def test_a_missing_project_module_is_a_bug_not_a_user_error(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(backends.BACKENDS, "hf", "llm_agents.backends.no_such_module:X")
+    with pytest.raises(ModuleNotFoundError) as caught:
+        get_model("hf:x")
+    assert not isinstance(caught.value, UserError)
