@@ -45,6 +45,7 @@ class Request:
     received_at: float
 
 
+#: Request body -> the answer's message; a `finish_reason` key in it sets the choice's.
 Answerer = Callable[[dict[str, Any]], dict[str, Any]]
 
 
@@ -132,13 +133,14 @@ class FaultServer:
                 if state.reject_structured_outputs and "structured_outputs" in body:
                     self._send(400, self._error("unknown field structured_outputs"))
                     return
-                message = state.answer(body)
+                message = dict(state.answer(body))
+                finish = message.pop("finish_reason", "stop")
                 self._send(
                     200,
                     {
                         "object": "chat.completion",
                         "model": body.get("model"),
-                        "choices": [{"index": 0, "message": message, "finish_reason": "stop"}],
+                        "choices": [{"index": 0, "message": message, "finish_reason": finish}],
                         "usage": {"prompt_tokens": 7, "completion_tokens": 3, "total_tokens": 10},
                     },
                 )

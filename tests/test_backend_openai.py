@@ -184,6 +184,33 @@ def test_reasoning_content_is_kept_apart_from_the_answer(server: FaultServer) ->
     assert output.text == "NOOP" and output.reasoning == "nothing to do here"
 
 
+def test_inline_thinking_is_split_from_the_answer(server: FaultServer) -> None:
+    server.answer = lambda body: {"role": "assistant", "content": "<think>a tree</think>\nDO"}
+    [output] = model(server).generate([conv("inline")])
+    assert output.text == "DO" and output.reasoning == "a tree"
+
+
+def test_reasoning_cut_off_by_the_token_limit_gets_one_answer_only_followup(
+    server: FaultServer,
+) -> None:
+    def answer(body: dict[str, Any]) -> dict[str, Any]:
+        if len(body["messages"]) == 2:  # the original request: thinking runs out of tokens
+            return {
+                "role": "assistant",
+                "content": "<think>the tree is near",
+                "finish_reason": "length",
+            }
+        return {"role": "assistant", "content": "DO"}
+
+    server.answer = answer
+    [output] = model(server).generate([conv("deep thought")])
+    assert output.text == "DO" and output.followups == 1
+    assert output.reasoning is not None and "the tree is near" in output.reasoning
+    followup = server.requests[-1].body["messages"]
+    assert len(server.requests) == 2 and followup[2]["role"] == "assistant"
+    assert "the tree is near" in followup[2]["content"]
+
+
 def test_generate_works_inside_a_running_event_loop(server: FaultServer) -> None:
     backend = model(server)
 

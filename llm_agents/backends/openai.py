@@ -25,11 +25,11 @@ from tenacity import RetryError
 from env.errors import UserError
 from llm_agents.backends.base import (
     Conversation,
-    FinishReason,
     GenerateConfig,
     ModelAPI,
     ModelOutput,
 )
+from llm_agents.backends.reasoning import resolve_truncated, with_reasoning_split
 from llm_agents.backends.retry import (
     RetryPolicy,
     TransientError,
@@ -119,7 +119,15 @@ class OpenAIModel(ModelAPI):
         conversations: Sequence[Conversation],
         choices: Sequence[str] | None = None,
     ) -> list[ModelOutput]:
-        batch = self._generate_all(conversations, list(choices) if choices else None)
+        if choices:
+            return self._run(conversations, list(choices))
+        outputs = self._run(conversations, None)
+        return resolve_truncated(conversations, outputs, lambda batch: self._run(batch, None))
+
+    def _run(
+        self, conversations: Sequence[Conversation], choices: list[str] | None
+    ) -> list[ModelOutput]:
+        batch = self._generate_all(conversations, choices)
         try:
             asyncio.get_running_loop()
         except RuntimeError:
@@ -261,23 +269,22 @@ def _parse_reply(reply: dict[str, Any], choices: list[str] | None) -> ModelOutpu
     try:
         choice = reply["choices"][0]
         message = choice["message"]
-    except (KeyError, IndexError, TypeError):
+        text = message.get("content") or ""
+    except (KeyError, IndexError, TypeError, AttributeError):
         raise RequestFailed(
             f"the server's answer has no choices[0].message: {json.dumps(reply)[:ERROR_BODY_CHARS]}"
         ) from None
-    text = message.get("content") or ""
-    if choices is not None and text.strip() in choices:
-        text = text.strip()
-    # vLLM's reasoning parsers fill `reasoning_content` (older) or `reasoning` (newer).
-    reasoning = message.get("reasoning_content") or message.get("reasoning") or None
-    finish: FinishReason = "length" if choice.get("finish_reason") == "length" else "stop"
-    if choices is not None and text in choices:
-        finish = "choice"
     usage = reply.get("usage") or {}
-    return ModelOutput(
+    output = ModelOutput(
         text=text,
-        reasoning=reasoning,
         prompt_tokens=int(usage.get("prompt_tokens") or 0),
         completion_tokens=int(usage.get("completion_tokens") or 0),
-        finish_reason=finish,
+        finish_reason="length" if choice.get("finish_reason") == "length" else "stop",
     )
+    # vLLM's reasoning parsers fill `reasoning_content` (older) or `reasoning` (newer); servers
+    # without one leave the thinking inline, in <think> tags.
+    reasoning = message.get("reasoning_content") or message.get("reasoning") or None
+    output = with_reasoning_split(output, reasoning=reasoning)
+    if choices is not None and output.text in choices:
+        output.finish_reason = "choice"
+    return output

