@@ -105,6 +105,7 @@ def test_client_errors_are_not_retried(server: FaultServer, status: int) -> None
     assert server.count("bad") == 1
     assert output.finish_reason == "error" and output.text == ""
     assert output.error is not None and f"HTTP {status}" in output.error and "nope" in output.error
+    assert "not retried" in output.error
 
 
 def test_exhausted_retries_give_a_clear_error_without_losing_the_batch(

@@ -243,7 +243,9 @@ class OpenAIModel(ModelAPI):
             if is_transient_status(status):
                 retry_after = parse_retry_after(response.headers.get("retry-after"))
                 raise TransientError(message, status=status, retry_after_s=retry_after)
-            raise _Rejected(message)
+            raise _Rejected(
+                f"POST {self.base_url}/chat/completions rejected, not retried: {message}"
+            )
         try:
             reply = response.json()
         except (json.JSONDecodeError, UnicodeDecodeError):
