@@ -7,6 +7,7 @@ for every tile past the map edge). Mobs come from the state's mob arrays, never 
 vector, which can lose a visible mob when an off-screen one is written over it.
 """
 
+from collections.abc import Sequence
 from functools import cache
 from typing import Any
 
@@ -359,12 +360,16 @@ class _Episode:
         return _Episode(value, self._index)
 
 
-def observe_batch(states: Any, variant: Variant | str) -> list[Observation]:
-    """One observation per episode of a craftax `EnvState` with a leading episode axis."""
+def observe_batch(
+    states: Any, variant: Variant | str, indices: Sequence[int] | None = None
+) -> list[Observation]:
+    """One observation per episode of a craftax `EnvState` with a leading episode axis
+    (only the episodes at `indices`, in that order, when given)."""
     variant = _as_variant(variant)
     shape = np.shape(getattr(states, "player_position", ()))
     if len(shape) != 2:
         raise UserError(
             f"observe_batch() takes a batched state (player_position of shape (N, 2)), got shape {shape}"
         )
-    return [observe(_Episode(states, i), variant) for i in range(shape[0])]
+    chosen = range(shape[0]) if indices is None else indices
+    return [observe(_Episode(states, i), variant) for i in chosen]

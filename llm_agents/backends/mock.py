@@ -4,13 +4,16 @@ Spec forms (`mock:<script>`):
 - `mock:` or `mock:noop` answers "NOOP" forever;
 - `mock:cycle:A|B|C` answers A, B, C, A, ... (one counter over all requests, in order);
 - `mock:list:A|B|C` answers A, B, C, then fails with an error output;
-- `mock:file:PATH` reads a JSON list of answers and cycles through it.
+- `mock:file:PATH` reads a JSON list of answers and cycles through it;
+- `mock:hash:A|B|C` picks the answer from a hash of the conversation, so the same prompt always
+  gets the same answer whatever the batch or request order (resume tests rely on this).
 From Python, `MockModel(outputs=callable)` answers `callable(conversation)`.
 Every request is recorded in `requests`.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from collections.abc import Callable, Sequence
@@ -50,13 +53,13 @@ class MockModel(ModelAPI):
         self._count = 0
         self._responder: Responder | None = None
         self._outputs: list[str] = []
-        self._cycle = cycle
+        self._mode = "cycle" if cycle else "list"
         if callable(outputs):
             self._responder = outputs
         elif outputs is not None:
             self._outputs = list(outputs)
         else:
-            self._outputs, self._cycle = _parse_script(model_name)
+            self._outputs, self._mode = _parse_script(model_name)
 
     def generate(
         self,
@@ -76,7 +79,12 @@ class MockModel(ModelAPI):
         self._count += 1
         if self._responder is not None:
             text = self._responder(conversation)
-        elif self._cycle and self._outputs:
+        elif self._mode == "hash":
+            digest = hashlib.sha256(
+                "\x1e".join(f"{m.role}\x1f{m.content}" for m in conversation).encode()
+            ).digest()
+            text = self._outputs[int.from_bytes(digest[:8], "big") % len(self._outputs)]
+        elif self._mode == "cycle" and self._outputs:
             text = self._outputs[index % len(self._outputs)]
         elif index < len(self._outputs):
             text = self._outputs[index]
@@ -100,15 +108,15 @@ class MockModel(ModelAPI):
         )
 
 
-def _parse_script(script: str) -> tuple[list[str], bool]:
+def _parse_script(script: str) -> tuple[list[str], str]:
     kind, _, arg = script.partition(":")
     if kind in ("", "noop"):
-        return ["NOOP"], True
-    if kind in ("cycle", "list"):
+        return ["NOOP"], "cycle"
+    if kind in ("cycle", "list", "hash"):
         outputs = [part for part in arg.split("|") if part]
         if not outputs:
             raise UserError(f"mock script {script!r} lists no answers; write mock:{kind}:A|B")
-        return outputs, kind == "cycle"
+        return outputs, kind
     if kind == "file":
         path = Path(arg)
         try:
@@ -117,7 +125,7 @@ def _parse_script(script: str) -> tuple[list[str], bool]:
             raise UserError(f"cannot read mock script file {path}: {err}") from err
         if not isinstance(data, list) or not all(isinstance(x, str) for x in data) or not data:
             raise UserError(f"mock script file {path} must hold a non-empty JSON list of strings")
-        return data, True
+        return data, "cycle"
     raise UserError(
-        f"unknown mock script {script!r}; use noop, cycle:A|B, list:A|B or file:PATH"
+        f"unknown mock script {script!r}; use noop, cycle:A|B, list:A|B, hash:A|B or file:PATH"
     )

@@ -1,0 +1,223 @@
+"""The evaluation runner and CLI on the mock backend: outputs, refills, invalid answers,
+batch independence, resume after SIGKILL, Ctrl-C, and clear errors for bad input."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from env import CrafTextEnv, EnvConfig, Variant
+from llm_agents.backends import get_model
+from llm_agents.cli import EXIT_USER_ERROR, main
+from llm_agents.config import build_config
+from llm_agents.records import read_episodes, read_results
+from llm_agents.runner import build_schedule, run_eval
+
+REPO = Path(__file__).resolve().parents[1]
+MAX_STEPS = 12
+#: Half of the answers cannot be parsed: the fallback must be applied and counted.
+SCRIPT = "mock:hash:ACTION: LEFT|I will go RIGHT|<action>DO</action>|hmm, not sure|zzz qqq"
+
+
+@pytest.fixture(scope="module")
+def short_env() -> CrafTextEnv:
+    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+
+
+def config(out: Path, **overrides: Any) -> Any:
+    settings = {
+        "model": SCRIPT,
+        "variant": "classic",
+        "splits": ["combo", "new_objects"],
+        "max_steps": MAX_STEPS,
+        "batch_size": 3,
+        "limit": 7,
+        "output_dir": str(out),
+    }
+    settings.update(overrides)
+    return build_config(settings)
+
+
+def run(cfg: Any, env: CrafTextEnv) -> Any:
+    with get_model(cfg.model, cfg.generation) as model:
+        return run_eval(cfg, model, env=env)
+
+
+def canonical(run_dir: Path) -> list[dict[str, Any]]:
+    episodes = read_episodes(run_dir / "episodes.jsonl")
+    return sorted((e.model_dump() for e in episodes), key=lambda e: e["episode_id"])
+
+
+def test_run_writes_consistent_steps_episodes_and_results(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    outcome = run(config(tmp_path), short_env)
+
+    episodes = read_episodes(tmp_path / "episodes.jsonl")
+    assert len(episodes) == 7 == len({e.episode_id for e in episodes})
+    assert {e.category for e in episodes} == {"combo", "new_objects"}
+    steps = [json.loads(line) for line in (tmp_path / "steps.jsonl").read_text().splitlines()]
+    for episode in episodes:
+        own = [s for s in steps if s["episode_id"] == episode.episode_id]
+        assert [s["step"] for s in own] == list(range(episode.steps))
+        assert sum(s["fallback_used"] for s in own) == episode.invalid_actions
+        assert own[-1]["done"] and not any(s["done"] for s in own[:-1])
+        assert sum(s["reward"] for s in own) == pytest.approx(episode.episode_return)
+        if episode.termination == "timeout":
+            assert episode.steps == MAX_STEPS
+    fallbacks = [s for s in steps if s["fallback_used"]]
+    assert fallbacks and all(s["action_name"] == "NOOP" for s in fallbacks)
+    assert all(s["parse_stage"] == "invalid" for s in fallbacks)
+    assert any(not s["fallback_used"] for s in steps)
+
+    results = read_results(tmp_path / "results.json")
+    assert results.complete and results.finished_at is not None
+    assert results.config["model"] == SCRIPT
+    assert results.versions["craftax"] == "1.6.1"
+    assert results.dataset["kind"] in {"wheel", "directory", "json"}
+    assert outcome.summary is not None and outcome.summary.overall.episodes == 7
+
+
+def test_limited_schedule_samples_every_category_originals_first(tmp_path: Path) -> None:
+    from env.dataset import load_dataset
+
+    cfg = config(tmp_path, splits=["combo", "paraphrased", "new_objects"], limit=6)
+    instructions = load_dataset(None).instructions(cfg.splits)
+    schedule = build_schedule(cfg, instructions, None)
+    assert [s.category for s in schedule] == ["combo", "paraphrased", "new_objects"] * 2
+    assert all(s.instruction.variant == 0 for s in schedule)
+    assert len({s.episode_id for s in schedule}) == 6
+
+
+def test_results_do_not_depend_on_batch_size(tmp_path: Path, short_env: CrafTextEnv) -> None:
+    run(config(tmp_path / "b3", limit=5), short_env)
+    run(config(tmp_path / "b2", limit=5, batch_size=2), short_env)
+    assert canonical(tmp_path / "b3") == canonical(tmp_path / "b2")
+
+
+def _cli(out: Path, *extra: str) -> list[str]:
+    return [
+        sys.executable, "-m", "llm_agents.cli", "eval", "--model", SCRIPT, "--variant", "classic",
+        "--splits", "combo", "new_objects", "--max-steps", str(MAX_STEPS), "--batch-size", "2",
+        "--limit", "10", "--output-dir", str(out), "--no-progress", *extra,
+    ]  # fmt: skip
+
+
+def _wait_for_episodes(path: Path, process: subprocess.Popen[bytes], count: int) -> None:
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline and process.poll() is None:
+        if path.exists() and len(path.read_text().splitlines()) >= count:
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"no {count} episodes before the run ended: {process.poll()}")
+
+
+@pytest.mark.slow
+def test_sigkill_then_resume_equals_an_uninterrupted_run(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    reference = tmp_path / "reference"
+    run(config(reference, limit=10, batch_size=2, splits=["combo", "new_objects"]), short_env)
+
+    killed = tmp_path / "killed"
+    process = subprocess.Popen(
+        _cli(killed), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    _wait_for_episodes(killed / "episodes.jsonl", process, 2)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    done_at_kill = len(read_episodes(killed / "episodes.jsonl"))
+    assert done_at_kill < 10, "the run finished before it could be killed"
+    assert not read_results(killed / "results.json").complete
+
+    resumed = subprocess.run(_cli(killed), cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr
+    assert canonical(killed) == canonical(reference)
+    steps = [json.loads(line) for line in (killed / "steps.jsonl").read_text().splitlines()]
+    keys = [(s["episode_id"], s["step"]) for s in steps]
+    assert len(keys) == len(set(keys)), "a step was recorded twice"
+    assert len(steps) == sum(e["steps"] for e in canonical(killed))
+    assert read_results(killed / "results.json").complete
+
+
+@pytest.mark.slow
+def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
+    out = tmp_path / "interrupted"
+    process = subprocess.Popen(_cli(out), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    _wait_for_episodes(out / "episodes.jsonl", process, 1)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 130, stderr.decode()
+    results = read_results(out / "results.json")
+    assert not results.complete
+    assert results.summary is not None
+    assert results.summary.overall.episodes == len(read_episodes(out / "episodes.jsonl"))
+    assert b"rerun the same command to resume" in stderr
+
+
+def test_resume_refuses_a_directory_of_another_run(
+    tmp_path: Path, short_env: CrafTextEnv, capsys: Any
+) -> None:
+    run(config(tmp_path, limit=1, batch_size=1), short_env)
+    code = main(
+        ["eval", "--model", "mock:noop", "--variant", "classic", "--output-dir", str(tmp_path)]
+    )
+    assert code == EXIT_USER_ERROR
+    assert "other settings" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--splits", "combo", "hard"], "hard"),
+        (["--model", "hff:x"], "did you mean hf"),
+        (["--model", "nocolon"], "no backend"),
+        (["--renderer", "pixels"], "pixels"),
+        (["--plans", "/nonexistent/plans.json"], "plans.json"),
+        (["--templates-dir", "/nonexistent/templates"], "/nonexistent/templates"),
+        (["--config", "/nonexistent/run.toml"], "run.toml"),
+        (["--max-steps", "0"], "max_steps"),
+    ],
+)
+def test_bad_input_is_one_clear_error(
+    tmp_path: Path, capsys: Any, flags: list[str], message: str
+) -> None:
+    argv = ["eval", "--model", "mock:noop", "--output-dir", str(tmp_path / "out"), *flags]
+    assert main(argv) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    error_lines = [line for line in err.splitlines() if line.startswith("craftext-llm: error:")]
+    assert len(error_lines) == 1 and message in error_lines[0]
+    assert "Traceback" not in err
+
+
+def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:
+    from llm_agents.config import load_config_file
+
+    file = tmp_path / "run.toml"
+    file.write_text(
+        'model = "mock:noop"\nmax_steps = 40\nsplits = ["combo"]\n[generation]\ntemperature = 0.5\n'
+    )
+    cfg = build_config(load_config_file(file), {"max_steps": 20}, {"max_tokens": 32})
+    assert (cfg.model, cfg.max_steps, cfg.splits) == ("mock:noop", 20, ("combo",))
+    assert (cfg.generation.temperature, cfg.generation.max_tokens) == (0.5, 32)
+    yaml_file = tmp_path / "run.yaml"
+    yaml_file.write_text("variant: classic\nbatch_size: 4\n")
+    assert build_config(load_config_file(yaml_file)).batch_size == 4
+
+
+def test_report_command_rebuilds_table_and_chart(
+    tmp_path: Path, short_env: CrafTextEnv, capsys: Any
+) -> None:
+    run(config(tmp_path, limit=2, batch_size=2), short_env)
+    assert main(["report", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "combo" in out and "Qwen QwQ-32B" in out
+    assert (tmp_path / "success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["report", str(tmp_path / "missing")]) == EXIT_USER_ERROR
