@@ -274,24 +274,53 @@ class HFModel(ModelAPI):
             attention_mask=prompt_mask,
             position_ids=prompt_positions,
             use_cache=True,
+            logits_to_keep=1,
         )
-        first_log_probs = first.logits[:, -1].float().log_softmax(-1)
-
-        # All candidates side by side after the prompt; a token sees the (unpadded) prompt and
-        # the earlier tokens of its own candidate only.
+        first_tokens = torch.tensor([ids[0] for ids in candidates], device=device)
+        scores = first.logits[:, -1].float().log_softmax(-1)[:, first_tokens]
+        # The logits at a candidate's token j predict its token j + 1; single-token candidates
+        # are fully scored by the prompt pass.
         flat = [token for ids in candidates for token in ids]
-        offsets = [0]
-        for ids in candidates:
-            offsets.append(offsets[-1] + len(ids))
+        offsets = [0, *itertools.accumulate(len(ids) for ids in candidates)]
+        predicting = [
+            p for begin, end in itertools.pairwise(offsets) for p in range(begin, end - 1)
+        ]
+        if predicting:
+            later = self._candidate_pass(
+                first.past_key_values, prompt_mask, flat, offsets, predicting
+            )
+            keep = torch.tensor(predicting, device=device)
+            targets = torch.tensor(flat, device=device)[keep + 1]
+            owner = torch.tensor(
+                [k for k, ids in enumerate(candidates) for _ in range(len(ids) - 1)], device=device
+            )
+            token_scores = later.gather(-1, targets[None, :, None].expand(len(prompts), -1, 1))
+            scores = scores.index_add(1, owner, token_scores[..., 0])
+        return [[float(score) for score in row] for row in scores]
+
+    def _candidate_pass(
+        self,
+        prompt_cache: Any,
+        prompt_mask: torch.Tensor,
+        flat: list[int],
+        offsets: list[int],
+        predicting: list[int],
+    ) -> torch.Tensor:
+        """Log-probabilities at the `predicting` positions of all candidates, side by side.
+
+        A candidate token sees the (unpadded) prompt and the earlier tokens of its own candidate
+        only, so one pass over the shared prompt cache scores every candidate.
+        """
+        device = self.device
+        batch, width = prompt_mask.shape
         total = len(flat)
         own = torch.zeros(total, total, dtype=torch.bool, device=device)
         within = torch.zeros(total, dtype=torch.long, device=device)
         for begin, end in itertools.pairwise(offsets):
-            own[begin:end, begin:end] = (
-                torch.ones(end - begin, end - begin, device=device).tril().bool()
-            )
+            own[begin:end, begin:end] = torch.ones(
+                end - begin, end - begin, dtype=torch.bool, device=device
+            ).tril()
             within[begin:end] = torch.arange(end - begin, device=device)
-        batch = len(prompts)
         allowed = torch.cat(
             [
                 prompt_mask.bool()[:, None, :].expand(batch, total, width),
@@ -302,29 +331,16 @@ class HFModel(ModelAPI):
         dtype = self.model.dtype
         mask = torch.zeros(allowed.shape, dtype=dtype, device=device)
         mask.masked_fill_(~allowed, torch.finfo(dtype).min)
-        lengths = prompt_mask.sum(-1)
-        second = self.model(
+        output = self.model(
             input_ids=torch.tensor([flat] * batch, device=device),
             attention_mask=mask[:, None],
-            position_ids=lengths[:, None] + within[None],
-            past_key_values=first.past_key_values,
+            position_ids=prompt_mask.sum(-1, keepdim=True) + within[None],
+            past_key_values=prompt_cache,
             use_cache=True,
+            logits_to_keep=torch.tensor(predicting, device=device),
         )
-        later_log_probs = second.logits.float().log_softmax(-1)
-
-        scores: list[list[float]] = []
-        for row in range(batch):
-            row_scores = []
-            for ids, begin in zip(candidates, offsets, strict=False):
-                score = first_log_probs[row, ids[0]]
-                if len(ids) > 1:
-                    # The logits at a candidate's token j predict its token j + 1.
-                    steps = torch.arange(begin, begin + len(ids) - 1, device=device)
-                    targets = torch.tensor(ids[1:], device=device)
-                    score = score + later_log_probs[row, steps, targets].sum()
-                row_scores.append(float(score))
-            scores.append(row_scores)
-        return scores
+        log_probs: torch.Tensor = output.logits.float().log_softmax(-1)
+        return log_probs
 
     # -- helpers ------------------------------------------------------------------------------
 
