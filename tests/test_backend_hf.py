@@ -22,6 +22,7 @@ FRANCE = [
     ChatMessage(role="system", content="Answer with one word."),
     ChatMessage(role="user", content="What is the capital of France?"),
 ]
+PERU = [FRANCE[0], ChatMessage(role="user", content="And what is the capital of Peru, please?")]
 GREETINGS = [
     [ChatMessage(role="user", content="Say hello.")],
     [
@@ -68,10 +69,20 @@ def test_choice_mode_prefers_the_right_answer(model: HFModel) -> None:
 
 
 @pytest.mark.slow
-def test_choice_scores_equal_a_naive_forward_pass(model: HFModel) -> None:
+@pytest.mark.parametrize(
+    "conversations",
+    [
+        # Prompts of different lengths: left padding of the prompt pass.
+        [FRANCE, GREETINGS[0], GREETINGS[1]],
+        # A long common prefix (the system message), encoded once for the batch.
+        [FRANCE, PERU],
+    ],
+    ids=["padded", "shared-prefix"],
+)
+def test_choice_scores_equal_a_naive_forward_pass(
+    model: HFModel, conversations: list[list[ChatMessage]]
+) -> None:
     choices = [" Paris", "MAKE_WOOD_PICKAXE", "DO", "banana split"]
-    # Prompts of different lengths exercise the left padding of the shared prompt pass.
-    conversations = [FRANCE, GREETINGS[0]]
     scores = model.choice_scores(conversations, choices)
     for conversation, row in zip(conversations, scores, strict=True):
         prompt = model._render(conversation)
@@ -178,3 +189,17 @@ def test_the_embedded_folder_is_a_complete_model(model: HFModel) -> None:
     names = {path.name for path in folder.iterdir()}
     assert {"config.json", "model.safetensors", "tokenizer.json"} <= names
     assert "quantization_config" not in (folder / "config.json").read_text()
+
+
+def test_a_missing_gguf_reader_gives_the_install_command(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    real_find_spec = embedded.importlib.util.find_spec
+    monkeypatch.setattr(
+        embedded.importlib.util,
+        "find_spec",
+        lambda name, *args: None if name == "accelerate" else real_find_spec(name, *args),
+    )
+    with pytest.raises(UserError, match=r"'accelerate'.*craftext-llm\[hf\]"):
+        embedded.convert_gguf(tmp_path / "model.gguf", tmp_path / "out")
+    assert not (tmp_path / "out").exists()

