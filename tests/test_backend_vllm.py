@@ -24,7 +24,8 @@ from llm_agents.backends.embedded import embedded_model_dir
 from llm_agents.backends.openai import OpenAIModel
 
 REPO = Path(__file__).resolve().parents[1]
-VLLM_VENV = REPO / ".venv-vllm"
+#: Same default and override as scripts/setup_vllm_cpu.sh (CI may keep the environment outside the clone).
+VLLM_VENV = Path(os.environ.get("VLLM_VENV") or REPO / ".venv-vllm")
 VLLM_PYTHON = VLLM_VENV / "bin" / "python"
 #: Engine start on 2 busy cores takes one to three minutes.
 START_TIMEOUT_S = 480
