@@ -221,3 +221,19 @@ def test_report_command_rebuilds_table_and_chart(
     assert "combo" in out and "Qwen QwQ-32B" in out
     assert (tmp_path / "success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["report", str(tmp_path / "missing")]) == EXIT_USER_ERROR
+
+
+def test_prompts_carry_real_observations_and_action_outcomes(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    from llm_agents.backends.mock import MockModel
+
+    model = MockModel(outputs=["ACTION: LEFT"])
+    run_eval(config(tmp_path, limit=1, batch_size=1), model, env=short_env)
+    users = [messages[-1].content for messages, _ in model.requests]
+    assert len(users) == MAX_STEPS
+    assert "first step" in users[0]
+    assert "Health" in users[0] and "Inventory" in users[0]
+    # Every later prompt reports what the previous LEFT did, read off two real observations.
+    for user in users[1:]:
+        assert "LEFT: moved west" in user or "LEFT: blocked" in user
