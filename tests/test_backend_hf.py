@@ -16,7 +16,7 @@ import torch
 from env.errors import UserError
 from llm_agents.backends import embedded
 from llm_agents.backends.base import ChatMessage, GenerateConfig
-from llm_agents.backends.hf import HFModel, ThinkingBudget, resolve_model_path
+from llm_agents.backends.hf import CandidateTrie, HFModel, ThinkingBudget, resolve_model_path
 
 FRANCE = [
     ChatMessage(role="system", content="Answer with one word."),
@@ -82,7 +82,8 @@ def test_choice_mode_prefers_the_right_answer(model: HFModel) -> None:
 def test_choice_scores_equal_a_naive_forward_pass(
     model: HFModel, conversations: list[list[ChatMessage]]
 ) -> None:
-    choices = [" Paris", "MAKE_WOOD_PICKAXE", "DO", "banana split"]
+    # Candidates sharing prefixes (and one a prefix of others) exercise the candidate trie.
+    choices = [" Paris", "MAKE_WOOD_PICKAXE", "MAKE_STONE_PICKAXE", "MAKE", "DO", "banana split"]
     scores = model.choice_scores(conversations, choices)
     for conversation, row in zip(conversations, scores, strict=True):
         prompt = model._render(conversation)
@@ -111,6 +112,14 @@ def test_stop_string_cuts_the_answer() -> None:
     assert cut.finish_reason == "stop"
     assert "4" not in cut.text
     assert full.startswith(cut.text.rstrip())
+
+
+def test_the_candidate_trie_stores_a_shared_prefix_once() -> None:
+    trie = CandidateTrie([[5, 6, 7], [5, 6, 8], [5], [9, 6]])
+    assert trie.tokens == [5, 6, 7, 8, 9, 6]
+    assert trie.paths == [[0, 1, 2], [0, 1, 3], [0], [4, 5]]
+    assert trie.depths == [0, 1, 2, 2, 0, 1]
+    assert trie.ancestry() == [[0], [1, 0], [2, 1, 0], [3, 1, 0], [4], [5, 4]]
 
 
 def test_thinking_budget_forces_the_closing_tag() -> None:

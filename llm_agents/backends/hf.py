@@ -18,7 +18,6 @@ answer still cut off gets one "answer only" follow-up.
 
 from __future__ import annotations
 
-import itertools
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -302,47 +301,40 @@ class HFModel(ModelAPI):
         scores = first.logits[:, -1].float().log_softmax(-1)[:, first_tokens]
         # The logits at a candidate's token j predict its token j + 1; single-token candidates
         # are fully scored by the prompt pass.
-        flat = [token for ids in candidates for token in ids]
-        offsets = [0, *itertools.accumulate(len(ids) for ids in candidates)]
-        predicting = [
-            p for begin, end in itertools.pairwise(offsets) for p in range(begin, end - 1)
+        trie = CandidateTrie(candidates)
+        pairs = [
+            (k, path[j - 1], candidates[k][j])
+            for k, path in enumerate(trie.paths)
+            for j in range(1, len(path))
         ]
-        if predicting:
-            later = self._candidate_pass(
-                first.past_key_values, prompt_mask, flat, offsets, predicting
-            )
-            keep = torch.tensor(predicting, device=device)
-            targets = torch.tensor(flat, device=device)[keep + 1]
-            owner = torch.tensor(
-                [k for k, ids in enumerate(candidates) for _ in range(len(ids) - 1)], device=device
-            )
-            token_scores = later.gather(-1, targets[None, :, None].expand(len(prompts), -1, 1))
-            scores = scores.index_add(1, owner, token_scores[..., 0])
+        if pairs:
+            predicting = sorted({node for _, node, _ in pairs})
+            row_of = {node: row for row, node in enumerate(predicting)}
+            later = self._candidate_pass(first.past_key_values, prompt_mask, trie, predicting)
+            rows = torch.tensor([row_of[node] for _, node, _ in pairs], device=device)
+            targets = torch.tensor([token for _, _, token in pairs], device=device)
+            owners = torch.tensor([k for k, _, _ in pairs], device=device)
+            scores = scores.index_add(1, owners, later[:, rows, targets])
         return [[float(score) for score in row] for row in scores]
 
     def _candidate_pass(
         self,
         prompt_cache: Any,
         prompt_mask: torch.Tensor,
-        flat: list[int],
-        offsets: list[int],
+        trie: CandidateTrie,
         predicting: list[int],
     ) -> torch.Tensor:
-        """Log-probabilities at the `predicting` positions of all candidates, side by side.
+        """Log-probabilities at the `predicting` nodes of the candidate trie, in one pass.
 
-        A candidate token sees the (unpadded) prompt and the earlier tokens of its own candidate
-        only, so one pass over the shared prompt cache scores every candidate.
+        A trie node sees the (unpadded) prompt and its own ancestors only, so one pass over the
+        prompt cache scores every candidate, and a prefix shared by candidates is computed once.
         """
         device = self.device
         batch, width = prompt_mask.shape
-        total = len(flat)
+        total = len(trie.tokens)
         own = torch.zeros(total, total, dtype=torch.bool, device=device)
-        within = torch.zeros(total, dtype=torch.long, device=device)
-        for begin, end in itertools.pairwise(offsets):
-            own[begin:end, begin:end] = torch.ones(
-                end - begin, end - begin, dtype=torch.bool, device=device
-            ).tril()
-            within[begin:end] = torch.arange(end - begin, device=device)
+        for node, seen in enumerate(trie.ancestry()):
+            own[node, seen] = True
         allowed = torch.cat(
             [
                 prompt_mask.bool()[:, None, :].expand(batch, total, width),
@@ -353,10 +345,11 @@ class HFModel(ModelAPI):
         dtype = self.model.dtype
         mask = torch.zeros(allowed.shape, dtype=dtype, device=device)
         mask.masked_fill_(~allowed, torch.finfo(dtype).min)
+        depths = torch.tensor(trie.depths, device=device)
         output = self.model(
-            input_ids=torch.tensor([flat] * batch, device=device),
+            input_ids=torch.tensor([trie.tokens] * batch, device=device),
             attention_mask=mask[:, None],
-            position_ids=prompt_mask.sum(-1, keepdim=True) + within[None],
+            position_ids=prompt_mask.sum(-1, keepdim=True) + depths[None],
             past_key_values=prompt_cache,
             use_cache=True,
             logits_to_keep=torch.tensor(predicting, device=device),
@@ -400,6 +393,41 @@ class HFModel(ModelAPI):
         configured = self.model.generation_config.eos_token_id
         ids = configured if isinstance(configured, list) else [configured]
         return {i for i in [*ids, self.tokenizer.eos_token_id] if i is not None}
+
+
+class CandidateTrie:
+    """Candidates' token sequences merged on common prefixes, parents before children."""
+
+    def __init__(self, candidates: list[list[int]]):
+        self.tokens: list[int] = []
+        """Token of each node."""
+        self.parents: list[int] = []
+        """Parent node of each node; -1 for a candidate's first token."""
+        self.depths: list[int] = []
+        """Index of each node's token within its candidates."""
+        self.paths: list[list[int]] = []
+        """Node of every token of every candidate."""
+        nodes: dict[tuple[int, int], int] = {}
+        for ids in candidates:
+            parent = -1
+            path: list[int] = []
+            for token in ids:
+                node = nodes.get((parent, token))
+                if node is None:
+                    node = nodes[parent, token] = len(self.tokens)
+                    self.tokens.append(token)
+                    self.parents.append(parent)
+                    self.depths.append(len(path))
+                path.append(node)
+                parent = node
+            self.paths.append(path)
+
+    def ancestry(self) -> list[list[int]]:
+        """For each node: itself and its ancestors, the tokens it attends to."""
+        seen: list[list[int]] = []
+        for node, parent in enumerate(self.parents):
+            seen.append([node, *(seen[parent] if parent >= 0 else [])])
+        return seen
 
 
 class ThinkingBudget(LogitsProcessor):
