@@ -30,8 +30,10 @@ $(BIN)/python:
 	$(PIP) install $(PIP_FLAGS) --upgrade pip
 
 # Extras hf: the demo. Extras hf,openai,dev: tests, lint, benchmarks.
+# An up-to-date dev install already holds the hf extra: no second install then.
 $(VENV)/.stamp-hf: pyproject.toml | $(BIN)/python
-	$(PIP) install $(PIP_FLAGS) -e ".[hf]"
+	@if [ $(VENV)/.stamp-dev -nt pyproject.toml ]; then echo "hf extra present (dev install)"; \
+	else $(PIP) install $(PIP_FLAGS) -e ".[hf]"; fi
 	touch $@
 
 $(VENV)/.stamp-dev: pyproject.toml | $(BIN)/python
