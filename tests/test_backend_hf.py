@@ -94,6 +94,21 @@ def test_choice_scores_equal_a_naive_forward_pass(
 
 
 @pytest.mark.slow
+def test_choice_scores_stay_exact_when_a_later_call_reuses_the_prompt_prefix(
+    model: HFModel,
+) -> None:
+    choices = ["MAKE_WOOD_PICKAXE", "DO", " Lima"]
+    # Each call keeps its prompt prefix; the next one starts from the part they share.
+    sequence = [[FRANCE], [PERU], [PERU], [GREETINGS[0]], [FRANCE, PERU]]
+    for conversations in sequence:
+        scores = model.choice_scores(conversations, choices)
+        for conversation, row in zip(conversations, scores, strict=True):
+            prompt = model._render(conversation)
+            expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
+            assert row == pytest.approx(expected, abs=2e-3)
+
+
+@pytest.mark.slow
 def test_batched_greedy_equals_unbatched(model: HFModel) -> None:
     batched = model.generate(GREETINGS)
     single = [model.generate([conversation])[0] for conversation in GREETINGS]

@@ -49,9 +49,11 @@ try:
     from transformers import (
         AutoModelForCausalLM,
         AutoTokenizer,
+        DynamicCache,
         LogitsProcessor,
         LogitsProcessorList,
     )
+    from transformers.cache_utils import DynamicLayer
 except ModuleNotFoundError as err:
     raise ModuleNotFoundError(
         f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
@@ -122,6 +124,9 @@ class HFModel(ModelAPI):
         if self.tokenizer.pad_token_id is None:
             self.tokenizer.pad_token = self.tokenizer.eos_token
         self._think_close_ids: list[int] = self._encode(THINK_CLOSE)
+        # Key/value states of the last choice-mode prompt prefix, per layer (see _prefix_cache).
+        self._prefix_ids: list[int] = []
+        self._prefix_states: list[tuple[torch.Tensor, torch.Tensor]] = []
 
     def info(self) -> dict[str, str]:
         import transformers
@@ -273,11 +278,10 @@ class HFModel(ModelAPI):
         batch = len(prompts)
         # Every prompt keeps at least one own token: its last one predicts the first candidate
         # token.
-        shared = _common_prefix_length(prompts) if batch > 1 else 0
+        shared = _common_prefix_length(prompts)
         cache = None
         if shared:
-            prefix = torch.tensor([prompts[0][:shared]], device=device)
-            cache = self.model(input_ids=prefix, use_cache=True, logits_to_keep=1).past_key_values
+            cache = self._prefix_cache(prompts[0][:shared])
             cache.batch_repeat_interleave(batch)
         rests = [p[shared:] for p in prompts]
         width = max(len(rest) for rest in rests)
@@ -316,6 +320,32 @@ class HFModel(ModelAPI):
             owners = torch.tensor([k for k, _, _ in pairs], device=device)
             scores = scores.index_add(1, owners, later[:, rows, targets])
         return [[float(score) for score in row] for row in scores]
+
+    def _prefix_cache(self, prefix: list[int]) -> Any:
+        """A batch-1 cache of `prefix`, starting from the previous call's prefix where they agree.
+
+        Successive agent steps share their system prompt, so most of it is encoded only once.
+        """
+        reuse = _common_prefix_length([self._prefix_ids, prefix], keep_own=0)
+        cache = DynamicCache(config=self.model.config)
+        if reuse:
+            for index, (keys, values) in enumerate(self._prefix_states):
+                cache.update(keys[:, :, :reuse], values[:, :, :reuse], index)
+        if reuse < len(prefix):
+            self.model(
+                input_ids=torch.tensor([prefix[reuse:]], device=self.device),
+                past_key_values=cache,
+                use_cache=True,
+                logits_to_keep=1,
+            )
+        states = []
+        for layer in cache.layers:
+            # Only plain per-token layers can be cut to a shorter prefix later.
+            if type(layer) is not DynamicLayer or layer.keys is None or layer.values is None:
+                return cache
+            states.append((layer.keys, layer.values))
+        self._prefix_ids, self._prefix_states = prefix, states
+        return cache
 
     def _candidate_pass(
         self,
@@ -490,9 +520,9 @@ def resolve_model_path(model_name: str) -> Path | None:
     return None
 
 
-def _common_prefix_length(sequences: list[list[int]]) -> int:
-    """Tokens all sequences start with, leaving each at least one token of its own."""
-    limit = min(len(sequence) for sequence in sequences) - 1
+def _common_prefix_length(sequences: list[list[int]], keep_own: int = 1) -> int:
+    """Tokens all sequences start with, leaving each at least `keep_own` tokens of its own."""
+    limit = min(len(sequence) for sequence in sequences) - keep_own
     first = sequences[0]
     for index in range(limit):
         if any(sequence[index] != first[index] for sequence in sequences):
