@@ -106,11 +106,14 @@ def measure(
             # One small warm-up per mode: first calls pay for lazy initialisation.
             model.generate(workload.conversations[:1], choices)
             for batch in batches:
-                conversations = [
-                    workload.conversations[i % len(workload.conversations)] for i in range(batch)
-                ]
                 best = float("inf")
-                for _ in range(repeats):
+                for repeat in range(repeats):
+                    # Each call starts at another observation, as successive agent steps do, so
+                    # no call repeats the previous call's prompts (backends may reuse prefixes).
+                    conversations = [
+                        workload.conversations[(repeat + 1 + i) % len(workload.conversations)]
+                        for i in range(batch)
+                    ]
                     start = time.perf_counter()
                     outputs = model.generate(conversations, choices)
                     best = min(best, time.perf_counter() - start)
