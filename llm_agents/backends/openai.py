@@ -29,7 +29,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
 )
-from llm_agents.backends.reasoning import resolve_truncated, with_reasoning_split
+from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
 from llm_agents.backends.retry import (
     RetryPolicy,
     TransientError,
@@ -119,10 +119,7 @@ class OpenAIModel(ModelAPI):
         conversations: Sequence[Conversation],
         choices: Sequence[str] | None = None,
     ) -> list[ModelOutput]:
-        if choices:
-            return self._run(conversations, list(choices))
-        outputs = self._run(conversations, None)
-        return resolve_truncated(conversations, outputs, lambda batch: self._run(batch, None))
+        return generate_with_followup(conversations, choices, self._run)
 
     def _run(
         self, conversations: Sequence[Conversation], choices: list[str] | None

@@ -26,6 +26,8 @@ ANSWER_ONLY_TEMPLATE = "answer_only.j2"
 
 #: One batched backend call: conversations in, one raw output per conversation out.
 BatchGenerate = Callable[[Sequence[Conversation]], list[ModelOutput]]
+#: One batched backend call with optional choices (None: free generation).
+ChoiceBatchGenerate = Callable[[Sequence[Conversation], list[str] | None], list[ModelOutput]]
 
 
 class ReasoningSplit(BaseModel):
@@ -158,6 +160,22 @@ def resolve_truncated(
     for i, followup in zip(pending, followups, strict=True):
         resolved[i] = merge_followup(outputs[i], followup)
     return resolved
+
+
+def generate_with_followup(
+    conversations: Sequence[Conversation],
+    choices: Sequence[str] | None,
+    generate: ChoiceBatchGenerate,
+) -> list[ModelOutput]:
+    """`ModelAPI.generate` over a backend's raw batched call `generate(batch, choices)`.
+
+    With choices, one call (a choice has no thinking to cut off). Without, a free call, then one
+    "answer only" follow-up for the outputs cut off while reasoning (`resolve_truncated`).
+    """
+    if choices:
+        return generate(conversations, list(choices))
+    outputs = generate(conversations, None)
+    return resolve_truncated(conversations, outputs, lambda batch: generate(batch, None))
 
 
 def _answer_only_text(*, has_partial_answer: bool) -> str:

