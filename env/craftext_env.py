@@ -140,7 +140,7 @@ class CrafTextEnv:
     def step(
         self, key: jax.Array, state: EpisodeState, action: jax.Array
     ) -> tuple[EpisodeState, StepInfo]:
-        """One step. A finished episode stays frozen and earns nothing."""
+        """One step. A finished episode keeps its step count and termination and earns nothing."""
         _, game, craftax_reward, game_over, _ = self.craftax.step_env(
             key, state.game, action, self.params
         )
@@ -154,15 +154,16 @@ class CrafTextEnv:
             [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
             Termination.RUNNING,
         ).astype(jnp.int32)
-        stepped = EpisodeState(
+        was_done = state.done
+        # A finished episode is masked, not frozen: its game keeps stepping (nobody reads it
+        # until the slot is refilled), which spares copying the whole Craftax state every step.
+        next_state = EpisodeState(
             game=game,
             task=state.task,
             episode_key=state.episode_key,
-            steps=steps,
-            termination=termination,
+            steps=jnp.where(was_done, state.steps, steps),
+            termination=jnp.where(was_done, state.termination, termination),
         )
-        was_done = state.done
-        next_state = jax.tree.map(lambda old, new: jnp.where(was_done, old, new), state, stepped)
         craftax_reward = jnp.where(was_done, 0.0, craftax_reward).astype(jnp.float32)
         reward = jnp.where(was_done, 0.0, success.astype(jnp.float32)) + (
             craftax_reward / CRAFTAX_REWARD_SCALE
@@ -210,7 +211,7 @@ class HostBatch(struct.PyTreeNode):
 class VectorEnv:
     """A fixed batch of episodes stepped in lockstep with one compiled function.
 
-    Shapes never change (finished slots stay frozen until refilled), so nothing recompiles
+    Shapes never change (finished slots are masked until refilled), so nothing recompiles
     after the first step.
     """
 
@@ -259,7 +260,7 @@ class VectorEnv:
         return self._to_host(self._state, zeros, no_new)
 
     def step(self, actions: np.ndarray) -> HostBatch:
-        """Step every slot; frozen (finished) slots ignore their action."""
+        """Step every slot; finished slots earn nothing and keep their termination."""
         state = self._require_state()
         actions_device = jnp.asarray(np.asarray(actions, dtype=np.int32).reshape(self.batch_size))
         self._state, info = self._step(state, actions_device)
