@@ -10,7 +10,13 @@ The vLLM column runs this same script in a child process with the vLLM environme
 (`--vllm-python`, default `.venv-vllm/bin/python` when it exists; `--vllm-python none` skips it),
 on the same workload, passed to it as a JSON file.
 
+`--realistic classic|full` times choice mode on real CrafText prompts instead: the agent's
+system prompt and step messages over observations of real episodes (16 slots, random actions,
+so later steps carry a history), each call one agent step; `--compare-paths` adds the hf
+backend's generic cache path (the shared prefix copied per conversation) as a baseline.
+
     python benchmarks/bench_backends.py [--threads 2] [--batches 1 16] [--repeats 2]
+    python benchmarks/bench_backends.py --realistic classic --batches 6 16 --compare-paths
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ class Workload(BaseModel):
     """The candidates of choice mode."""
     max_tokens: int
     """Free generation's token limit."""
+    slots: int = 0
+    """Realistic workloads: episodes per step; call r uses step r + 1's conversations."""
 
 
 class Cell(BaseModel):
@@ -94,14 +102,60 @@ def build_workload(max_tokens: int) -> Workload:
     return Workload(conversations=conversations, choices=names, max_tokens=max_tokens)
 
 
+def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
+    """Real agent conversations: `steps` successive steps of `slots` episodes, step-major."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import env
+    import textualizer
+    from llm_agents.agent import ZeroShotAgent
+
+    craftext = env.CrafTextEnv(env.EnvConfig(variant=env.Variant(variant)))
+    goals = env.load_dataset().goals
+    required = np.zeros(22, dtype=bool)
+    required[0] = True
+    task = env.make_task(required, np.zeros(22, dtype=bool))
+    reset, step = jax.jit(craftext.reset), jax.jit(craftext.step_from_episode_key)
+    agent = ZeroShotAgent(variant=variant, choice_mode=True)
+    names = list(agent.choices or [])
+    states = []
+    for slot in range(slots):
+        states.append(reset(jnp.asarray(env.episode_key(0, "g", 0, slot)), task))
+        agent.start_episode(slot, goals[slot % len(goals)].texts[0])
+    rng = np.random.default_rng(0)
+    conversations = []
+    for _ in range(steps):
+        for slot in range(slots):
+            observation = textualizer.observe(jax.tree.map(np.asarray, states[slot].game), variant)
+            messages, _ = agent.build_messages(slot, observation)
+            conversations.append(messages)
+            action = int(rng.integers(len(names)))
+            # What `act` records for a chosen action, without a model call.
+            agent._episodes[slot].pending = (names[action], observation)
+            agent._episodes[slot].step += 1
+            states[slot], _ = step(states[slot], jnp.int32(action))
+    return Workload(conversations=conversations, choices=names, max_tokens=1, slots=slots)
+
+
 def measure(
-    backend: str, spec: str, workload: Workload, batches: list[int], repeats: int, **options: Any
+    backend: str,
+    spec: str,
+    workload: Workload,
+    batches: list[int],
+    repeats: int,
+    modes: tuple[str, ...] = ("free", "choice"),
+    split_attention: bool = True,
+    **options: Any,
 ) -> list[Cell]:
     config = GenerateConfig(max_tokens=workload.max_tokens)
     model = get_model(spec, config, **options)
+    if not split_attention:
+        model.split_attention = False  # type: ignore[attr-defined]
     cells = []
     try:
-        for mode in ("free", "choice"):
+        for mode in modes:
             choices = workload.choices if mode == "choice" else None
             # One small warm-up per mode: first calls pay for lazy initialisation.
             model.generate(workload.conversations[:1], choices)
@@ -110,10 +164,16 @@ def measure(
                 for repeat in range(repeats):
                     # Each call starts at another observation, as successive agent steps do, so
                     # no call repeats the previous call's prompts (backends may reuse prefixes).
-                    conversations = [
-                        workload.conversations[(repeat + 1 + i) % len(workload.conversations)]
-                        for i in range(batch)
-                    ]
+                    conversations = (
+                        workload.conversations[
+                            (repeat + 1) * workload.slots : (repeat + 1) * workload.slots + batch
+                        ]
+                        if workload.slots
+                        else [
+                            workload.conversations[(repeat + 1 + i) % len(workload.conversations)]
+                            for i in range(batch)
+                        ]
+                    )
                     start = time.perf_counter()
                     outputs = model.generate(conversations, choices)
                     best = min(best, time.perf_counter() - start)
@@ -186,6 +246,16 @@ def main() -> None:
     parser.add_argument("--max-tokens", type=int, default=16)
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (hf)")
     parser.add_argument(
+        "--realistic",
+        choices=["classic", "full"],
+        help="time choice mode on real CrafText agent prompts of this variant",
+    )
+    parser.add_argument(
+        "--compare-paths",
+        action="store_true",
+        help="with --realistic: also time the generic (prefix-copying) choice path",
+    )
+    parser.add_argument(
         "--vllm-python",
         default=str(DEFAULT_VLLM_PYTHON),
         help="Python of the vLLM environment, or 'none' to skip vLLM",
@@ -204,8 +274,38 @@ def main() -> None:
         result_path.write_text(json.dumps([cell.model_dump() for cell in cells]))
         return
 
-    workload = build_workload(args.max_tokens)
     options = {} if args.threads is None else {"threads": args.threads}
+    if args.realistic:
+        slots = max(args.batches)
+        workload = build_realistic_steps(args.realistic, slots, args.repeats + 1)
+        # The warm-up call uses step 0, so the timed calls start from a reused system prompt.
+        cells = []
+        if args.compare_paths:
+            cells += measure(
+                "hf-copy",
+                "hf:smollm2-135m",
+                workload,
+                args.batches,
+                args.repeats,
+                modes=("choice",),
+                split_attention=False,
+                **options,
+            )
+        cells += measure(
+            "transformers",
+            "hf:smollm2-135m",
+            workload,
+            args.batches,
+            args.repeats,
+            modes=("choice",),
+            **options,
+        )
+        import torch
+
+        print(f"real CrafText prompts ({args.realistic}), torch threads: {torch.get_num_threads()}")
+        print_table(cells)
+        return
+    workload = build_workload(args.max_tokens)
     cells = measure(
         "transformers", "hf:smollm2-135m", workload, args.batches, args.repeats, **options
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -16,7 +17,13 @@ import torch
 from env.errors import UserError
 from llm_agents.backends import embedded
 from llm_agents.backends.base import ChatMessage, GenerateConfig
-from llm_agents.backends.hf import CandidateTrie, HFModel, ThinkingBudget, resolve_model_path
+from llm_agents.backends.hf import (
+    CandidateTrie,
+    HFModel,
+    ThinkingBudget,
+    _attend,
+    resolve_model_path,
+)
 
 FRANCE = [
     ChatMessage(role="system", content="Answer with one word."),
@@ -106,6 +113,43 @@ def test_choice_scores_stay_exact_when_a_later_call_reuses_the_prompt_prefix(
             prompt = model._render(conversation)
             expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
             assert row == pytest.approx(expected, abs=2e-3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("split_attention", [False, True], ids=["cache-copy", "split"])
+def test_both_choice_paths_give_the_same_scores(model: HFModel, split_attention: bool) -> None:
+    # The split-attention path (shared prefix kept once) and the generic cache path agree.
+    choices = ["MAKE_WOOD_PICKAXE", "DO", " Lima", "MAKE"]
+    conversations = [FRANCE, PERU, GREETINGS[1]]
+    model.split_attention = split_attention
+    try:
+        scores = model.choice_scores(conversations, choices)
+    finally:
+        model.split_attention = True
+    for conversation, row in zip(conversations, scores, strict=True):
+        prompt = model._render(conversation)
+        expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
+        assert row == pytest.approx(expected, abs=2e-3)
+
+
+def test_generic_attention_matches_the_cpu_kernel() -> None:
+    # The matrix-product attention (used off CPU) equals the CPU flash kernel's, lse included.
+    torch.manual_seed(0)
+    query, keys, values = torch.randn(2, 6, 5, 8), torch.randn(2, 2, 7, 8), torch.randn(2, 2, 7, 8)
+    shared_keys, shared_values = torch.randn(1, 2, 9, 8), torch.randn(1, 2, 9, 8)
+    mask = torch.rand(2, 5, 7) > 0.3
+    mask[..., 0] = True
+    cases: list[tuple[dict[str, Any], torch.Tensor, torch.Tensor]] = [
+        ({}, shared_keys, shared_values),
+        ({"causal": True}, keys[:, :, :5], values[:, :, :5]),
+        ({"mask": mask}, keys, values),
+    ]
+    for kwargs, k, v in cases:
+        fused = _attend(query, k, v, 0.3, fused=True, **kwargs)
+        generic = _attend(query, k, v, 0.3, fused=False, **kwargs)
+        for got, want in zip(generic, fused, strict=True):
+            assert got.shape == want.shape
+            assert torch.allclose(got, want, atol=1e-5)
 
 
 @pytest.mark.slow

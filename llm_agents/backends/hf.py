@@ -54,6 +54,7 @@ try:
         LogitsProcessorList,
     )
     from transformers.cache_utils import DynamicLayer
+    from transformers.modeling_utils import AttentionInterface
 except ModuleNotFoundError as err:
     raise ModuleNotFoundError(
         f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
@@ -127,6 +128,8 @@ class HFModel(ModelAPI):
         # Key/value states of the last choice-mode prompt prefix, per layer (see _prefix_cache).
         self._prefix_ids: list[int] = []
         self._prefix_states: list[tuple[torch.Tensor, torch.Tensor]] = []
+        # Choice mode's own attention (see _SharedPrefixAttention) where the model allows it.
+        self.split_attention = _supports_split_attention(self.model)
 
     def info(self) -> dict[str, str]:
         import transformers
@@ -273,6 +276,8 @@ class HFModel(ModelAPI):
         The prompts' common prefix (in an agent, the system prompt) is encoded once and shared
         by the batch; then one pass over the rest of every prompt, one over the candidates.
         """
+        if self.split_attention:
+            return self._split_log_likelihoods(prompts, candidates)
         device = self.device
         pad = self.tokenizer.pad_token_id
         batch = len(prompts)
@@ -387,6 +392,110 @@ class HFModel(ModelAPI):
         log_probs: torch.Tensor = output.logits.float().log_softmax(-1)
         return log_probs
 
+    # -- choice mode with split attention -----------------------------------------------------
+
+    def _split_log_likelihoods(
+        self, prompts: list[list[int]], candidates: list[list[int]]
+    ) -> list[list[float]]:
+        """`_candidate_log_likelihoods` without copying the shared prefix per prompt.
+
+        The prefix's keys and values are kept once (batch 1) and every prompt's queries attend
+        to them in one batched product; each prompt's own tokens (right-padded, so no row is
+        masked out) and then the candidate trie attend to their own keys separately, and the
+        two softmax parts are merged by their log-sum-exp. Only trie nodes with children are
+        fed: a leaf's token is scored by its parent's logits.
+        """
+        device = self.device
+        pad = self.tokenizer.pad_token_id
+        batch = len(prompts)
+        shared = _common_prefix_length(prompts)
+        prefix = self._split_prefix(prompts[0][:shared]) if shared else None
+        rests = [p[shared:] for p in prompts]
+        lengths = torch.tensor([len(rest) for rest in rests], device=device)
+        width = max(len(rest) for rest in rests)
+        rest_ids = torch.tensor([r + [pad] * (width - len(r)) for r in rests], device=device)
+        positions = shared + torch.arange(width, device=device)
+        rest_plan = _SharedPrefixAttention(prefix, store=True)
+        hidden = self._hidden_states(rest_ids, positions.expand(batch, width), rest_plan)
+        last = hidden[torch.arange(batch, device=device), lengths - 1]
+        first_tokens = torch.tensor([ids[0] for ids in candidates], device=device)
+        scores = self._log_probs(last)[:, first_tokens]
+        trie = CandidateTrie(candidates)
+        pairs = [
+            (k, path[j - 1], candidates[k][j])
+            for k, path in enumerate(trie.paths)
+            for j in range(1, len(path))
+        ]
+        if pairs:
+            # Nodes with children; their ancestors have children too, so the set is closed.
+            fed = sorted({node for _, node, _ in pairs})
+            row_of = {node: row for row, node in enumerate(fed)}
+            ancestry = trie.ancestry()
+            own = torch.zeros(len(fed), len(fed), dtype=torch.bool, device=device)
+            for row, node in enumerate(fed):
+                own[row, [row_of[seen] for seen in ancestry[node]]] = True
+            past_mask = torch.arange(width, device=device)[None, None] < lengths[:, None, None]
+            depths = torch.tensor([trie.depths[node] for node in fed], device=device)
+            trie_plan = _SharedPrefixAttention(
+                prefix,
+                past=rest_plan.stored,
+                mask=torch.cat(
+                    [past_mask.expand(batch, len(fed), width), own.expand(batch, -1, -1)], -1
+                ),
+            )
+            trie_ids = torch.tensor([[trie.tokens[node] for node in fed]] * batch, device=device)
+            trie_hidden = self._hidden_states(
+                trie_ids, shared + lengths[:, None] + depths[None], trie_plan
+            )
+            later = self._log_probs(trie_hidden)
+            rows = torch.tensor([row_of[node] for _, node, _ in pairs], device=device)
+            targets = torch.tensor([token for _, _, token in pairs], device=device)
+            owners = torch.tensor([k for k, _, _ in pairs], device=device)
+            scores = scores.index_add(1, owners, later[:, rows, targets])
+        return [[float(score) for score in row] for row in scores]
+
+    def _split_prefix(self, prefix: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Keys and values (batch 1, per layer) of `prefix`, reusing the previous call's."""
+        reuse = _common_prefix_length([self._prefix_ids, prefix], keep_own=0)
+        kept = [(keys[:, :, :reuse], values[:, :, :reuse]) for keys, values in self._prefix_states]
+        states = kept
+        if reuse < len(prefix):
+            plan = _SharedPrefixAttention(kept if reuse else None, store=True)
+            ids = torch.tensor([prefix[reuse:]], device=self.device)
+            positions = torch.arange(reuse, len(prefix), device=self.device)[None]
+            self._hidden_states(ids, positions, plan)
+            new = [plan.stored[layer] for layer in range(len(plan.stored))]
+            states = (
+                [
+                    (torch.cat([k, new_k], 2), torch.cat([v, new_v], 2))
+                    for (k, v), (new_k, new_v) in zip(kept, new, strict=True)
+                ]
+                if reuse
+                else new
+            )
+        self._prefix_ids, self._prefix_states = prefix, states
+        return states
+
+    def _hidden_states(
+        self, ids: torch.Tensor, positions: torch.Tensor, plan: _SharedPrefixAttention
+    ) -> torch.Tensor:
+        """The decoder's final hidden states, attending as `plan` says."""
+        config = self.model.config
+        default = config._attn_implementation
+        config._attn_implementation = SPLIT_ATTENTION
+        try:
+            output = self.model.get_decoder()(
+                input_ids=ids, position_ids=positions, use_cache=False, split_attention=plan
+            )
+        finally:
+            config._attn_implementation = default
+        hidden: torch.Tensor = output.last_hidden_state
+        return hidden
+
+    def _log_probs(self, hidden: torch.Tensor) -> torch.Tensor:
+        log_probs: torch.Tensor = self.model.get_output_embeddings()(hidden).float().log_softmax(-1)
+        return log_probs
+
     # -- helpers ------------------------------------------------------------------------------
 
     def _in_batches(
@@ -423,6 +532,140 @@ class HFModel(ModelAPI):
         configured = self.model.generation_config.eos_token_id
         ids = configured if isinstance(configured, list) else [configured]
         return {i for i in [*ids, self.tokenizer.eos_token_id] if i is not None}
+
+
+#: Model types whose logits are the decoder's last hidden state times the output embeddings,
+#: with every layer attending to all earlier tokens (no sliding window, no soft-capping).
+SPLIT_ATTENTION_MODELS = frozenset({"llama", "mistral", "qwen2", "qwen3"})
+SPLIT_ATTENTION = "craftext_split_prefix"
+
+
+def _supports_split_attention(model: Any) -> bool:
+    config = model.config
+    if config.model_type not in SPLIT_ATTENTION_MODELS:
+        return False
+    window = getattr(config, "sliding_window", None)
+    return not (window and getattr(config, "use_sliding_window", True))
+
+
+class _SharedPrefixAttention:
+    """What choice mode's attention sees in one forward pass besides the new tokens.
+
+    `prefix`: per layer, keys and values of a prefix shared by the whole batch (batch 1), seen
+    by every new token. `past`: per layer, the batch's own earlier keys and values, seen as
+    `mask` says. `mask` (batch, new, past + new): which own keys each new token sees; None
+    means causal over the new tokens (and no `past`). `store` keeps the new keys and values.
+    """
+
+    def __init__(
+        self,
+        prefix: list[tuple[torch.Tensor, torch.Tensor]] | None,
+        *,
+        past: dict[int, tuple[torch.Tensor, torch.Tensor]] | None = None,
+        mask: torch.Tensor | None = None,
+        store: bool = False,
+    ):
+        self.prefix = prefix
+        self.past = past
+        self.mask = mask
+        self.store = store
+        self.stored: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def _split_attention_forward(
+    module: torch.nn.Module,
+    query: torch.Tensor,
+    key: torch.Tensor,
+    value: torch.Tensor,
+    attention_mask: torch.Tensor | None,
+    dropout: float = 0.0,
+    scaling: float | None = None,
+    split_attention: _SharedPrefixAttention | None = None,
+    **kwargs: Any,
+) -> tuple[torch.Tensor, None]:
+    """Attention over a shared prefix and the tokens' own keys, merged exactly (fp rounding)."""
+    plan = split_attention
+    if plan is None:
+        raise RuntimeError("split attention runs only inside the hf backend's choice mode")
+    layer = int(getattr(module, "layer_idx", 0))
+    scale = scaling if scaling is not None else query.shape[-1] ** -0.5
+    if plan.store:
+        plan.stored[layer] = (key, value)
+    if plan.past is not None and plan.mask is not None:
+        past_keys, past_values = plan.past[layer]
+        keys, values = torch.cat([past_keys, key], 2), torch.cat([past_values, value], 2)
+        out, lse = _attend(query, keys, values, scale, mask=plan.mask)
+    else:
+        out, lse = _attend(query, key, value, scale, causal=True)
+    if plan.prefix is not None:
+        prefix_keys, prefix_values = plan.prefix[layer]
+        prefix_out, prefix_lse = _attend(query, prefix_keys, prefix_values, scale)
+        total = torch.logaddexp(lse, prefix_lse)
+        out = (
+            out * (lse - total).exp()[..., None]
+            + prefix_out * (prefix_lse - total).exp()[..., None]
+        )
+    return out.transpose(1, 2).contiguous(), None
+
+
+def _attend(
+    query: torch.Tensor,
+    keys: torch.Tensor,
+    values: torch.Tensor,
+    scale: float,
+    *,
+    causal: bool = False,
+    mask: torch.Tensor | None = None,
+    fused: bool | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Softmax attention and its log-sum-exp: (batch, heads, new, dim), (batch, heads, new).
+
+    `keys` may have fewer heads (grouped queries) and batch 1 (shared by the batch). `mask`
+    (batch, new, keys) marks visible keys; `causal`: the keys are the new tokens' own, in order.
+    `fused`: use the CPU flash kernel where it applies (default: on CPU).
+    """
+    batch, heads, length, dim = query.shape
+    kv_batch, kv_heads, kv_length, _ = keys.shape
+    groups = heads // kv_heads
+    cpu = query.device.type == "cpu" if fused is None else fused
+    if mask is None and not causal:
+        # Every query sees every key: fold the query groups (and a shared batch) into rows.
+        rows = query.reshape(batch, kv_heads, groups * length, dim)
+        if kv_batch == 1 and batch > 1:
+            rows = rows.transpose(0, 1).reshape(1, kv_heads, batch * groups * length, dim)
+        if cpu:
+            out, lse = torch.ops.aten._scaled_dot_product_flash_attention_for_cpu(
+                rows, keys, values, 0.0, False, scale=scale
+            )
+        else:
+            scores = (rows @ keys.transpose(-1, -2)) * scale
+            lse = scores.logsumexp(-1)
+            out = (scores - lse[..., None]).exp() @ values
+        if kv_batch == 1 and batch > 1:
+            out = out.reshape(kv_heads, batch, groups * length, dim).transpose(0, 1)
+            lse = lse.reshape(kv_heads, batch, groups * length).transpose(0, 1)
+        return out.reshape(batch, heads, length, dim), lse.reshape(batch, heads, length)
+    if causal and cpu:
+        out, lse = torch.ops.aten._scaled_dot_product_flash_attention_for_cpu(
+            query,
+            keys.repeat_interleave(groups, 1),
+            values.repeat_interleave(groups, 1),
+            0.0,
+            True,
+            scale=scale,
+        )
+        return out, lse
+    if mask is None:
+        mask = torch.ones(length, kv_length, dtype=torch.bool, device=query.device).tril()[None]
+    grouped = query.reshape(batch, kv_heads, groups, length, dim)
+    scores = (grouped @ keys[:, :, None].transpose(-1, -2)) * scale
+    scores = scores.masked_fill(~mask[:, None, None], float("-inf"))
+    lse = scores.logsumexp(-1)
+    out = (scores - lse[..., None]).exp() @ values[:, :, None]
+    return out.reshape(batch, heads, length, dim), lse.reshape(batch, heads, length)
+
+
+AttentionInterface.register(SPLIT_ATTENTION, _split_attention_forward)
 
 
 class CandidateTrie:
