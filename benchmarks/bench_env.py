@@ -23,12 +23,14 @@ from env.achievements import NUM_ACHIEVEMENTS
 from env.craftext_env import make_task
 
 
-def _best_of(repeats: int, run: Callable[[], Any]) -> float:
-    best = float("inf")
+def _best_of_interleaved(repeats: int, *runs: Callable[[], Any]) -> list[float]:
+    """Best wall time of each run; the runs alternate so a change in machine load hits all alike."""
+    best = [float("inf")] * len(runs)
     for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(run())
-        best = min(best, time.perf_counter() - start)
+        for i, run in enumerate(runs):
+            start = time.perf_counter()
+            jax.block_until_ready(run())
+            best[i] = min(best[i], time.perf_counter() - start)
     return best
 
 
@@ -70,8 +72,11 @@ def bench_variant(variant: Variant, batch: int, steps: int, repeats: int) -> dic
 
     jax.block_until_ready(raw_rollout(raw_state, actions))
     jax.block_until_ready(our_rollout(ours_state, actions))
-    raw_s = _best_of(repeats, lambda: raw_rollout(raw_state, actions))
-    ours_s = _best_of(repeats, lambda: our_rollout(ours_state, actions))
+    raw_s, ours_s = _best_of_interleaved(
+        repeats,
+        lambda: raw_rollout(raw_state, actions),
+        lambda: our_rollout(ours_state, actions),
+    )
 
     vector = VectorEnv(env, batch)
     host_keys = np.stack([episode_key(0, "bench", 0, i) for i in range(batch)])
@@ -94,7 +99,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 64])
     parser.add_argument("--variant", nargs="+", default=["classic", "full"])
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}; {args.steps} steps per rollout")
