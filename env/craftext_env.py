@@ -112,6 +112,12 @@ class CrafTextEnv:
             self.config.variant.craftax_name, auto_reset=False
         )
         self.params = self.craftax.default_params
+        # Compiled once per env and shared by every VectorEnv over it: a fresh jax.jit wrapper
+        # would trace and lower the whole game again (seconds) even with a warm compile cache.
+        self.batched_reset = jax.jit(jax.vmap(self.reset))
+        self.batched_step = jax.jit(jax.vmap(self.step_from_episode_key))
+        self.jitted_reset = jax.jit(self.reset)
+        self.place_episode = jax.jit(_place_episode)
 
     @property
     def variant(self) -> Variant:
@@ -220,10 +226,10 @@ class VectorEnv:
             raise ValueError("batch_size must be at least 1")
         self.env = env
         self.batch_size = batch_size
-        self._reset = jax.jit(jax.vmap(env.reset))
-        self._reset_one = jax.jit(env.reset)
-        self._step = jax.jit(jax.vmap(env.step_from_episode_key))
-        self._place = jax.jit(_place_episode)
+        self._reset = env.batched_reset
+        self._reset_one = env.jitted_reset
+        self._step = env.batched_step
+        self._place = env.place_episode
         self._state: EpisodeState | None = None
 
     @property

@@ -16,13 +16,22 @@ UP = 3
 
 @pytest.fixture(scope="module")
 def reset_state(any_env: Any) -> tuple[str, Any]:
+    return _reset_game(any_env)
+
+
+@pytest.fixture(scope="module")
+def full_reset_state(full_env: Any) -> tuple[str, Any]:
+    return _reset_game(full_env)
+
+
+def _reset_game(compiled: Any) -> tuple[str, Any]:
     import jax
 
     from env import make_task
 
     no_goal = np.zeros(22, dtype=bool)
-    episode = any_env.reset(jax.random.PRNGKey(0), make_task(no_goal, no_goal))
-    return any_env.env.variant.value, jax.device_get(episode.game)
+    episode = compiled.reset(jax.random.PRNGKey(0), make_task(no_goal, no_goal))
+    return compiled.env.variant.value, jax.device_get(episode.game)
 
 
 def _masked(mobs: Any) -> Any:
@@ -196,11 +205,9 @@ def test_night_and_inventory(reset_state: tuple[str, Any]) -> None:
     assert lines[-1] == "Achieved so far: COLLECT_WOOD, COLLECT_SAPLING."
 
 
-def test_dark_floor(reset_state: tuple[str, Any]) -> None:
-    """Full Craftax floor 1: only the tiles the light map reaches are described."""
-    variant, state = reset_state
-    if variant != "full":
-        pytest.skip("Classic has no floors or darkness")
+def test_dark_floor(full_reset_state: tuple[str, Any]) -> None:
+    """Full Craftax floor 1 (Classic has no floors): only the tiles the light map reaches are described."""
+    variant, state = full_reset_state
     state = _meadow(state, variant)
     row, col = (int(v) for v in state.player_position)
     maps, light, items = state.map.copy(), np.zeros_like(state.light_map), state.item_map.copy()
