@@ -125,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument(
         "--splits",
         nargs="+",
-        help="dataset splits (default: easy_train easy_test_paraphrased easy_test_other_params)",
+        help="dataset splits (easy_train easy_test_paraphrased easy_test_other_params, the default) "
+        "or eval's category names (one and combo plan the train split)",
     )
     plan.add_argument("--dataset", help="official CrafText clone, craftext wheel or dataset JSON")
     plan.add_argument("--variant", choices=["full", "classic"], help="vocabulary (default full)")
@@ -236,6 +237,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_plan(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
+    from env.dataset import CATEGORY_SPLIT
     from llm_agents.backends.base import GenerateConfig
     from llm_agents.planner import PlanLimits, PlannerConfig, run_planner
 
@@ -261,9 +263,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "restart": args.restart,
             "progress": not args.no_progress,
         }
-        for key in ("splits", "dataset", "variant", "batch_size", "templates_dir"):
+        for key in ("dataset", "variant", "batch_size", "templates_dir"):
             if getattr(args, key) is not None:
                 settings[key] = getattr(args, key)
+        if args.splits is not None:
+            settings["splits"] = list(dict.fromkeys(CATEGORY_SPLIT.get(s, s) for s in args.splits))
         config = PlannerConfig(**settings)
     except ValidationError as err:
         raise UserError(

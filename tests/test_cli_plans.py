@@ -39,6 +39,23 @@ def test_plan_command_writes_plans_sidecar_and_resumes(tmp_path: Path, capsys: A
     assert f"{len(texts)} resumed" in capsys.readouterr().out
 
 
+def test_plan_command_takes_eval_category_names(tmp_path: Path) -> None:
+    output = tmp_path / "plans.json"
+    argv = [
+        "plan",
+        "--model",
+        f"mock:cycle:{PLAN}",
+        "--output",
+        str(output),
+        "--splits",
+        "new_objects",
+        "--no-progress",
+    ]
+    assert main(argv) == 0
+    texts = {t for goal in load_dataset(None).split("easy_test_other_params") for t in goal.texts}
+    assert set(json.loads(output.read_text())) == texts
+
+
 def test_plan_command_rejects_an_unknown_split(tmp_path: Path, capsys: Any) -> None:
     argv = [
         "plan",
