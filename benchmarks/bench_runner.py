@@ -3,6 +3,7 @@
 1. Wall time of the same episodes at batch 1, 8 and 32 with a mock backend that takes a fixed
    latency per request, requests of a batch served concurrently (like a vLLM server): the
    speed-up over batch 1 against the ideal linear one.
+   Two lanes at batch 32 overlap one half's model call with the other half's env and text work.
 2. At batch 32 with a zero-latency mock: seconds per agent-step spent in everything but the
    LLM (env step, pull to numpy, textualization, prompt rendering, parsing, logging).
 
@@ -25,7 +26,7 @@ ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION:
 
 
 def timed_run(
-    env: CrafTextEnv, batch: int, episodes: int, latency: float, workdir: Path
+    env: CrafTextEnv, batch: int, episodes: int, latency: float, workdir: Path, lanes: int = 1
 ) -> tuple[float, int]:
     """Seconds for the run, and agent-steps taken (after a warm-up run compiling this batch size)."""
     settings = {
@@ -34,11 +35,14 @@ def timed_run(
         "splits": ["combo", "paraphrased", "new_objects"],
         "max_steps": env.config.max_steps,
         "batch_size": batch,
+        "lanes": lanes,
         "limit": episodes,
     }
-    warm = build_config(settings | {"output_dir": str(workdir / f"warm{batch}"), "limit": batch})
+    warm = build_config(
+        settings | {"output_dir": str(workdir / f"warm{batch}-{lanes}"), "limit": batch}
+    )
     run_eval(warm, MockModel(outputs=ANSWERS), env=env)
-    config = build_config(settings | {"output_dir": str(workdir / f"b{batch}-{latency}")})
+    config = build_config(settings | {"output_dir": str(workdir / f"b{batch}-{lanes}-{latency}")})
     model = MockModel(outputs=ANSWERS, latency_s=latency)
     start = time.perf_counter()
     outcome = run_eval(config, model, env=env)
@@ -62,14 +66,17 @@ def main() -> None:
             f"{args.episodes} episodes x {args.max_steps} steps, {args.variant} Craftax, "
             f"mock latency {args.latency * 1000:.0f} ms per request (a batch's requests concurrent)"
         )
-        print(f"{'batch':>5} {'wall s':>8} {'speed-up':>9} {'ideal':>6} {'efficiency':>11}")
+        print(
+            f"{'batch':>5} {'lanes':>5} {'wall s':>8} {'speed-up':>9} {'ideal':>6} {'efficiency':>11}"
+        )
         baseline = None
-        for batch in (1, 8, 32):
-            elapsed, _ = timed_run(env, batch, args.episodes, args.latency, workdir)
+        for batch, lanes in ((1, 1), (8, 1), (32, 1), (32, 2)):
+            elapsed, _ = timed_run(env, batch, args.episodes, args.latency, workdir, lanes)
             baseline = baseline or elapsed
             speedup = baseline / elapsed
             print(
-                f"{batch:>5} {elapsed:>8.1f} {speedup:>8.1f}x {batch:>5}x {speedup / batch:>10.2f}"
+                f"{batch:>5} {lanes:>5} {elapsed:>8.1f} {speedup:>8.1f}x {batch:>5}x "
+                f"{speedup / batch:>10.2f}"
             )
         print("target: efficiency (speed-up / ideal) >= 0.8")
 

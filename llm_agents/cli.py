@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-steps", type=int, help="step cap per episode (default 250)")
     run.add_argument("--seed", type=int, help="run seed (default 0)")
     run.add_argument("--batch-size", type=int, help="episodes in lockstep (default 8)")
+    run.add_argument(
+        "--lanes", type=int, help="overlap model calls with env work in N lanes (default 1)"
+    )
     run.add_argument("--renderer", help="observation text: objects (default), grid, table")
     run.add_argument("--history-length", type=int, help="recent actions shown (default 5)")
     run.add_argument("--templates-dir", help="directory of .j2 files overriding the prompts")

@@ -50,6 +50,9 @@ class EvalConfig(BaseModel):
     """Run seed; each episode's world derives from (seed, goal, instruction variant, episode)."""
     batch_size: int = Field(8, ge=1)
     """Episodes played in lockstep, one batched model call per step."""
+    lanes: int = Field(1, ge=1)
+    """Split the batch into this many lanes whose model calls overlap the other lanes' env and
+    text work: worth 2 with a server backend (openai, large batches), not with a local model."""
     renderer: str = "objects"
     """Observation text format: `objects`, `grid` or `table` (the official baseline's)."""
     history_length: int = Field(5, ge=0)
@@ -94,7 +97,8 @@ class EvalConfig(BaseModel):
     def run_identity(self) -> dict[str, Any]:
         """The settings that must match for a run directory to be resumed."""
         return self.model_dump(
-            mode="json", exclude={"output_dir", "limit", "batch_size", "cache", "generation"}
+            mode="json",
+            exclude={"output_dir", "limit", "batch_size", "lanes", "cache", "generation"},
         ) | {
             "generation": self.generation.model_dump(
                 mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}

@@ -17,9 +17,11 @@ import importlib.metadata
 import json
 import logging
 import os
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -204,6 +206,98 @@ def run_eval(
         env = CrafTextEnv(EnvConfig(variant=config.variant, max_steps=config.max_steps))
     elif env.config.variant != config.variant or env.config.max_steps != config.max_steps:
         raise ValueError("the env passed to run_eval does not match the config")
+    sink = _Sink(out, results, list(finished), list(reversed(pending)))
+    sink.bar = progress(len(schedule), len(finished)) if progress else None
+    try:
+        if pending:
+            _play_lanes(config, env, model, sink)
+    except KeyboardInterrupt:
+        _save(results_path, results, sink.episodes, complete=False)
+        raise
+    finally:
+        if sink.bar is not None:
+            sink.bar.close()
+    results = _save(results_path, results, sink.episodes, complete=True)
+    return RunOutcome(
+        results=results, summary=results.summary, output_dir=out, missing_plans=missing
+    )
+
+
+class _Sink:
+    """What the lanes share: the schedule queue, the output files and the progress bar.
+
+    Every method takes the lock, so lanes running in threads never interleave records.
+    """
+
+    def __init__(
+        self,
+        out: Path,
+        results: RunResults,
+        episodes: list[EpisodeRecord],
+        queue: list[ScheduledEpisode],
+    ):
+        self.out = out
+        self.results = results
+        self.episodes = episodes
+        self.queue = queue
+        self.bar: Any = None
+        self.stop = threading.Event()
+        self._lock = threading.Lock()
+        self._started = time.perf_counter()
+        self._agent_steps = 0
+        self._tokens = 0
+
+    def take(self, count: int) -> list[ScheduledEpisode]:
+        with self._lock:
+            return [self.queue.pop() for _ in range(min(count, len(self.queue)))]
+
+    def record(
+        self, decisions: list[Decision], steps: list[StepRecord], ended: list[EpisodeRecord]
+    ) -> None:
+        with self._lock:
+            if steps:
+                append_records(self.out / STEPS_FILE, steps)
+            if ended:
+                append_records(self.out / EPISODES_FILE, ended)
+                self.episodes.extend(ended)
+                _save(self.out / RESULTS_FILE, self.results, self.episodes, complete=False)
+            self._agent_steps += len(decisions)
+            self._tokens += sum(
+                d.output.prompt_tokens + d.output.completion_tokens for d in decisions
+            )
+            if self.bar is not None:
+                elapsed = max(time.perf_counter() - self._started, 1e-9)
+                self.bar.update(len(ended))
+                self.bar.set_postfix(
+                    success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
+                    steps_s=f"{self._agent_steps / elapsed:.1f}",
+                    tok_s=f"{self._tokens / elapsed:.0f}",
+                    refresh=False,
+                )
+
+
+def _play_lanes(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
+    """Split the batch into `config.lanes` lanes; with more than one, each lane's model call
+    overlaps the other lanes' env steps and text work (threads: the waits release the GIL)."""
+    lanes = min(config.lanes, len(sink.queue))
+    lane_batch = min(-(-config.batch_size // lanes), -(-len(sink.queue) // lanes))
+    if lanes == 1:
+        _play(config, env, model, lane_batch, sink)
+        return
+    with ThreadPoolExecutor(max_workers=lanes, thread_name_prefix="lane") as pool:
+        futures = [pool.submit(_play, config, env, model, lane_batch, sink) for _ in range(lanes)]
+        try:
+            for future in futures:
+                future.result()
+        except BaseException:
+            sink.stop.set()
+            raise
+
+
+def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink) -> None:
+    from env import VectorEnv, episode_key, goal_masks
+    from textualizer import observe_batch
+
     agent = ZeroShotAgent(
         config.variant,
         renderer=config.renderer,
@@ -212,39 +306,12 @@ def run_eval(
         fallback_action=config.fallback_action,
         choice_mode=config.choice,
     )
-    bar = progress(len(schedule), len(finished)) if progress else None
-    episodes = list(finished)
-    try:
-        if pending:
-            _play(config, env, agent, model, pending, out, episodes, results, bar)
-    except KeyboardInterrupt:
-        _save(results_path, results, episodes, complete=False)
-        raise
-    finally:
-        if bar is not None:
-            bar.close()
-    results = _save(results_path, results, episodes, complete=True)
-    return RunOutcome(
-        results=results, summary=results.summary, output_dir=out, missing_plans=missing
-    )
-
-
-def _play(
-    config: EvalConfig,
-    env: Any,
-    agent: ZeroShotAgent,
-    model: ModelAPI,
-    pending: list[ScheduledEpisode],
-    out: Path,
-    episodes: list[EpisodeRecord],
-    results: RunResults,
-    bar: Any,
-) -> None:
-    from env import VectorEnv, episode_key, goal_masks
-    from textualizer import observe_batch
-
-    batch = min(config.batch_size, len(pending))
-    queue = list(reversed(pending))
+    first = sink.take(batch)
+    if not first:
+        return
+    # A lane that starts with fewer episodes than its batch pads the batch with copies of its
+    # first one; the copies are never observed or recorded.
+    padding = [first[0]] * (batch - len(first))
     vector = VectorEnv(env, batch)
 
     def task_rows(specs: Sequence[ScheduledEpisode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -257,20 +324,14 @@ def _play(
         required, forbidden = goal_masks([s.instruction.goal for s in specs])
         return keys, required, forbidden
 
-    first = [queue.pop() for _ in range(batch)]
-    host = vector.reset(*task_rows(first))
+    host = vector.reset(*task_rows(first + padding))
     live: dict[int, _Live] = {}
     for slot, spec in enumerate(first):
         live[slot] = _Live(spec)
         agent.start_episode(slot, spec.instruction.text, spec.plan)
 
-    steps_path = out / STEPS_FILE
-    results_path = out / RESULTS_FILE
-    started = time.perf_counter()
-    agent_steps = 0
-    tokens = 0
     fallback = agent.fallback_id
-    while live:
+    while live and not sink.stop.is_set():
         slots = sorted(live)
         observations = observe_batch(host.game, config.variant, indices=slots)
         decisions = agent.act(model, slots, observations)
@@ -297,32 +358,17 @@ def _play(
                 )
                 agent.end_episode(slot)
                 del live[slot]
-        if step_records:
-            append_records(steps_path, step_records)
-        agent_steps += len(decisions)
-        tokens += sum(d.output.prompt_tokens + d.output.completion_tokens for d in decisions)
+        sink.record(decisions, step_records, ended)
 
         if ended:
-            append_records(out / EPISODES_FILE, ended)
-            episodes.extend(ended)
-            _save(results_path, results, episodes, complete=False)
-            refill_slots = [s for s in range(batch) if s not in live][: len(queue)]
-            if refill_slots:
-                specs = [queue.pop() for _ in refill_slots]
+            free = [s for s in range(batch) if s not in live]
+            specs = sink.take(len(free))
+            if specs:
+                refill_slots = free[: len(specs)]
                 host = vector.refill(refill_slots, *task_rows(specs))
                 for slot, spec in zip(refill_slots, specs, strict=True):
                     live[slot] = _Live(spec)
                     agent.start_episode(slot, spec.instruction.text, spec.plan)
-        if bar is not None:
-            elapsed = max(time.perf_counter() - started, 1e-9)
-            successes = sum(e.success for e in episodes)
-            bar.update(len(ended))
-            bar.set_postfix(
-                success=f"{successes}/{len(episodes)}",
-                steps_s=f"{agent_steps / elapsed:.1f}",
-                tok_s=f"{tokens / elapsed:.0f}",
-                refresh=False,
-            )
 
 
 def _names(mask: np.ndarray) -> list[str]:

@@ -237,3 +237,11 @@ def test_prompts_carry_real_observations_and_action_outcomes(
     # Every later prompt reports what the previous LEFT did, read off two real observations.
     for user in users[1:]:
         assert "LEFT: moved west" in user or "LEFT: blocked" in user
+
+
+def test_lanes_give_the_same_episodes(tmp_path: Path, short_env: CrafTextEnv) -> None:
+    run(config(tmp_path / "one", limit=5, batch_size=2), short_env)
+    run(config(tmp_path / "two", limit=5, batch_size=4, lanes=2), short_env)
+    assert canonical(tmp_path / "one") == canonical(tmp_path / "two")
+    steps = (tmp_path / "two" / "steps.jsonl").read_text().splitlines()
+    assert len(steps) == sum(e["steps"] for e in canonical(tmp_path / "two"))
