@@ -310,12 +310,7 @@ class HFModel(ModelAPI):
         scores = first.logits[:, -1].float().log_softmax(-1)[:, first_tokens]
         # The logits at a candidate's token j predict its token j + 1; single-token candidates
         # are fully scored by the prompt pass.
-        trie = CandidateTrie(candidates)
-        pairs = [
-            (k, path[j - 1], candidates[k][j])
-            for k, path in enumerate(trie.paths)
-            for j in range(1, len(path))
-        ]
+        trie, pairs = _trie_and_pairs(candidates)
         if pairs:
             predicting = sorted({node for _, node, _ in pairs})
             row_of = {node: row for row, node in enumerate(predicting)}
@@ -420,12 +415,7 @@ class HFModel(ModelAPI):
         last = hidden[torch.arange(batch, device=device), lengths - 1]
         first_tokens = torch.tensor([ids[0] for ids in candidates], device=device)
         scores = self._log_probs(last)[:, first_tokens]
-        trie = CandidateTrie(candidates)
-        pairs = [
-            (k, path[j - 1], candidates[k][j])
-            for k, path in enumerate(trie.paths)
-            for j in range(1, len(path))
-        ]
+        trie, pairs = _trie_and_pairs(candidates)
         if pairs:
             # Nodes with children; their ancestors have children too, so the set is closed.
             fed = sorted({node for _, node, _ in pairs})
@@ -666,6 +656,20 @@ def _attend(
 
 
 AttentionInterface.register(SPLIT_ATTENTION, _split_attention_forward)
+
+
+def _trie_and_pairs(
+    candidates: list[list[int]],
+) -> tuple[CandidateTrie, list[tuple[int, int, int]]]:
+    """The candidates' token trie, and for every candidate token after the first the triple
+    (candidate, trie node whose logits predict it, token id)."""
+    trie = CandidateTrie(candidates)
+    pairs = [
+        (k, path[j - 1], candidates[k][j])
+        for k, path in enumerate(trie.paths)
+        for j in range(1, len(path))
+    ]
+    return trie, pairs
 
 
 class CandidateTrie:
