@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import logging
 import sys
 from collections.abc import Sequence
@@ -20,7 +21,27 @@ EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+def _backend_option(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        parsed = json.loads(value)
+    except json.JSONDecodeError:
+        parsed = value
+    return key.strip(), parsed
+
+
 def _add_generation_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--backend-option",
+        dest="backend_options",
+        type=_backend_option,
+        action="append",
+        metavar="KEY=VALUE",
+        help="backend option, repeatable (values read as JSON when they parse): threads=2, "
+        "device=cuda, enforce_eager=true, api_key_env=MY_KEY",
+    )
     group = parser.add_argument_group("generation")
     group.add_argument("--max-tokens", type=int, help="most tokens per answer (default 256)")
     group.add_argument("--temperature", type=float, help="sampling temperature (default 0: greedy)")
@@ -156,10 +177,12 @@ def _progress_bar(enabled: bool) -> Any:
     return factory
 
 
-def _open_model(spec: str, generation: Any, cache: str | None) -> Any:
+def _open_model(
+    spec: str, generation: Any, cache: str | None, options: dict[str, Any] | None = None
+) -> Any:
     from llm_agents.backends import get_model
 
-    model = get_model(spec, generation)
+    model = get_model(spec, generation, **(options or {}))
     if cache:
         from llm_agents.backends.cache import CachedModel
 
@@ -197,13 +220,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
             "record_steps",
         )
     }
+    if args.backend_options:
+        flags["backend_options"] = {**base.get("backend_options", {}), **dict(args.backend_options)}
     config = build_config(base, flags, _generation_overrides(args))
     print(
         f"evaluating {config.model} on {', '.join(config.splits)} ({config.variant.value} Craftax)"
         f" -> {config.output_dir}",
         file=sys.stderr,
     )
-    with _open_model(config.model, config.generation, config.cache) as model:
+    with _open_model(
+        config.model, config.generation, config.cache, config.backend_options
+    ) as model:
         try:
             outcome = run_eval(config, model, progress=_progress_bar(not args.no_progress))
         except KeyboardInterrupt:
@@ -276,7 +303,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise UserError(
             f"invalid plan settings: {err.errors()[0]['loc']}: {err.errors()[0]['msg']}"
         ) from err
-    with _open_model(args.model, generation, None) as model:
+    with _open_model(args.model, generation, None, dict(args.backend_options or [])) as model:
         summary = run_planner(config, model)
     print(
         f"{summary.instructions} instructions: {summary.valid} valid, {summary.repaired} repaired, "

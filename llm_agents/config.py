@@ -31,6 +31,9 @@ class EvalConfig(BaseModel):
     """Model spec: `hf:NAME_OR_PATH`, `vllm:NAME_OR_PATH`, `openai:MODEL@URL` or `mock:SCRIPT`."""
     generation: GenerateConfig = Field(default_factory=GenerateConfig)
     """Generation parameters passed to the backend."""
+    backend_options: dict[str, Any] = Field(default_factory=dict)
+    """Keyword options for the backend, e.g. `threads` or `device` (hf), `enforce_eager` or
+    `max_model_len` (vllm), `api_key_env` (openai)."""
     choice: bool = False
     """Constrain each answer to one action name (the backend's choice mode) instead of free text."""
     variant: Variant = Variant.FULL
@@ -98,7 +101,15 @@ class EvalConfig(BaseModel):
         """The settings that must match for a run directory to be resumed."""
         return self.model_dump(
             mode="json",
-            exclude={"output_dir", "limit", "batch_size", "lanes", "cache", "generation"},
+            exclude={
+                "output_dir",
+                "limit",
+                "batch_size",
+                "lanes",
+                "cache",
+                "generation",
+                "backend_options",
+            },
         ) | {
             "generation": self.generation.model_dump(
                 mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}

@@ -245,3 +245,20 @@ def test_lanes_give_the_same_episodes(tmp_path: Path, short_env: CrafTextEnv) ->
     assert canonical(tmp_path / "one") == canonical(tmp_path / "two")
     steps = (tmp_path / "two" / "steps.jsonl").read_text().splitlines()
     assert len(steps) == sum(e["steps"] for e in canonical(tmp_path / "two"))
+
+
+def test_backend_options_reach_the_backend_and_the_saved_config(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    argv = [
+        "eval", "--model", "mock:noop", "--variant", "classic", "--splits", "combo",
+        "--max-steps", str(MAX_STEPS), "--batch-size", "1", "--limit", "1",
+        "--output-dir", str(out), "--no-progress", "--backend-option", "latency_s=0.001",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    results = read_results(out / "results.json")
+    assert results.config["backend_options"] == {"latency_s": 0.001}
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert steps and all(s["latency_s"] == 0.001 for s in steps)
+    with pytest.raises(SystemExit) as exit_info:
+        main([*argv[:-1], "latency_s"])
+    assert exit_info.value.code == 2
