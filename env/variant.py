@@ -2,6 +2,8 @@
 
 from enum import StrEnum
 
+from env.errors import UserError
+
 
 class Variant(StrEnum):
     """`full`: Craftax (43 actions, 9 floors); `classic`: Craftax-Classic (17 actions)."""
@@ -17,3 +19,12 @@ class Variant(StrEnum):
     @property
     def num_actions(self) -> int:
         return 43 if self is Variant.FULL else 17
+
+
+def as_variant(variant: Variant | str) -> Variant:
+    """Accept a `Variant` or its value (`"full"`, `"classic"`); anything else is a `UserError`."""
+    try:
+        return Variant(variant)
+    except ValueError:
+        known = ", ".join(v.value for v in Variant)
+        raise UserError(f"unknown variant {variant!r}; known: {known}") from None

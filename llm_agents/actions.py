@@ -13,7 +13,7 @@ from functools import cache
 from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
-from env.variant import Variant
+from env.variant import Variant, as_variant
 
 
 class ActionSpec(BaseModel):
@@ -188,15 +188,6 @@ _CATALOGUES: dict[Variant, tuple[ActionSpec, ...]] = {
     Variant.CLASSIC: _build(_CLASSIC_NAMES, _CLASSIC_DESCRIPTIONS),
     Variant.FULL: _build(_FULL_NAMES, _FULL_DESCRIPTIONS),
 }
-
-
-def as_variant(variant: Variant | str) -> Variant:
-    """Accept a `Variant` or its value (`"full"`, `"classic"`)."""
-    try:
-        return Variant(variant)
-    except ValueError:
-        known = ", ".join(v.value for v in Variant)
-        raise UserError(f"unknown variant {variant!r}; known: {known}") from None
 
 
 def action_catalogue(variant: Variant | str) -> tuple[ActionSpec, ...]:

@@ -19,8 +19,8 @@ from typing import Any, Protocol
 from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
-from env.variant import Variant
-from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names, as_variant
+from env.variant import Variant, as_variant
+from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
 from llm_agents.parser import ParseResult, parse_action
 from prompts import render_template

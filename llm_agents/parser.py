@@ -29,8 +29,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict
 from rapidfuzz import fuzz, process
 
-from env.variant import Variant
-from llm_agents.actions import action_names, as_variant
+from env.variant import Variant, as_variant
+from llm_agents.actions import action_names
 
 ParseStage = Literal["field", "exact", "alias", "mention", "fuzzy", "invalid"]
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from env.achievements import ACHIEVEMENTS
 from env.errors import UserError
-from env.variant import Variant
+from env.variant import Variant, as_variant
 from textualizer import vocabulary as voc
 from textualizer.observation import (
     Attributes,
@@ -53,14 +53,6 @@ class _View:
 @cache
 def _view(variant: Variant) -> _View:
     return _View(variant)
-
-
-def _as_variant(variant: Variant | str) -> Variant:
-    try:
-        return Variant(variant)
-    except ValueError:
-        known = ", ".join(v.value for v in Variant)
-        raise UserError(f"unknown variant {variant!r}; known: {known}") from None
 
 
 def _check_state(state: Any, variant: Variant) -> None:
@@ -203,7 +195,7 @@ def _full_inventory(state: Any) -> Inventory:
 
 def observe(state: Any, variant: Variant | str) -> Observation:
     """The observation of one episode's craftax `EnvState` whose leaves are numpy arrays."""
-    variant = _as_variant(variant)
+    variant = as_variant(variant)
     _check_state(state, variant)
     view = _view(variant)
     full = variant is Variant.FULL
@@ -365,7 +357,7 @@ def observe_batch(
 ) -> list[Observation]:
     """One observation per episode of a craftax `EnvState` with a leading episode axis
     (only the episodes at `indices`, in that order, when given)."""
-    variant = _as_variant(variant)
+    variant = as_variant(variant)
     shape = np.shape(getattr(states, "player_position", ()))
     if len(shape) != 2:
         raise UserError(
