@@ -274,8 +274,7 @@ class ZeroShotAgent:
         for slot, observation, (messages, text), output in zip(
             slots, observations, built, outputs, strict=True
         ):
-            prompt = "\n".join(m.content for m in messages)
-            parsed = parse_action(output.text, self.variant, prompt=prompt)
+            parsed = parse_action(output.text, self.variant, prompt=[m.content for m in messages])
             fallback = parsed.action is None
             action = self.fallback_id if parsed.action is None else parsed.action
             name = self.fallback_name if parsed.name is None else parsed.name

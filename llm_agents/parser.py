@@ -22,6 +22,7 @@ The parser never raises on any text and runs in time linear in its length.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from typing import Literal
@@ -452,11 +453,15 @@ def _prompt_lines(prompt: str) -> frozenset[str]:
     return frozenset(filter(None, (_normalise(line) for line in prompt.splitlines())))
 
 
-def parse_action(text: str, variant: Variant | str, prompt: str | None = None) -> ParseResult:
+def parse_action(
+    text: str, variant: Variant | str, prompt: str | Sequence[str] | None = None
+) -> ParseResult:
     """Read one action of `variant` from a model's answer; never raises on any text.
 
-    `prompt`, the text the model was given, lets the line stages skip lines the model merely
-    copied from it (an echoed plan or observation naming an action).
+    `prompt`, the text the model was given (one string, or one per message), lets the line
+    stages skip lines the model merely copied from it (an echoed plan or observation naming an
+    action). Messages are normalised one by one and cached, so a system prompt shared by every
+    step is read once.
     """
     vocabulary = _vocabulary(as_variant(variant))
     answer = _strip_reasoning(text)
@@ -470,7 +475,8 @@ def parse_action(text: str, variant: Variant | str, prompt: str | None = None) -
     if whole is not None:
         return _result(text, vocabulary, whole[0], whole[1], answer.strip())
 
-    echoed = _prompt_lines(prompt) if prompt else frozenset()
+    pieces = [prompt] if isinstance(prompt, str) else list(prompt or ())
+    echoed = frozenset().union(*(_prompt_lines(piece) for piece in pieces))
     lines = [
         line.strip()
         for line in answer.splitlines()

@@ -150,6 +150,13 @@ def test_echo_of_our_own_prompt_is_never_an_answer(variant: Variant) -> None:
     )
     echo = "\n\n".join(m.content for m in messages)
     assert parse_action(echo, variant, prompt=echo).action is None
+    per_message = [m.content for m in messages]
+    assert parse_action(echo, variant, prompt=per_message).action is None
+    # The plan's lines echoed alone are skipped whether the prompt comes whole or per message.
+    plan_echo = "Plan for this instruction:\n1. collect wood\n2. place table"
+    assert parse_action(plan_echo, variant, prompt=per_message) == parse_action(
+        plan_echo, variant, prompt=echo
+    )
     answered = parse_action(echo + "\n\nACTION: PLACE_TABLE", variant, prompt=echo)
     assert answered.name == "PLACE_TABLE"
     # Without the prompt, an echoed action catalogue is still recognisably no answer.
