@@ -34,7 +34,8 @@ def _compiled(variant: str) -> CompiledEnv:
     from env import CrafTextEnv, EnvConfig, Variant
 
     env = CrafTextEnv(EnvConfig(variant=Variant(variant)))
-    return CompiledEnv(env=env, reset=jax.jit(env.reset), step=jax.jit(env.step_from_episode_key))
+    # The env already holds a jitted reset (VectorEnv refills use it); reuse its trace.
+    return CompiledEnv(env=env, reset=env.jitted_reset, step=jax.jit(env.step_from_episode_key))
 
 
 @pytest.fixture(scope="session")

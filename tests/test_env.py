@@ -119,7 +119,7 @@ def test_death_ends_the_episode(any_env: Any) -> None:
 
 def test_step_cap_times_out() -> None:
     env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=3))
-    reset, step = jax.jit(env.reset), jax.jit(env.step_from_episode_key)
+    reset, step = env.jitted_reset, jax.jit(env.step_from_episode_key)
     req, forb = masks(["COLLECT_DIAMOND"])
     state = reset(key(), make_task(req, forb))
     terminations = []
