@@ -59,8 +59,11 @@ class ScheduledEpisode:
     index: int
     instruction: Instruction
     repeat: int
-    category: str
     plan: str | None
+
+    @property
+    def category(self) -> str:
+        return self.instruction.goal.category
 
     @property
     def episode_id(self) -> str:
@@ -86,9 +89,12 @@ class RunOutcome:
     """What `run_eval` returns."""
 
     results: RunResults
-    summary: Summary | None
     output_dir: Path
     missing_plans: list[str]
+
+    @property
+    def summary(self) -> Summary | None:
+        return self.results.summary
 
 
 ProgressFactory = Callable[[int, int], Any]
@@ -127,7 +133,6 @@ def build_schedule(
             index=index,
             instruction=instruction,
             repeat=repeat,
-            category=instruction.goal.category,
             plan=(plans or {}).get(instruction.text),
         )
         for index, (_, instruction, repeat) in enumerate(keyed)
@@ -218,9 +223,7 @@ def run_eval(
         if sink.bar is not None:
             sink.bar.close()
     results = _save(results_path, results, sink.episodes, complete=True)
-    return RunOutcome(
-        results=results, summary=results.summary, output_dir=out, missing_plans=missing
-    )
+    return RunOutcome(results=results, output_dir=out, missing_plans=missing)
 
 
 class _Sink:
