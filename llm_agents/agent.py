@@ -214,6 +214,13 @@ class ZeroShotAgent:
             "choice_mode": self.choice_mode,
         }
 
+    def check_templates(self, instruction: str, plan: str | None = None) -> None:
+        """Render a step prompt with a placeholder observation, so that a broken template fails
+        before any model call (the system prompt was rendered by the constructor)."""
+        history = [HistoryEntry(step=0, action=self.fallback_name, outcome="no visible effect")]
+        context = self.step_context("(observation)", instruction, plan, history)
+        render_template(STEP_TEMPLATE, context, self.templates_dir)
+
     def start_episode(self, slot: int, instruction: str, plan: str | None = None) -> None:
         """Begin a new episode in a slot, forgetting the slot's previous one."""
         self._episodes[slot] = _Episode(instruction, plan)

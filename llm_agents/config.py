@@ -1,14 +1,18 @@
-"""The evaluation run's configuration: defaults, file loading (YAML or TOML) and validation.
+"""The settings of the commands that talk to a model (`eval`, `plan`): declared once, as typed
+fields with docstrings, and loaded from a YAML/TOML file overridden by flags.
 
-The resolved config (every default filled in) is saved with the results, so a run can be
-reproduced and resumed from its output directory alone.
+Each field is declared here exactly once: its docstring is the flag's help text, its name with
+dashes is the flag (`max_steps` -> `--max-steps`), and its name is the config-file key (nested
+models such as `generation` are tables of their own). The resolved config, every default filled
+in, is saved with the results.
 """
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -21,28 +25,68 @@ from llm_agents.backends.base import GenerateConfig
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
 
+#: Backend options that change how fast or where a model runs, never what it answers.
+TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env"})
 
-class EvalConfig(BaseModel):
-    """Everything that defines an evaluation run."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+class ModelSettings(BaseModel):
+    """What every command that talks to a model shares."""
+
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, use_attribute_docstrings=True
+    )
 
     model: str = "hf:smollm2-135m"
-    """Model spec: `hf:NAME_OR_PATH`, `vllm:NAME_OR_PATH`, `openai:MODEL@URL` or `mock:SCRIPT`."""
+    """Model spec: hf:NAME_OR_PATH, vllm:NAME_OR_PATH, openai:MODEL@URL or mock:SCRIPT."""
     generation: GenerateConfig = Field(default_factory=GenerateConfig)
     """Generation parameters passed to the backend."""
     backend_options: dict[str, Any] = Field(default_factory=dict)
-    """Keyword options for the backend, e.g. `threads` or `device` (hf), `enforce_eager` or
-    `max_model_len` (vllm), `api_key_env` (openai)."""
+    """Backend option KEY=VALUE (repeatable; values read as JSON when they parse), e.g.
+    threads=2, device=cuda, dtype=float32 (hf), enforce_eager=true (vllm), api_key_env=MY_KEY
+    (openai)."""
+    cache: str | None = None
+    """SQLite file caching model responses, so a repeated run does not pay twice."""
+    limit: int | None = Field(None, ge=1)
+    """Do only the first N items of the schedule (episodes, or instructions to plan)."""
+    templates_dir: str | None = None
+    """Directory whose .j2 files override the packaged prompt templates of the same name."""
+    dataset: str | None = None
+    """Dataset source: an official CrafText clone, a craftext wheel or a dataset JSON written by
+    this tool; unset: the default source."""
+    variant: Variant = Variant.FULL
+    """Craftax variant: full (43 actions) or classic (17 actions)."""
+    probe: bool = True
+    """Send one cheap request before any work to check that the model answers (a dead server,
+    a wrong model name or a bad key then fails in seconds, before anything is written)."""
+
+    @field_validator("model")
+    @classmethod
+    def _known_backend(cls, value: str) -> str:
+        from llm_agents.backends import parse_model_spec
+
+        parse_model_spec(value)
+        return value
+
+    @field_validator("templates_dir", "dataset", "cache", mode="before")
+    @classmethod
+    def _path_as_text(cls, value: Any) -> Any:
+        return str(value) if isinstance(value, Path) else value
+
+    @field_validator("templates_dir")
+    @classmethod
+    def _existing_templates_dir(cls, value: str | None) -> str | None:
+        if value is not None and not Path(value).expanduser().is_dir():
+            raise ValueError(f"templates directory {value!r} does not exist")
+        return value
+
+
+class EvalConfig(ModelSettings):
+    """Everything that defines an evaluation run (`craftext-llm eval`)."""
+
     choice: bool = False
     """Constrain each answer to one action name (the backend's choice mode) instead of free text."""
-    variant: Variant = Variant.FULL
-    """Craftax variant: `full` (43 actions) or `classic` (17 actions)."""
     splits: tuple[str, ...] = DEFAULT_CATEGORIES
-    """Instruction categories to run: `one`, `combo`, `paraphrased`, `new_objects`."""
-    dataset: str | None = None
-    """Dataset source: None for the craftext 0.2.2 wheel's data, else an official repository
-    clone, a craftext wheel or a dataset JSON written by this tool."""
+    """Instruction categories to run: one, combo, paraphrased, new_objects."""
     paraphrases: bool = True
     """Run every paraphrase of each goal as well as its original instruction."""
     episodes_per_instruction: int = Field(1, ge=1)
@@ -52,41 +96,29 @@ class EvalConfig(BaseModel):
     seed: int = 0
     """Run seed; each episode's world derives from (seed, goal, instruction variant, episode)."""
     batch_size: int = Field(8, ge=1)
-    """Episodes played in lockstep, one batched model call per step."""
+    """Episodes played at once, one batched model call per step."""
     lanes: int = Field(1, ge=1)
     """Split the batch into this many lanes whose model calls overlap the other lanes' env and
     text work: worth 2 with a server backend (openai, large batches), not with a local model."""
     renderer: str = "objects"
-    """Observation text format: `objects`, `grid` or `table` (the official baseline's)."""
+    """Observation text format: objects, grid or table (the official baseline's)."""
     history_length: int = Field(5, ge=0)
     """Recent actions (with outcomes) shown in each prompt."""
-    templates_dir: str | None = None
-    """Directory whose `.j2` files override the packaged prompt templates."""
     plans: str | None = None
-    """JSON file mapping instruction text -> plan text, added to the step prompt."""
+    """JSON file mapping instruction text to plan text, added to the step prompt."""
     output_dir: str = "runs/latest"
     """Where steps, episodes and results are written; rerunning on it resumes the run."""
-    limit: int | None = Field(None, ge=1)
-    """Run only the first N scheduled episodes (quick runs)."""
     fallback_action: str = "NOOP"
     """Action taken when the model's answer cannot be parsed (counted as invalid)."""
-    cache: str | None = None
-    """SQLite file caching model responses, so a repeated run does not pay twice."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
+    max_consecutive_failures: int = Field(8, ge=1)
+    """Stop the run (keeping what finished) after this many failed model answers in a row."""
 
     @field_validator("splits", mode="before")
     @classmethod
     def _known_splits(cls, value: Any) -> tuple[str, ...]:
         return tuple(parse_categories(value))
-
-    @field_validator("model")
-    @classmethod
-    def _known_backend(cls, value: str) -> str:
-        from llm_agents.backends import parse_model_spec
-
-        parse_model_spec(value)
-        return value
 
     @field_validator("renderer")
     @classmethod
@@ -97,9 +129,27 @@ class EvalConfig(BaseModel):
             raise ValueError(f"unknown renderer {value!r}; choose from {', '.join(RENDERERS)}")
         return value
 
-    def run_identity(self) -> dict[str, Any]:
-        """The settings that must match for a run directory to be resumed."""
-        return self.model_dump(
+    @field_validator("fallback_action")
+    @classmethod
+    def _known_action(cls, value: str) -> str:
+        from llm_agents.actions import action_names
+
+        # The variant is validated after this field, so accept a name of either variant here;
+        # the agent checks it against the run's variant before anything is written.
+        names = set(action_names(Variant.FULL)) | set(action_names(Variant.CLASSIC))
+        if value.strip().upper() not in names:
+            close = difflib.get_close_matches(value.strip().upper(), sorted(names), n=1)
+            hint = f"; did you mean {close[0]}?" if close else ""
+            raise ValueError(f"unknown action {value!r}{hint}")
+        return value
+
+    def result_settings(self) -> dict[str, Any]:
+        """The settings that change results: what a resumed run must match.
+
+        Paths are left out (the run identity hashes the contents they point at), and so is
+        everything about speed, caching, logging or where results go.
+        """
+        settings = self.model_dump(
             mode="json",
             exclude={
                 "output_dir",
@@ -109,12 +159,26 @@ class EvalConfig(BaseModel):
                 "cache",
                 "generation",
                 "backend_options",
+                "templates_dir",
+                "plans",
+                "dataset",
+                "record_steps",
+                "probe",
+                "max_consecutive_failures",
             },
-        ) | {
-            "generation": self.generation.model_dump(
-                mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}
-            )
+        )
+        settings["generation"] = self.generation.model_dump(
+            mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}
+        )
+        settings["backend_options"] = {
+            key: value
+            for key, value in self.backend_options.items()
+            if key not in TRANSPORT_BACKEND_OPTIONS
         }
+        return settings
+
+
+Settings = TypeVar("Settings", bound=ModelSettings)
 
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
@@ -124,6 +188,8 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         text = file.read_text(encoding="utf-8")
     except OSError as err:
         raise UserError(f"cannot read config file {file}: {err.strerror}") from err
+    except UnicodeDecodeError as err:
+        raise UserError(f"config file {file} is not UTF-8 text") from err
     try:
         if file.suffix == ".toml":
             data = tomllib.loads(text)
@@ -132,31 +198,70 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         else:
             raise UserError(f"config file {file} must end in .toml, .yaml or .yml")
     except (tomllib.TOMLDecodeError, yaml.YAMLError) as err:
-        raise UserError(f"config file {file} does not parse: {err}") from err
+        first_line = str(err).strip().splitlines()[0]
+        raise UserError(f"config file {file} does not parse: {first_line}") from err
     if not isinstance(data, dict):
         raise UserError(f"config file {file} must hold a table of settings")
     return data
 
 
-def build_config(
+def build_settings(
+    cls: type[Settings],
     base: dict[str, Any] | None = None,
     overrides: dict[str, Any] | None = None,
-    generation_overrides: dict[str, Any] | None = None,
-) -> EvalConfig:
-    """An `EvalConfig` from file settings overridden by flags (None values are ignored)."""
-    data = dict(base or {})
-    generation = dict(data.pop("generation", None) or {})
-    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    generation.update({k: v for k, v in (generation_overrides or {}).items() if v is not None})
+) -> Settings:
+    """Settings of type `cls` from file settings (`base`) overridden by flags.
+
+    Nested tables (`generation`, `backend_options`, ...) are merged key by key, so a flag
+    changes one generation setting without dropping the file's others.
+    """
+    merged = _merge(dict(base or {}), overrides or {}, cls)
+    unknown = sorted(set(merged) - set(cls.model_fields))
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], list(cls.model_fields), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise UserError(f"unknown setting {unknown[0]!r}{hint}")
     try:
-        return EvalConfig(**data, generation=GenerateConfig(**generation))
+        return cls(**merged)
     except ValidationError as err:
-        raise UserError(f"invalid configuration: {_validation_message(err)}") from err
+        raise UserError(f"invalid setting {validation_message(err)}") from err
 
 
-def _validation_message(err: ValidationError) -> str:
+def _merge(data: dict[str, Any], overrides: dict[str, Any], cls: type[BaseModel]) -> dict[str, Any]:
+    for key, value in overrides.items():
+        field = cls.model_fields.get(key)
+        table = field is not None and _is_table(field.annotation)
+        if table and key in data and not isinstance(data[key], dict):
+            raise UserError(f"setting {key!r} must be a table of settings, not {data[key]!r}")
+        if table and isinstance(value, dict):
+            data[key] = {**data.get(key, {}), **value}
+        else:
+            data[key] = value
+    for key, value in data.items():
+        field = cls.model_fields.get(key)
+        if field is not None and _is_table(field.annotation) and not isinstance(value, dict):
+            raise UserError(f"setting {key!r} must be a table of settings, not {value!r}")
+    return data
+
+
+def _is_table(annotation: Any) -> bool:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return True
+    return getattr(annotation, "__origin__", None) is dict
+
+
+def validation_message(err: ValidationError) -> str:
+    """One line naming each invalid setting and why."""
     parts = []
     for problem in err.errors():
         where = ".".join(str(p) for p in problem["loc"]) or "config"
-        parts.append(f"{where}: {problem['msg']}")
+        message = problem["msg"].removeprefix("Value error, ")
+        parts.append(f"{where}: {message}")
     return "; ".join(parts)
+
+
+def build_config(
+    base: dict[str, Any] | None = None, overrides: dict[str, Any] | None = None
+) -> EvalConfig:
+    """An `EvalConfig` from file settings overridden by flags (`build_settings` for eval)."""
+    return build_settings(EvalConfig, base, overrides)

@@ -11,15 +11,11 @@ import math
 import statistics
 from collections import Counter, defaultdict
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from pydantic import BaseModel, Field
 
 from env.errors import UserError
-
-if TYPE_CHECKING:
-    # records.py needs `Summary` at import time, so this import only serves type checking.
-    from llm_agents.records import EpisodeRecord
+from llm_agents.records import CATEGORIES, TERMINATIONS, EpisodeRecord
 
 __all__ = ["SuccessRate", "Summary", "summarize", "wilson_interval"]
 
@@ -94,9 +90,6 @@ def _success_rates(groups: dict[str, list[bool]]) -> dict[str, SuccessRate]:
 
 def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
     """Metrics over `episodes`; raises `UserError` when there are none."""
-    # Imported here because records.py imports this module for `Summary`.
-    from llm_agents.records import CATEGORIES, TERMINATIONS
-
     if not episodes:
         raise UserError("no finished episodes to summarize")
     by_category: dict[str, list[bool]] = defaultdict(list)

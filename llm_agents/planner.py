@@ -15,17 +15,15 @@ import importlib.util
 import json
 import os
 import re
-import tempfile
 import time
 from collections.abc import Iterable, Iterator, Sequence
-from contextlib import suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from tqdm import tqdm
 
 from env.dataset import Goal, check_split, load_dataset
@@ -33,6 +31,14 @@ from env.errors import UserError
 from env.variant import Variant
 from llm_agents.actions import action_catalogue, action_names
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
+from llm_agents.config import ModelSettings
+from llm_agents.run_store import (
+    append_lines,
+    atomic_write_json,
+    check_output_dir,
+    complete_lines,
+    make_output_dir,
+)
 from prompts import render_blocks, template_source
 
 __all__ = [
@@ -121,7 +127,7 @@ _WORD = re.compile(r"\b[a-z]+(?:'[a-z]+)?\b")
 class PlanLimits(BaseModel):
     """How short a plan must be."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
     max_steps: int = Field(5, ge=1)
     """Most numbered steps a plan may have."""
@@ -206,35 +212,43 @@ class PlanSettings(BaseModel):
     """Whether flagged plans got one repair request."""
 
 
-class PlannerConfig(BaseModel):
+class PlannerConfig(ModelSettings):
     """What `craftext-llm plan` does."""
-
-    model_config = ConfigDict(extra="forbid")
 
     output: Path
     """The plans JSON to write; the journal and sidecar sit beside it."""
     splits: list[str] = Field(
         default_factory=lambda: ["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
     )
-    """Dataset splits whose instructions and paraphrases get plans."""
-    dataset: Path | None = None
-    """The dataset source (`env.dataset.load_dataset`): a CrafText clone, a wheel or a saved JSON; None: the default wheel."""
-    variant: Variant = Variant.FULL
-    """Whose names the prompt lists and the checker accepts (full Craftax's include Classic's)."""
+    """Dataset splits (easy_train easy_test_paraphrased easy_test_other_params) or eval's
+    category names (one and combo plan the train split) whose instructions get plans."""
     limits: PlanLimits = Field(default_factory=PlanLimits)
     """How short plans must be."""
     repair: bool = True
     """Send one repair request for every plan that breaks the rules."""
     drop_failed: bool = False
     """Leave plans that still break the rules after repair out of the plans file."""
-    templates_dir: Path | None = None
-    """A folder whose `planner.j2` / `plan_repair.j2` replace ours (their hashes are recorded)."""
-    batch_size: int = Field(32, ge=1)
-    """Conversations per backend call."""
+    requests_per_call: int = Field(32, ge=1)
+    """Conversations sent to the backend in one call."""
     restart: bool = False
     """Discard an existing journal instead of resuming it."""
-    progress: bool = True
-    """Show a progress bar."""
+
+    @field_validator("splits", mode="before")
+    @classmethod
+    def _split_names(cls, value: Any) -> list[str]:
+        from env.dataset import CATEGORY_SPLIT
+
+        names: list[str] = [value] if isinstance(value, str) else list(value)
+        by_category: dict[str, str] = {str(k): str(v) for k, v in CATEGORY_SPLIT.items()}
+        return list(dict.fromkeys(check_split(by_category.get(n, n)) for n in names))
+
+    @field_validator("output")
+    @classmethod
+    def _plans_file(cls, value: Path) -> Path:
+        if value.is_dir():
+            raise ValueError(f"{value} is a directory; name the plans JSON file to write")
+        check_output_dir(value.parent)
+        return value
 
 
 class PlanSummary(BaseModel):
@@ -419,7 +433,7 @@ def check_plan(
 # ---------------------------------------------------------------- prompts
 
 
-def _template_hashes(templates_dir: Path | None) -> dict[str, str]:
+def _template_hashes(templates_dir: str | Path | None) -> dict[str, str]:
     return {
         name: hashlib.sha256(template_source(name, templates_dir).encode("utf-8")).hexdigest()
         for name in (PLANNER_TEMPLATE, REPAIR_TEMPLATE)
@@ -429,7 +443,7 @@ def _template_hashes(templates_dir: Path | None) -> dict[str, str]:
 class _Prompter:
     """Renders plan and repair requests with the limits and the variant's names."""
 
-    def __init__(self, limits: PlanLimits, variant: Variant, templates_dir: Path | None):
+    def __init__(self, limits: PlanLimits, variant: Variant, templates_dir: str | Path | None):
         self.templates_dir = templates_dir
         self.common = {
             "things": [name.lower().replace("_", " ") for name in _things(variant)],
@@ -465,22 +479,6 @@ def _paths(output: Path) -> tuple[Path, Path]:
     )
 
 
-def _write_json_atomically(path: Path, data: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as file:
-            json.dump(data, file, indent=2, ensure_ascii=False)
-            file.write("\n")
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        with suppress(OSError):
-            os.unlink(temporary)
-        raise
-
-
 class _Journal:
     """The append-only JSONL log: a settings header, then one `PlanRecord` per line."""
 
@@ -489,24 +487,13 @@ class _Journal:
         self.records: dict[str, PlanRecord] = {}
         if restart:
             path.unlink(missing_ok=True)
-        lines = self._complete_lines()
+        lines = complete_lines(path)
         if lines:
             self._resume(lines, settings)
         else:
-            path.parent.mkdir(parents=True, exist_ok=True)
+            make_output_dir(path.parent)
             path.write_bytes(b"")
-            self._append([json.dumps({"settings": settings.model_dump(mode="json")})])
-
-    def _complete_lines(self) -> list[str]:
-        """The journal's lines, after cutting off a last line torn by a kill mid-write."""
-        if not self.path.exists():
-            return []
-        data = self.path.read_bytes()
-        complete = data[: data.rfind(b"\n") + 1]
-        if len(complete) < len(data):
-            with self.path.open("r+b") as file:
-                file.truncate(len(complete))
-        return complete.decode("utf-8").splitlines()
+            append_lines(path, [json.dumps({"settings": settings.model_dump(mode="json")})])
 
     def _resume(self, lines: list[str], settings: PlanSettings) -> None:
         try:
@@ -532,14 +519,8 @@ class _Journal:
                 raise UserError(f"{self.path} line {number} is corrupt; pass --restart") from None
             self.records[record.instruction] = record
 
-    def _append(self, lines: Sequence[str]) -> None:
-        with self.path.open("a", encoding="utf-8") as file:
-            file.writelines(line + "\n" for line in lines)
-            file.flush()
-            os.fsync(file.fileno())
-
     def add(self, records: Sequence[PlanRecord]) -> None:
-        self._append([record.model_dump_json() for record in records])
+        append_lines(self.path, [record.model_dump_json() for record in records])
         self.records.update((record.instruction, record) for record in records)
 
     def plans(self, drop_failed: bool) -> dict[str, str]:
@@ -662,6 +643,8 @@ def plan_instructions(
     model: ModelAPI,
     config: PlannerConfig,
     provenance: dict[str, Any] | None = None,
+    *,
+    progress: bool = False,
 ) -> PlanSummary:
     """Plan every instruction not yet in the journal, then rebuild the plans file and sidecar.
 
@@ -681,15 +664,15 @@ def plan_instructions(
             initial=len(wanted) - len(todo),
             desc="planning",
             unit="instr",
-            disable=not config.progress,
+            disable=not progress,
         ) as bar:
-            for batch in _batches(todo, config.batch_size):
+            for batch in _batches(todo, config.requests_per_call):
                 journal.add(_plan_batch(batch, model, prompter, config, usage))
                 bar.update(len(batch))
     finally:
         # Runs on Ctrl-C too, so the plans file always reflects the journal.
         plans = journal.plans(config.drop_failed)
-        _write_json_atomically(config.output, plans)
+        atomic_write_json(config.output, plans)
     statuses = [journal.records[t].status for t in wanted if t in journal.records]
     summary = PlanSummary(
         output=config.output,
@@ -716,7 +699,7 @@ def plan_instructions(
         "instructions_from": provenance or {},
         "summary": summary.model_dump(mode="json", exclude={"failed_instructions"}),
     }
-    _write_json_atomically(sidecar_path, sidecar)
+    atomic_write_json(sidecar_path, sidecar)
     return summary
 
 
@@ -725,10 +708,19 @@ def goal_instructions(goals: Iterable[Goal]) -> list[str]:
     return list(dict.fromkeys(text for goal in goals for text in goal.texts))
 
 
-def run_planner(config: PlannerConfig, model: ModelAPI) -> PlanSummary:
-    """Plan every instruction and paraphrase of the configured splits (`craftext-llm plan`)."""
-    splits = [check_split(name) for name in config.splits]
+def planned_instructions(config: PlannerConfig) -> tuple[list[str], dict[str, Any]]:
+    """The instructions `config` asks plans for (cut to `limit`), and where they came from."""
     dataset = load_dataset(config.dataset)
-    instructions = goal_instructions(goal for split in splits for goal in dataset.split(split))
-    provenance = {"splits": splits, "dataset": dataset.source.model_dump(mode="json")}
-    return plan_instructions(instructions, model, config, provenance)
+    instructions = goal_instructions(
+        goal for split in config.splits for goal in dataset.split(split)
+    )
+    if config.limit is not None:
+        instructions = instructions[: config.limit]
+    provenance = {"splits": config.splits, "dataset": dataset.source.model_dump(mode="json")}
+    return instructions, provenance
+
+
+def run_planner(config: PlannerConfig, model: ModelAPI, *, progress: bool = False) -> PlanSummary:
+    """Plan every instruction and paraphrase of the configured splits (`craftext-llm plan`)."""
+    instructions, provenance = planned_instructions(config)
+    return plan_instructions(instructions, model, config, provenance, progress=progress)

@@ -1,39 +1,21 @@
-"""Typed records of an evaluation run, and how they live on disk.
-
-A run directory holds `steps.jsonl` (one `StepRecord` per agent step), `episodes.jsonl` (one
-`EpisodeRecord` per finished episode, appended as episodes end so a crash keeps what finished)
-and `results.json` (one `RunResults`, rewritten as the run progresses and at its end).
+"""Typed records of an evaluation run: one `StepRecord` per agent step, one `EpisodeRecord` per
+finished episode. `llm_agents.run_store` owns the files they live in.
 """
 
 from __future__ import annotations
 
-import logging
-import os
-from collections.abc import Iterable
-from datetime import datetime
-from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Literal, get_args
 
-from pydantic import BaseModel, Field, ValidationError, computed_field, model_validator
-
-from env.errors import UserError
-from llm_agents.metrics import Summary
+from pydantic import BaseModel, Field, computed_field, model_validator
 
 __all__ = [
     "CATEGORIES",
     "TERMINATIONS",
     "Category",
     "EpisodeRecord",
-    "RunResults",
     "StepRecord",
     "Termination",
-    "append_records",
-    "read_episodes",
-    "read_results",
-    "write_results",
 ]
-
-logger = logging.getLogger(__name__)
 
 Category = Literal["one", "combo", "new_objects", "paraphrased"]
 """CrafText goal sets: single achievements, combinations, unseen objects, paraphrased instructions."""
@@ -79,6 +61,15 @@ class StepRecord(BaseModel):
     """Tokens generated, reasoning included."""
     latency_s: float = Field(0.0, ge=0.0)
     """Wall time of the model call (for a batched call: the batch's time)."""
+    finish_reason: str = "stop"
+    """How the answer ended: `stop`, `length` (hit max_tokens), `choice` or `error`."""
+    error: str | None = None
+    """Why the backend failed, after its retries; the step's action is then the fallback and the
+    episode does not count (it is re-run on resume)."""
+    cached: bool = False
+    """True when the answer came from the response cache."""
+    followups: int = Field(0, ge=0)
+    """Extra requests made for this answer (e.g. an answer-only follow-up after long reasoning)."""
 
 
 class EpisodeRecord(BaseModel):
@@ -132,80 +123,3 @@ class EpisodeRecord(BaseModel):
         if self.invalid_actions > self.steps:
             raise ValueError(f"invalid_actions={self.invalid_actions} exceeds steps={self.steps}")
         return self
-
-
-class RunResults(BaseModel):
-    """What a run was (config, versions, data) and how it went (summary), in `results.json`."""
-
-    config: dict[str, Any]
-    """The resolved run configuration, every default filled in."""
-    versions: dict[str, str] = Field(default_factory=dict)
-    """Versions of the packages and backend that produced the run."""
-    dataset: dict[str, Any] = Field(default_factory=dict)
-    """Where the instruction dataset came from (path or revision, checksum)."""
-    summary: Summary | None = None
-    """Metrics over the episodes finished so far; None before the first episode ends."""
-    started_at: datetime
-    """When the run started."""
-    finished_at: datetime | None = None
-    """When the run ended; None while it runs or after a crash."""
-    complete: bool = False
-    """True only when every scheduled episode finished."""
-
-
-def append_records(path: Path, records: Iterable[BaseModel]) -> None:
-    """Append records to a JSON-lines file, one per line, flushed to disk before returning."""
-    with path.open("a", encoding="utf-8") as handle:
-        for record in records:
-            handle.write(record.model_dump_json() + "\n")
-        handle.flush()
-        os.fsync(handle.fileno())
-
-
-def read_episodes(path: Path) -> list[EpisodeRecord]:
-    """Read `episodes.jsonl`, tolerating the torn last line a crash leaves behind.
-
-    A bad last line is skipped with a warning; a bad line anywhere else means the file is
-    corrupt and raises `UserError`. When an episode id repeats (a resumed run redid it),
-    the later record wins.
-    """
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise UserError(f"cannot read episode records {path}: {exc.strerror}") from exc
-    while lines and not lines[-1].strip():
-        lines.pop()
-    by_id: dict[str, EpisodeRecord] = {}
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        try:
-            record = EpisodeRecord.model_validate_json(line)
-        except ValidationError as exc:
-            if number == len(lines):
-                logger.warning("%s: skipping unreadable last line %d (torn write?)", path, number)
-                continue
-            raise UserError(f"{path}, line {number}: not an episode record: {exc}") from exc
-        if record.episode_id in by_id:
-            logger.warning(
-                "%s: episode %r recorded twice; keeping line %d", path, record.episode_id, number
-            )
-        by_id[record.episode_id] = record
-    return list(by_id.values())
-
-
-def read_results(path: Path) -> RunResults:
-    """Read `results.json`."""
-    try:
-        return RunResults.model_validate_json(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise UserError(f"cannot read run results {path}: {exc.strerror}") from exc
-    except ValidationError as exc:
-        raise UserError(f"{path} is not a valid results file: {exc}") from exc
-
-
-def write_results(path: Path, results: RunResults) -> None:
-    """Write `results.json` atomically, so a crash mid-write leaves the previous version."""
-    partial = path.with_name(path.name + ".tmp")
-    partial.write_text(results.model_dump_json(indent=2) + "\n", encoding="utf-8")
-    os.replace(partial, path)

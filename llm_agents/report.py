@@ -12,13 +12,11 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
-from llm_agents.metrics import SuccessRate, Summary, summarize
-from llm_agents.records import RunResults, read_episodes, read_results
+from llm_agents.metrics import SuccessRate, Summary
+from llm_agents.run_store import RESULTS_FILE, RunResults, read_results
 
 __all__ = ["PUBLISHED", "PublishedResult", "format_table", "plot_success", "report_run"]
 
-EPISODES_FILE = "episodes.jsonl"
-RESULTS_FILE = "results.json"
 CHART_FILE = "success.png"
 
 
@@ -195,9 +193,24 @@ def plot_success(summary: Summary, model_name: str, path: Path) -> None:
         raise UserError(f"cannot write chart {path}: {exc.strerror}") from exc
 
 
-def _model_name(results: RunResults | None) -> str:
-    model = results.config.get("model") if results is not None else None
+def _model_name(results: RunResults) -> str:
+    model = results.config.get("model")
     return model if isinstance(model, str) and model else "this model"
+
+
+def run_status(results: RunResults) -> str:
+    """One paragraph on how far the run got and what the backend did, for the report."""
+    lines = [f"Run status: {results.status} ({results.finished} of {results.scheduled} episodes)."]
+    errors = results.backend_errors
+    if errors.failed_calls:
+        lines.append(
+            f"Backend errors: {errors.failed_calls} failed answers, "
+            f"{len(errors.aborted_episodes)} episodes cut short (not counted; a rerun plays them)"
+            f"; last: {errors.last_error}"
+        )
+    if results.failure:
+        lines.append(f"Stopped by: {results.failure}")
+    return "\n".join(lines)
 
 
 def report_run(run_dir: str | Path) -> str:
@@ -205,15 +218,14 @@ def report_run(run_dir: str | Path) -> str:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise UserError(f"run directory {run_dir} does not exist")
-    episodes_path = run_dir / EPISODES_FILE
-    if not episodes_path.is_file():
-        raise UserError(f"{run_dir} has no {EPISODES_FILE}: no episode has finished there")
-    episodes = read_episodes(episodes_path)
-    if not episodes:
-        raise UserError(f"{episodes_path} holds no finished episode")
     results_path = run_dir / RESULTS_FILE
-    results = read_results(results_path) if results_path.is_file() else None
-    summary = summarize(episodes)
+    if not results_path.is_file():
+        raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
+    results = read_results(results_path)
+    summary = results.summary
+    if summary is None:
+        raise UserError(f"no episode of the run in {run_dir} has finished yet")
     model_name = _model_name(results)
     plot_success(summary, model_name, run_dir / CHART_FILE)
-    return format_table(summary, model_name, partial=results is None or not results.complete)
+    table = format_table(summary, model_name, partial=results.status != "complete")
+    return f"{table}\n{run_status(results)}"

@@ -1,22 +1,24 @@
 """The evaluation runner: N episodes in lockstep, resumable, written as it goes.
 
-Each loop iteration makes one batched env step, one batched textualization and one batched
-model call for all live episodes; a finished episode's slot is refilled from the schedule so the
-batch stays full.
+A run has two phases. `prepare_run` does every cheap check (settings, dataset, plans, templates,
+fallback action, output directory, the identity of a run already in that directory) and writes
+nothing; only then is the model loaded and probed, and `execute_run` plays. Each loop iteration
+makes one batched env step, one batched textualization and one batched model call for all live
+episodes; a finished episode's slot is refilled from the schedule so the batch stays full.
 
-The output directory holds `steps.jsonl` (a line per agent step), `episodes.jsonl` (a line per
-finished episode) and `results.json` (resolved config, versions, dataset source, summary). A run
-killed at any point and restarted on the same directory redoes only the episodes that had not
-finished: episode worlds derive from their own keys, so with a deterministic backend the resumed
-run ends with exactly the results of an uninterrupted one.
+A model answer that failed (after the backend's retries) is data, not an answer: the step is
+recorded with its error, its episode is cut short and not counted, and a rerun plays it again.
+Too many failures in a row stop the run (status `failed`), keeping everything that finished. A
+run killed at any point and restarted on the same directory redoes only the episodes that had
+not finished: episode worlds derive from their own keys, so with a deterministic backend the
+resumed run ends with exactly the results of an uninterrupted one.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib.metadata
-import json
 import logging
-import os
 import threading
 import time
 from collections import Counter
@@ -35,21 +37,29 @@ from llm_agents.agent import Decision, ZeroShotAgent
 from llm_agents.backends.base import ModelAPI
 from llm_agents.config import EvalConfig
 from llm_agents.metrics import Summary, summarize
-from llm_agents.records import (
-    EpisodeRecord,
+from llm_agents.records import EpisodeRecord, StepRecord
+from llm_agents.run_store import (
+    EPISODES_FILE,
+    RESULTS_FILE,
+    STEPS_FILE,
+    RunIdentity,
     RunResults,
-    StepRecord,
     append_records,
+    check_output_dir,
+    episode_ids_of_steps,
+    file_sha256,
+    make_output_dir,
     read_episodes,
     read_results,
+    rewrite_lines,
     write_results,
 )
 
 logger = logging.getLogger(__name__)
 
-STEPS_FILE = "steps.jsonl"
-EPISODES_FILE = "episodes.jsonl"
-RESULTS_FILE = "results.json"
+
+class BackendFailure(UserError):
+    """The backend failed too often in a row; the run stopped with status `failed`."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +105,20 @@ class RunOutcome:
     @property
     def summary(self) -> Summary | None:
         return self.results.summary
+
+
+@dataclass
+class PreparedRun:
+    """A run checked and ready to play: nothing has been written yet."""
+
+    config: EvalConfig
+    output_dir: Path
+    dataset_source: dict[str, Any]
+    instructions: int
+    schedule: list[ScheduledEpisode]
+    missing_plans: list[str]
+    identity: RunIdentity
+    previous: RunResults | None
 
 
 ProgressFactory = Callable[[int, int], Any]
@@ -151,21 +175,38 @@ def versions(model: ModelAPI) -> dict[str, str]:
     return found
 
 
-def run_eval(
-    config: EvalConfig,
-    model: ModelAPI,
-    *,
-    progress: ProgressFactory | None = None,
-    env: Any = None,
-) -> RunOutcome:
-    """Run (or resume) the evaluation `config` describes with `model`.
+def _make_agent(config: EvalConfig) -> ZeroShotAgent:
+    return ZeroShotAgent(
+        config.variant,
+        renderer=config.renderer,
+        templates_dir=config.templates_dir,
+        history_length=config.history_length,
+        fallback_action=config.fallback_action,
+        choice_mode=config.choice,
+    )
 
-    `env` may pass an existing `CrafTextEnv` of the same variant and step cap (tests share one).
+
+def _template_hashes(templates_dir: str | None) -> dict[str, str]:
+    """Every template a run may render (packaged names, resolved through the override dir)."""
+    from prompts import PACKAGE_TEMPLATES_DIR, template_source
+
+    return {
+        path.name: hashlib.sha256(
+            template_source(path.stem, templates_dir).encode("utf-8")
+        ).hexdigest()
+        for path in sorted(PACKAGE_TEMPLATES_DIR.glob("*.j2"))
+    }
+
+
+def prepare_run(config: EvalConfig) -> PreparedRun:
+    """Check everything that can be checked without the model; write nothing.
+
+    Raises `UserError` for any mistake: an unusable output directory, a dataset without the
+    requested categories, an unreadable plans file, a template that does not render, a
+    fallback action the variant lacks, or a directory holding a different run.
     """
-    from env import CrafTextEnv, EnvConfig
-
     out = Path(config.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out)
     dataset = load_dataset(config.dataset)
     instructions = dataset.instructions(config.splits, include_paraphrases=config.paraphrases)
     if not instructions:
@@ -181,81 +222,166 @@ def run_eval(
             )
     plans = _load_plans(config.plans)
     missing = [i.text for i in instructions if plans is not None and i.text not in plans]
-    if missing:
-        logger.warning(
-            "%d of %d instructions have no plan in %s; they run without one",
-            len(missing),
-            len(instructions),
-            config.plans,
-        )
     schedule = build_schedule(config, instructions, plans)
-
-    results_path = out / RESULTS_FILE
-    started_at = _check_resumable(results_path, config)
-    finished = _finished_episodes(out)
-    _drop_unfinished_steps(out / STEPS_FILE, {e.episode_id for e in finished})
-    done_ids = {e.episode_id for e in finished}
-    pending = [spec for spec in schedule if spec.episode_id not in done_ids]
-
-    results = RunResults(
-        config=config.model_dump(mode="json"),
-        versions=versions(model),
-        dataset=dataset.source.model_dump(mode="json")
-        | {"missing_plans": len(missing), "instructions": len(instructions)},
-        summary=summarize(finished) if finished else None,
-        started_at=started_at,
+    # Renders the system prompt and checks the fallback action; a step prompt is rendered
+    # too, so a broken template fails here rather than on the first model call.
+    agent = _make_agent(config)
+    agent.check_templates(schedule[0].instruction.text, schedule[0].plan)
+    identity = RunIdentity(
+        settings=config.result_settings(),
+        templates=_template_hashes(config.templates_dir),
+        plans=file_sha256(Path(config.plans), "plans file") if config.plans else None,
+        dataset=dataset.source.sha256,
     )
-    write_results(results_path, results)
+    return PreparedRun(
+        config=config,
+        output_dir=out,
+        dataset_source=dataset.source.model_dump(mode="json"),
+        instructions=len(instructions),
+        schedule=schedule,
+        missing_plans=missing,
+        identity=identity,
+        previous=_previous_run(out, identity),
+    )
 
+
+def _previous_run(out: Path, identity: RunIdentity) -> RunResults | None:
+    """The run already in `out`, refused when it is not this run."""
+    results_path = out / RESULTS_FILE
+    if not results_path.exists():
+        leftovers = [name for name in (EPISODES_FILE, STEPS_FILE) if (out / name).exists()]
+        if leftovers:
+            raise UserError(
+                f"{out} holds {' and '.join(leftovers)} but no {RESULTS_FILE}, so it cannot be "
+                "told whether they belong to this run; use another --output-dir or remove them"
+            )
+        return None
+    previous = read_results(results_path)
+    changed = identity.differences(previous.identity)
+    if changed:
+        raise UserError(
+            f"{out} holds a run with other settings: {'; '.join(changed)}; "
+            "use another --output-dir, or delete that directory to start over"
+        )
+    return previous
+
+
+def run_eval(
+    config: EvalConfig,
+    model: ModelAPI,
+    *,
+    progress: ProgressFactory | None = None,
+    env: Any = None,
+) -> RunOutcome:
+    """Prepare, probe the model, and run (or resume) the evaluation `config` describes."""
+    prepared = prepare_run(config)
+    if config.probe:
+        model.probe()
+    return execute_run(prepared, model, progress=progress, env=env)
+
+
+def execute_run(
+    prepared: PreparedRun,
+    model: ModelAPI,
+    *,
+    progress: ProgressFactory | None = None,
+    env: Any = None,
+) -> RunOutcome:
+    """Play the prepared run with `model`, writing as it goes.
+
+    `env` may pass an existing `CrafTextEnv` of the same variant and step cap (tests share one).
+    Raises `BackendFailure` (after saving) when the backend failed too often in a row.
+    """
+    from env import CrafTextEnv, EnvConfig
+
+    config, out = prepared.config, prepared.output_dir
     if env is None:
         env = CrafTextEnv(EnvConfig(variant=config.variant, max_steps=config.max_steps))
     elif env.config.variant != config.variant or env.config.max_steps != config.max_steps:
         raise ValueError("the env passed to run_eval does not match the config")
-    sink = _Sink(out, results, list(finished), list(reversed(pending)))
-    sink.bar = progress(len(schedule), len(finished)) if progress else None
+    make_output_dir(out)
+    scheduled_ids = {spec.episode_id for spec in prepared.schedule}
+    finished = _finished_episodes(out)
+    _drop_unfinished_steps(out / STEPS_FILE, {e.episode_id for e in finished})
+    done_ids = {e.episode_id for e in finished}
+    pending = [spec for spec in prepared.schedule if spec.episode_id not in done_ids]
+
+    results = RunResults(
+        config=config.model_dump(mode="json"),
+        identity=prepared.identity,
+        versions=versions(model),
+        dataset=prepared.dataset_source
+        | {"missing_plans": len(prepared.missing_plans), "instructions": prepared.instructions},
+        scheduled=len(prepared.schedule),
+        started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
+    )
+    sink = _Sink(out, results, scheduled_ids, finished, list(reversed(pending)), config)
+    sink.save()
+    sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None
     try:
         if pending:
             _play_lanes(config, env, model, sink)
     except KeyboardInterrupt:
-        _save(results_path, results, sink.episodes, complete=False)
+        sink.save()
         raise
     finally:
         if sink.bar is not None:
             sink.bar.close()
-    results = _save(results_path, results, sink.episodes, complete=True)
-    return RunOutcome(results=results, output_dir=out, missing_plans=missing)
+    if sink.failure is not None:
+        sink.save(failure=sink.failure)
+        raise BackendFailure(
+            f"stopped after {config.max_consecutive_failures} failed model answers in a row "
+            f"(last: {sink.failure}); finished episodes are kept in {out}: fix the cause and "
+            "rerun the same command to resume"
+        )
+    sink.save()
+    return RunOutcome(results=sink.results, output_dir=out, missing_plans=prepared.missing_plans)
 
 
 class _Sink:
-    """What the lanes share: the schedule queue, the output files and the progress bar.
-
-    Every method takes the lock, so lanes running in threads never interleave records.
-    """
+    """What the lanes share: the schedule queue, the output files, failure accounting and the
+    progress bar. Every method takes the lock, so lanes running in threads never interleave."""
 
     def __init__(
         self,
         out: Path,
         results: RunResults,
-        episodes: list[EpisodeRecord],
+        scheduled_ids: set[str],
+        finished: list[EpisodeRecord],
         queue: list[ScheduledEpisode],
+        config: EvalConfig,
     ):
         self.out = out
         self.results = results
-        self.episodes = episodes
+        self.scheduled_ids = scheduled_ids
+        self.episodes = finished
         self.queue = queue
+        self.max_failures = config.max_consecutive_failures
         self.bar: Any = None
         self.stop = threading.Event()
+        self.failure: str | None = None
+        self._failures_in_a_row = 0
         self._lock = threading.Lock()
         self._started = time.perf_counter()
         self._agent_steps = 0
         self._tokens = 0
 
+    @property
+    def counted(self) -> int:
+        return sum(e.episode_id in self.scheduled_ids for e in self.episodes)
+
     def take(self, count: int) -> list[ScheduledEpisode]:
         with self._lock:
+            if self.stop.is_set():
+                return []
             return [self.queue.pop() for _ in range(min(count, len(self.queue)))]
 
     def record(
-        self, decisions: list[Decision], steps: list[StepRecord], ended: list[EpisodeRecord]
+        self,
+        decisions: list[Decision],
+        steps: list[StepRecord],
+        ended: list[EpisodeRecord],
+        aborted: list[str],
     ) -> None:
         with self._lock:
             if steps:
@@ -263,7 +389,9 @@ class _Sink:
             if ended:
                 append_records(self.out / EPISODES_FILE, ended)
                 self.episodes.extend(ended)
-                _save(self.out / RESULTS_FILE, self.results, self.episodes, complete=False)
+            self._count_failures(decisions, aborted)
+            if ended or aborted:
+                self._save_locked(None)
             self._agent_steps += len(decisions)
             self._tokens += sum(
                 d.output.prompt_tokens + d.output.completion_tokens for d in decisions
@@ -275,8 +403,41 @@ class _Sink:
                     success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
                     steps_s=f"{self._agent_steps / elapsed:.1f}",
                     tok_s=f"{self._tokens / elapsed:.0f}",
+                    errors=self.results.backend_errors.failed_calls,
                     refresh=False,
                 )
+
+    def _count_failures(self, decisions: list[Decision], aborted: list[str]) -> None:
+        errors = self.results.backend_errors
+        errors.aborted_episodes.extend(aborted)
+        for decision in decisions:
+            if decision.output.finish_reason != "error":
+                self._failures_in_a_row = 0
+                continue
+            errors.failed_calls += 1
+            errors.last_error = decision.output.error or "unknown backend error"
+            self._failures_in_a_row += 1
+            if self._failures_in_a_row >= self.max_failures and self.failure is None:
+                self.failure = errors.last_error
+                self.stop.set()
+
+    def save(self, failure: str | None = None) -> None:
+        with self._lock:
+            self._save_locked(failure)
+
+    def _save_locked(self, failure: str | None) -> None:
+        results = self.results
+        counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
+        results.finished = len(counted)
+        results.summary = summarize(counted) if counted else None
+        if failure is not None:
+            results.status, results.failure = "failed", failure
+        elif results.finished == results.scheduled:
+            results.status, results.failure = "complete", None
+        else:
+            results.status, results.failure = "partial", None
+        results.finished_at = datetime.now(UTC) if results.status == "complete" else None
+        write_results(self.out / RESULTS_FILE, results)
 
 
 def _play_lanes(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
@@ -301,14 +462,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
     from env import VectorEnv, episode_key, goal_masks
     from textualizer import observe_batch
 
-    agent = ZeroShotAgent(
-        config.variant,
-        renderer=config.renderer,
-        templates_dir=config.templates_dir,
-        history_length=config.history_length,
-        fallback_action=config.fallback_action,
-        choice_mode=config.choice,
-    )
+    agent = _make_agent(config)
     first = sink.take(batch)
     if not first:
         return
@@ -345,6 +499,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
 
         step_records = []
         ended: list[EpisodeRecord] = []
+        aborted: list[str] = []
         for decision in decisions:
             slot = decision.slot
             state = live[slot]
@@ -353,17 +508,22 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
             _account(state, decision, reward, new)
             if config.record_steps:
                 step_records.append(_step_record(state, decision, host, slot, reward, new))
-            if host.done[slot]:
+            if decision.output.finish_reason == "error":
+                # The backend failed, not the agent: this episode is not scored; a rerun plays it.
+                aborted.append(state.spec.episode_id)
+            elif host.done[slot]:
                 ended.append(
                     _episode_record(
                         state, int(host.steps[slot]), int(host.termination[slot]), config.seed
                     )
                 )
-                agent.end_episode(slot)
-                del live[slot]
-        sink.record(decisions, step_records, ended)
+            else:
+                continue
+            agent.end_episode(slot)
+            del live[slot]
+        sink.record(decisions, step_records, ended, aborted)
 
-        if ended:
+        if ended or aborted:
             free = [s for s in range(batch) if s not in live]
             specs = sink.take(len(free))
             if specs:
@@ -408,6 +568,10 @@ def _step_record(
         prompt_tokens=decision.output.prompt_tokens,
         completion_tokens=decision.output.completion_tokens,
         latency_s=decision.output.latency_s,
+        finish_reason=decision.output.finish_reason,
+        error=decision.output.error,
+        cached=decision.output.cached,
+        followups=decision.output.followups,
     )
 
 
@@ -435,16 +599,6 @@ def _episode_record(state: _Live, steps: int, termination: int, seed: int) -> Ep
     )
 
 
-def _save(
-    path: Path, results: RunResults, episodes: list[EpisodeRecord], *, complete: bool
-) -> RunResults:
-    results.summary = summarize(episodes) if episodes else None
-    results.complete = complete
-    results.finished_at = datetime.now(UTC) if complete else None
-    write_results(path, results)
-    return results
-
-
 def _load_plans(path: str | None) -> dict[str, str] | None:
     if path is None:
         return None
@@ -453,60 +607,19 @@ def _load_plans(path: str | None) -> dict[str, str] | None:
     return load_plans(path)
 
 
-def _check_resumable(results_path: Path, config: EvalConfig) -> datetime:
-    """The original start time of a run being resumed (now for a new run).
-
-    Refuses to mix episodes of different settings in one directory.
-    """
-    if not results_path.exists():
-        return datetime.now(UTC)
-    previous = read_results(results_path)
-    try:
-        saved = EvalConfig.model_validate(previous.config)
-    except ValueError as err:
-        raise UserError(f"{results_path} holds an unreadable config: {err}") from err
-    ours, theirs = config.run_identity(), saved.run_identity()
-    differing = sorted(
-        key for key in ours.keys() | theirs.keys() if ours.get(key) != theirs.get(key)
-    )
-    if differing:
-        raise UserError(
-            f"{results_path.parent} holds a run with other settings ({', '.join(differing)} differ); "
-            "use another --output-dir, or delete that directory to start over"
-        )
-    return previous.started_at
-
-
 def _finished_episodes(out: Path) -> list[EpisodeRecord]:
     path = out / EPISODES_FILE
     if not path.exists():
         return []
-    episodes = read_episodes(path)
-    # Rewrite without a torn last line or duplicates so later appends stay well-formed.
-    _rewrite_lines(path, [e.model_dump_json() for e in episodes])
+    episodes = read_episodes(path, repair=True)
+    # Rewritten without duplicates, so later appends extend a clean file.
+    rewrite_lines(path, [e.model_dump_json() for e in episodes])
     return episodes
 
 
 def _drop_unfinished_steps(path: Path, finished_ids: set[str]) -> None:
     """Forget the steps of episodes that did not finish: they are replayed from the start."""
-    if not path.exists():
-        return
-    kept = []
-    with path.open(encoding="utf-8") as handle:
-        for line in handle:
-            try:
-                episode_id = json.loads(line)["episode_id"]
-            except (json.JSONDecodeError, KeyError, TypeError):
-                continue
-            if episode_id in finished_ids:
-                kept.append(line.rstrip("\n"))
-    _rewrite_lines(path, kept)
-
-
-def _rewrite_lines(path: Path, lines: list[str]) -> None:
-    partial = path.with_name(path.name + ".tmp")
-    with partial.open("w", encoding="utf-8") as handle:
-        handle.writelines(line + "\n" for line in lines)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(partial, path)
+    if path.exists():
+        rewrite_lines(
+            path, [line for id_, line in episode_ids_of_steps(path) if id_ in finished_ids]
+        )

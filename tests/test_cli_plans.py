@@ -13,7 +13,7 @@ from env.dataset import load_dataset
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.config import build_config
-from llm_agents.records import read_episodes
+from llm_agents.run_store import read_episodes
 from llm_agents.runner import run_eval
 
 PLAN = "1. Find a tree\n2. Collect wood\n3. Place a table"

@@ -69,9 +69,7 @@ class CountingModel(MockModel):
 
 
 def config(tmp_path: Path, **overrides: object) -> PlannerConfig:
-    return PlannerConfig.model_validate(
-        {"output": tmp_path / "plans.json", "progress": False, **overrides}
-    )
+    return PlannerConfig.model_validate({"output": tmp_path / "plans.json", **overrides})
 
 
 # ---------------------------------------------------------------- parsing and checking
@@ -192,7 +190,7 @@ def test_drop_failed_and_no_repair(tmp_path: Path) -> None:
 def test_requests_are_batched(tmp_path: Path) -> None:
     model = CountingModel(lambda conversation: GOOD)
     texts = [f"Collect wood {i}." for i in range(5)]
-    plan_instructions(texts, model, config(tmp_path, batch_size=2))
+    plan_instructions(texts, model, config(tmp_path, requests_per_call=2))
     assert model.calls == [2, 2, 1]
 
 
@@ -219,11 +217,13 @@ def test_interrupted_run_keeps_finished_batches(tmp_path: Path) -> None:
 
     texts = [f"Collect wood {i}." for i in range(4)]
     with pytest.raises(KeyboardInterrupt):
-        plan_instructions(texts, CountingModel(stop_at_third), config(tmp_path, batch_size=2))
+        plan_instructions(
+            texts, CountingModel(stop_at_third), config(tmp_path, requests_per_call=2)
+        )
     assert set(load_plans(tmp_path / "plans.json")) == {"Collect wood 0.", "Collect wood 1."}
 
     rest = CountingModel(lambda conversation: GOOD)
-    summary = plan_instructions(texts, rest, config(tmp_path, batch_size=2))
+    summary = plan_instructions(texts, rest, config(tmp_path, requests_per_call=2))
     assert {instruction_of(conv) for conv, _ in rest.requests} == {
         "Collect wood 2.",
         "Collect wood 3.",

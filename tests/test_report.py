@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import logging
 import struct
 from datetime import UTC, datetime
 from pathlib import Path
@@ -14,8 +13,9 @@ from scipy.stats import binomtest
 
 from env.errors import UserError
 from llm_agents.metrics import summarize
-from llm_agents.records import EpisodeRecord, RunResults, append_records, write_results
+from llm_agents.records import EpisodeRecord
 from llm_agents.report import PUBLISHED, format_table, plot_success, report_run
+from llm_agents.run_store import RunIdentity, RunResults, append_records, write_results
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -67,12 +67,25 @@ def table_rows(table: str) -> dict[str, dict[str, str]]:
 
 
 def make_run(
-    run_dir: Path, episodes: list[EpisodeRecord], results: RunResults | None = None
+    run_dir: Path, episodes: list[EpisodeRecord], scheduled: int | None = None, **fields: object
 ) -> Path:
+    """A run directory as the runner leaves it: episodes appended, results summarising them."""
     run_dir.mkdir(parents=True, exist_ok=True)
     append_records(run_dir / "episodes.jsonl", episodes)
-    if results is not None:
-        write_results(run_dir / "results.json", results)
+    scheduled = len(episodes) if scheduled is None else scheduled
+    results = RunResults.model_validate(
+        {
+            "config": {"model": "hf:Qwen/QwQ-32B", "variant": "full"},
+            "identity": RunIdentity(settings={}, templates={}),
+            "scheduled": scheduled,
+            "finished": len(episodes),
+            "summary": summarize(episodes) if episodes else None,
+            "status": "complete" if len(episodes) == scheduled else "partial",
+            "started_at": datetime(2025, 1, 1, tzinfo=UTC),
+            **fields,
+        }
+    )
+    write_results(run_dir / "results.json", results)
     return run_dir
 
 
@@ -140,71 +153,46 @@ def test_chart_to_an_unwritable_place_is_a_user_error(tmp_path: Path) -> None:
 
 def test_report_of_a_finished_run_names_the_model_and_draws_the_chart(tmp_path: Path) -> None:
     episodes = episodes_with({"one": (4, 9), "combo": (2, 7), "new_objects": (1, 5)})
-    results = RunResults(
-        config={"model": "hf:Qwen/QwQ-32B", "variant": "full"},
-        summary=summarize(episodes),
-        started_at=datetime(2025, 1, 1, tzinfo=UTC),
-        finished_at=datetime(2025, 1, 2, tzinfo=UTC),
-        complete=True,
-    )
-    run_dir = make_run(tmp_path / "run", episodes, results)
+    run_dir = make_run(tmp_path / "run", episodes)
 
-    rows = table_rows(report_run(run_dir))
+    report = report_run(run_dir)
+    rows = table_rows(report)
     ours = rows["hf:Qwen/QwQ-32B (this run)"]
     assert ours["one"] == expected_cell(4, 9)
     assert ours["overall"] == expected_cell(7, 21)
+    assert "Run status: complete (21 of 21 episodes)." in report
     png_size(run_dir / "success.png")
 
 
-def test_report_of_a_partial_run_without_results(tmp_path: Path) -> None:
-    run_dir = make_run(tmp_path / "run", episodes_with({"one": (1, 3)}))
-    rows = table_rows(report_run(str(run_dir)))
-    assert rows["this model (this run, partial)"]["one"] == expected_cell(1, 3)
-    assert (run_dir / "success.png").is_file()
+def test_report_of_a_partial_run_says_how_far_it_got_and_why_it_stopped(tmp_path: Path) -> None:
+    episodes = episodes_with({"one": (1, 3)})
+    errors = {"failed_calls": 9, "aborted_episodes": ["a", "b"], "last_error": "HTTP 503"}
+    run_dir = make_run(
+        tmp_path / "run",
+        episodes,
+        scheduled=10,
+        status="failed",
+        failure="HTTP 503",
+        backend_errors=errors,
+    )
+    report = report_run(str(run_dir))
+    assert table_rows(report)["hf:Qwen/QwQ-32B (this run, partial)"]["one"] == expected_cell(1, 3)
+    assert "Run status: failed (3 of 10 episodes)." in report
+    assert "9 failed answers, 2 episodes cut short" in report
+    assert "Stopped by: HTTP 503" in report
 
 
-def test_report_skips_a_torn_last_line_with_a_warning(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
-    run_dir = make_run(tmp_path / "run", episodes_with({"one": (2, 4)}))
-    torn = episode(99, "one", success=True).model_dump_json()[:40]
-    with (run_dir / "episodes.jsonl").open("a") as handle:
-        handle.write(torn)
-
-    with caplog.at_level(logging.WARNING):
-        table = report_run(run_dir)
-
-    assert table_rows(table)["this model (this run, partial)"]["one"] == expected_cell(2, 4)
-    assert any("last line 5" in message for message in caplog.messages)
-
-
-def test_report_rejects_a_corrupt_line_before_the_end(tmp_path: Path) -> None:
-    run_dir = tmp_path / "run"
-    make_run(run_dir, episodes_with({"one": (1, 1)}))
-    with (run_dir / "episodes.jsonl").open("a") as handle:
-        handle.write("not json\n")
-    make_run(run_dir, [episode(7, "one", success=False)])
-
-    with pytest.raises(UserError, match=r"episodes\.jsonl, line 2"):
+def test_report_before_any_episode_finished_is_a_user_error(tmp_path: Path) -> None:
+    run_dir = make_run(tmp_path / "run", [], scheduled=4)
+    with pytest.raises(UserError, match="no episode"):
         report_run(run_dir)
+    assert not (run_dir / "success.png").exists()
 
 
-def test_a_redone_episode_counts_once_with_its_last_outcome(tmp_path: Path) -> None:
-    run_dir = make_run(tmp_path / "run", [episode(0, "one", False), episode(1, "one", False)])
-    make_run(run_dir, [episode(1, "one", True)])
-    rows = table_rows(report_run(run_dir))
-    assert rows["this model (this run, partial)"]["one"] == expected_cell(1, 2)
-
-
-@pytest.mark.parametrize("contents", [None, "", "\n\n", '{"episode_id": "ep0", "goal'])
-def test_report_without_finished_episodes_is_a_user_error(
-    tmp_path: Path, contents: str | None
-) -> None:
-    if contents is not None:
-        (tmp_path / "episodes.jsonl").write_text(contents)
-    with pytest.raises(UserError, match="episodes"):
+def test_report_of_a_directory_without_results_is_a_user_error(tmp_path: Path) -> None:
+    append_records(tmp_path / "episodes.jsonl", episodes_with({"one": (1, 1)}))
+    with pytest.raises(UserError, match="not a run directory"):
         report_run(tmp_path)
-    assert not (tmp_path / "success.png").exists()
 
 
 def test_report_of_a_missing_directory_is_a_user_error(tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends import get_model
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.config import build_config
-from llm_agents.records import read_episodes, read_results
+from llm_agents.run_store import read_episodes, read_results
 from llm_agents.runner import build_schedule, run_eval
 
 REPO = Path(__file__).resolve().parents[1]
@@ -78,7 +78,7 @@ def test_run_writes_consistent_steps_episodes_and_results(
     assert any(not s["fallback_used"] for s in steps)
 
     results = read_results(tmp_path / "results.json")
-    assert results.complete and results.finished_at is not None
+    assert results.status == "complete" and results.finished_at is not None
     assert results.config["model"] == SCRIPT
     assert results.versions["craftax"] == "1.6.1"
     assert results.dataset["kind"] in {"wheel", "directory", "json"}
@@ -135,7 +135,7 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(
     process.wait()
     done_at_kill = len(read_episodes(killed / "episodes.jsonl"))
     assert done_at_kill < 10, "the run finished before it could be killed"
-    assert not read_results(killed / "results.json").complete
+    assert read_results(killed / "results.json").status == "partial"
 
     resumed = subprocess.run(_cli(killed), cwd=REPO, capture_output=True, text=True, timeout=900)
     assert resumed.returncode == 0, resumed.stderr
@@ -144,7 +144,7 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(
     keys = [(s["episode_id"], s["step"]) for s in steps]
     assert len(keys) == len(set(keys)), "a step was recorded twice"
     assert len(steps) == sum(e["steps"] for e in canonical(killed))
-    assert read_results(killed / "results.json").complete
+    assert read_results(killed / "results.json").status == "complete"
 
 
 @pytest.mark.slow
@@ -156,7 +156,7 @@ def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
     _, stderr = process.communicate(timeout=300)
     assert process.returncode == 130, stderr.decode()
     results = read_results(out / "results.json")
-    assert not results.complete
+    assert results.status == "partial"
     assert results.summary is not None
     assert results.summary.overall.episodes == len(read_episodes(out / "episodes.jsonl"))
     assert b"rerun the same command to resume" in stderr
@@ -204,7 +204,7 @@ def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:
     file.write_text(
         'model = "mock:noop"\nmax_steps = 40\nsplits = ["combo"]\n[generation]\ntemperature = 0.5\n'
     )
-    cfg = build_config(load_config_file(file), {"max_steps": 20}, {"max_tokens": 32})
+    cfg = build_config(load_config_file(file), {"max_steps": 20, "generation": {"max_tokens": 32}})
     assert (cfg.model, cfg.max_steps, cfg.splits) == ("mock:noop", 20, ("combo",))
     assert (cfg.generation.temperature, cfg.generation.max_tokens) == (0.5, 32)
     yaml_file = tmp_path / "run.yaml"

@@ -34,7 +34,7 @@ Conversation = Sequence[ChatMessage]
 class GenerateConfig(BaseModel):
     """Generation parameters shared by all backends."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
     max_tokens: int = Field(256, ge=1)
     """Most tokens generated for the answer (thinking included unless `reasoning_budget` is set)."""
@@ -42,7 +42,7 @@ class GenerateConfig(BaseModel):
     """Sampling temperature; 0 means greedy decoding."""
     top_p: float = Field(1.0, gt=0.0, le=1.0)
     """Nucleus sampling mass."""
-    seed: int | None = 0
+    sampling_seed: int | None = 0
     """Sampling seed where the backend supports one; None leaves it to the backend."""
     stop: list[str] = Field(default_factory=list)
     """Strings that end generation."""
@@ -97,6 +97,14 @@ class ModelAPI(abc.ABC):
         choices: Sequence[str] | None = None,
     ) -> list[ModelOutput]:
         """Answer every conversation; with `choices`, each answer is exactly one of them."""
+
+    def probe(self) -> None:
+        """Check with one cheap request that the model answers; raise `UserError` naming why not."""
+        output = self.generate([[ChatMessage(role="user", content="Answer with one word: OK")]])[0]
+        if output.finish_reason == "error":
+            from env.errors import UserError
+
+            raise UserError(f"model {self.model_name!r} does not answer: {output.error}")
 
     def info(self) -> dict[str, str]:
         """Backend, model and library versions, recorded in results."""

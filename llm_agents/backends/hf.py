@@ -208,8 +208,8 @@ class HFModel(ModelAPI):
         sampling: dict[str, Any] = {"do_sample": False}
         if config.temperature > 0:
             sampling = {"do_sample": True, "temperature": config.temperature, "top_p": config.top_p}
-            if config.seed is not None:
-                torch.manual_seed(config.seed)
+            if config.sampling_seed is not None:
+                torch.manual_seed(config.sampling_seed)
         with torch.inference_mode():
             generated = self.model.generate(
                 **encoded,

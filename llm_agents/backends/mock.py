@@ -61,6 +61,9 @@ class MockModel(ModelAPI):
         else:
             self._outputs, self._mode = _parse_script(model_name)
 
+    def probe(self) -> None:
+        """A script always answers; probing must not consume one of its answers."""
+
     def generate(
         self,
         conversations: Sequence[Conversation],

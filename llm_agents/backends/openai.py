@@ -197,8 +197,8 @@ class OpenAIModel(ModelAPI):
             "temperature": config.temperature,
             "top_p": config.top_p,
         }
-        if config.seed is not None:
-            body["seed"] = config.seed
+        if config.sampling_seed is not None:
+            body["seed"] = config.sampling_seed
         if config.stop:
             body["stop"] = config.stop
         body.update(self.settings.extra_body)

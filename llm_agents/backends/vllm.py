@@ -73,7 +73,7 @@ class VLLMModel(ModelAPI):
         engine_args: dict[str, Any] = {
             "dtype": self.settings.dtype,
             "enforce_eager": self.settings.enforce_eager,
-            "seed": self.config.seed if self.config.seed is not None else 0,
+            "seed": self.config.sampling_seed if self.config.sampling_seed is not None else 0,
         }
         optional = {
             "max_model_len": self.settings.max_model_len,
@@ -109,7 +109,7 @@ class VLLMModel(ModelAPI):
             max_tokens=config.max_tokens,
             temperature=config.temperature,
             top_p=config.top_p,
-            seed=config.seed,
+            seed=config.sampling_seed,
             stop=list(config.stop) or None,
             structured_outputs=StructuredOutputsParams(choice=choices) if choices else None,
         )

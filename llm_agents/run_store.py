@@ -1,0 +1,290 @@
+"""The one owner of files that a run writes: names, durable appends, atomic rewrites, torn-line
+recovery, and the run's identity.
+
+A run directory holds `steps.jsonl` (a line per agent step), `episodes.jsonl` (a line per
+finished episode) and `results.json` (what the run is and how far it got). JSON-lines files are
+only ever appended to and fsynced, so a kill leaves at worst a torn last line, which readers cut
+off; whole files are replaced atomically, so a reader sees the old version or the new one.
+
+The identity of a run is by content: the settings that change results, plus hashes of every
+template, the plans file and the dataset. A directory is resumed only under the same identity.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Iterable, Sequence
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from env.errors import UserError
+from llm_agents.metrics import Summary
+from llm_agents.records import EpisodeRecord
+
+logger = logging.getLogger(__name__)
+
+STEPS_FILE = "steps.jsonl"
+EPISODES_FILE = "episodes.jsonl"
+RESULTS_FILE = "results.json"
+
+Record = TypeVar("Record", bound=BaseModel)
+
+
+# ------------------------------------------------------------------------------ file primitives
+
+
+def sha256_bytes(data: bytes) -> str:
+    """Hex SHA-256 of some bytes."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Replace `path` with `text` so that a reader (or a crash) sees the old file or the new one."""
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as file:
+            file.write(text)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
+
+
+def atomic_write_json(path: Path, data: Any) -> None:
+    """`atomic_write_text` of indented JSON."""
+    atomic_write_text(path, json.dumps(data, indent=2, ensure_ascii=False) + "\n")
+
+
+def append_lines(path: Path, lines: Iterable[str]) -> None:
+    """Append lines to a JSON-lines file, on disk (fsynced) before returning."""
+    with path.open("a", encoding="utf-8") as file:
+        file.writelines(line + "\n" for line in lines)
+        file.flush()
+        os.fsync(file.fileno())
+
+
+def append_records(path: Path, records: Iterable[BaseModel]) -> None:
+    """Append pydantic records to a JSON-lines file, one per line, fsynced."""
+    append_lines(path, (record.model_dump_json() for record in records))
+
+
+def complete_lines(path: Path, *, repair: bool = True) -> list[str]:
+    """The lines of a JSON-lines file that were written whole.
+
+    An append killed mid-write leaves a last line without its newline: it is dropped (and, with
+    `repair`, cut off the file so the next append starts on a fresh line).
+    """
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return []
+    except OSError as err:
+        raise UserError(f"cannot read {path}: {err.strerror}") from err
+    whole = data[: data.rfind(b"\n") + 1]
+    if len(whole) < len(data):
+        logger.warning("%s: dropping a torn last line (%d bytes)", path, len(data) - len(whole))
+        if repair:
+            with path.open("r+b") as file:
+                file.truncate(len(whole))
+    try:
+        text = whole.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise UserError(f"{path} is not UTF-8 text: {err}") from err
+    return [line for line in text.splitlines() if line.strip()]
+
+
+def read_records(path: Path, model: type[Record], *, repair: bool = True) -> list[Record]:
+    """Every record of a JSON-lines file; a line that does not validate is an error (UserError)."""
+    records = []
+    for number, line in enumerate(complete_lines(path, repair=repair), start=1):
+        try:
+            records.append(model.model_validate_json(line))
+        except ValidationError as err:
+            raise UserError(
+                f"{path}, line {number}: not a {model.__name__}: {err.errors()[0]['msg']}"
+            ) from err
+    return records
+
+
+def rewrite_lines(path: Path, lines: Sequence[str]) -> None:
+    """Replace a JSON-lines file atomically."""
+    atomic_write_text(path, "".join(line + "\n" for line in lines))
+
+
+# ------------------------------------------------------------------------------ directories
+
+
+def check_output_dir(directory: Path) -> None:
+    """Refuse, before anything is written, a directory that cannot hold a run.
+
+    A path that is a file, lies under a file, or is not writable is a user mistake. Nothing is
+    created here: a missing directory is checked through its nearest existing ancestor.
+    """
+    existing = directory
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        if existing == directory:
+            raise UserError(f"output directory {directory} is a file")
+        raise UserError(f"output directory {directory} lies under {existing}, which is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        what = "output directory" if existing == directory else "the parent directory"
+        raise UserError(f"{what} {existing} is not writable")
+    for name in (STEPS_FILE, EPISODES_FILE, RESULTS_FILE):
+        file = directory / name
+        if file.exists() and not (file.is_file() and os.access(file, os.R_OK | os.W_OK)):
+            raise UserError(f"{file} is not a readable and writable file")
+
+
+def make_output_dir(directory: Path) -> None:
+    """Create the output directory (after `check_output_dir` accepted it)."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UserError(f"cannot create output directory {directory}: {err.strerror}") from err
+
+
+# ------------------------------------------------------------------------------ identity
+
+
+class RunIdentity(BaseModel):
+    """What must be equal for two processes to write into one run directory."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    settings: dict[str, Any]
+    """Every setting that changes results (not batching, caching or the output path)."""
+    templates: dict[str, str]
+    """Template name -> SHA-256 of the source actually used (packaged or overridden)."""
+    plans: str | None = None
+    """SHA-256 of the plans file's bytes; None without plans."""
+    dataset: str | None = None
+    """SHA-256 the dataset source reports for its content."""
+
+    def differences(self, other: RunIdentity) -> list[str]:
+        """Human-readable differences from `other` (the identity on disk), empty when equal."""
+        found = []
+        for key in sorted(self.settings.keys() | other.settings.keys()):
+            ours, theirs = self.settings.get(key), other.settings.get(key)
+            if ours != theirs:
+                found.append(f"{key} ({_short(theirs)} before, {_short(ours)} now)")
+        for name in sorted(self.templates.keys() | other.templates.keys()):
+            if self.templates.get(name) != other.templates.get(name):
+                found.append(f"template {name} (its content changed)")
+        if self.plans != other.plans:
+            found.append("plans file content")
+        if self.dataset != other.dataset:
+            found.append("dataset content")
+        return found
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value, ensure_ascii=False)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def file_sha256(path: Path, what: str) -> str:
+    """SHA-256 of a file the run depends on, as a UserError when it cannot be read."""
+    try:
+        return sha256_bytes(path.read_bytes())
+    except OSError as err:
+        raise UserError(f"cannot read {what} {path}: {err.strerror}") from err
+
+
+# ------------------------------------------------------------------------------ results
+
+
+RunStatus = Literal["complete", "partial", "failed"]
+"""`complete`: every scheduled episode finished. `partial`: the run is going on, or stopped
+(interrupted, or some episodes were cut short by backend errors) and a rerun resumes it.
+`failed`: the run was stopped by a failure (the backend kept failing); `failure` says why, and
+a rerun resumes it once the cause is fixed."""
+
+
+class BackendErrors(BaseModel):
+    """How often the backend failed during the run (each failure is after its own retries)."""
+
+    failed_calls: int = 0
+    """Answers the backend could not produce."""
+    aborted_episodes: list[str] = Field(default_factory=list)
+    """Episodes cut short by a failed answer: not summarised, re-run on resume."""
+    last_error: str | None = None
+    """The most recent failure's message."""
+
+
+class RunResults(BaseModel):
+    """What a run was (config, identity, versions, data) and how it went, in `results.json`."""
+
+    config: dict[str, Any]
+    """The resolved run configuration, every default filled in."""
+    identity: RunIdentity
+    """What a resumed run must match (settings that change results, content hashes)."""
+    versions: dict[str, str] = Field(default_factory=dict)
+    """Versions of the packages and backend that produced the run."""
+    dataset: dict[str, Any] = Field(default_factory=dict)
+    """Where the instruction dataset came from (path or revision, checksum)."""
+    scheduled: int = 0
+    """Episodes this run's schedule holds (after `limit`)."""
+    finished: int = 0
+    """Of those, finished episodes (the ones the summary counts)."""
+    summary: Summary | None = None
+    """Metrics over the scheduled episodes finished so far; None before the first one ends."""
+    status: RunStatus = "partial"
+    """See `RunStatus`."""
+    failure: str | None = None
+    """Why a `failed` run stopped."""
+    backend_errors: BackendErrors = Field(default_factory=BackendErrors)
+    """Backend failures seen by the process that wrote this file (since it resumed)."""
+    started_at: datetime
+    """When the run started."""
+    finished_at: datetime | None = None
+    """When the run completed; None until then."""
+
+
+def read_results(path: Path) -> RunResults:
+    """Read `results.json`."""
+    try:
+        return RunResults.model_validate_json(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise UserError(f"cannot read run results {path}: {err.strerror}") from err
+    except ValidationError as err:
+        raise UserError(
+            f"{path} is not a results file of this version: {err.errors()[0]['msg']}"
+        ) from err
+
+
+def write_results(path: Path, results: RunResults) -> None:
+    """Write `results.json` atomically."""
+    atomic_write_text(path, results.model_dump_json(indent=2) + "\n")
+
+
+def read_episodes(path: Path, *, repair: bool = False) -> list[EpisodeRecord]:
+    """The finished episodes of `episodes.jsonl`; when an id repeats, the later line wins."""
+    by_id: dict[str, EpisodeRecord] = {}
+    for record in read_records(path, EpisodeRecord, repair=repair):
+        by_id[record.episode_id] = record
+    return list(by_id.values())
+
+
+def episode_ids_of_steps(path: Path) -> list[tuple[str, str]]:
+    """(episode id, line) for every whole line of `steps.jsonl`."""
+    pairs = []
+    for line in complete_lines(path):
+        try:
+            pairs.append((str(json.loads(line)["episode_id"]), line))
+        except (json.JSONDecodeError, KeyError, TypeError) as err:
+            raise UserError(f"{path} holds a line that is not a step record: {err}") from err
+    return pairs

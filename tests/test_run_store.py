@@ -1,0 +1,128 @@
+"""The run directory's files: durable appends, torn-line recovery, atomic rewrites, identity."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import pytest
+
+from env.errors import UserError
+from llm_agents.records import EpisodeRecord
+from llm_agents.run_store import (
+    RunIdentity,
+    append_records,
+    atomic_write_text,
+    check_output_dir,
+    complete_lines,
+    read_episodes,
+)
+
+
+def episode(index: int, success: bool = False) -> EpisodeRecord:
+    return EpisodeRecord(
+        episode_id=f"ep{index}",
+        goal_id="g",
+        instruction="place a table",
+        instruction_variant=0,
+        category="one",
+        seed=0,
+        episode_index=index,
+        success=success,
+        steps=5,
+        termination="success" if success else "timeout",
+        episode_return=0.0,
+    )
+
+
+def test_a_torn_last_line_is_dropped_and_cut_off_so_appends_stay_whole(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = tmp_path / "episodes.jsonl"
+    append_records(path, [episode(0), episode(1)])
+    with path.open("a") as handle:
+        handle.write(episode(2).model_dump_json()[:30])
+
+    with caplog.at_level(logging.WARNING):
+        assert [e.episode_id for e in read_episodes(path, repair=True)] == ["ep0", "ep1"]
+    assert any("torn last line" in message for message in caplog.messages)
+    append_records(path, [episode(3)])
+    assert [e.episode_id for e in read_episodes(path)] == ["ep0", "ep1", "ep3"]
+
+
+def test_reading_without_repair_leaves_the_file_as_it_is(tmp_path: Path) -> None:
+    path = tmp_path / "episodes.jsonl"
+    append_records(path, [episode(0)])
+    with path.open("a") as handle:
+        handle.write('{"episode_id": "ep')
+    before = path.read_bytes()
+    assert len(read_episodes(path)) == 1
+    assert path.read_bytes() == before
+
+
+def test_a_corrupt_whole_line_is_an_error_naming_the_line(tmp_path: Path) -> None:
+    path = tmp_path / "episodes.jsonl"
+    append_records(path, [episode(0)])
+    with path.open("a") as handle:
+        handle.write("not json\n")
+    append_records(path, [episode(1)])
+    with pytest.raises(UserError, match=r"episodes\.jsonl, line 2"):
+        read_episodes(path)
+
+
+def test_a_redone_episode_counts_once_with_its_last_outcome(tmp_path: Path) -> None:
+    path = tmp_path / "episodes.jsonl"
+    append_records(path, [episode(0), episode(1)])
+    append_records(path, [episode(1, success=True)])
+    episodes = read_episodes(path)
+    assert [(e.episode_id, e.success) for e in episodes] == [("ep0", False), ("ep1", True)]
+
+
+@pytest.mark.parametrize("contents", [b"", b"\n\n", b"   \n"])
+def test_blank_files_hold_no_lines(tmp_path: Path, contents: bytes) -> None:
+    path = tmp_path / "x.jsonl"
+    path.write_bytes(contents)
+    assert complete_lines(path) == []
+
+
+def test_an_atomic_write_that_fails_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> None:
+    path = tmp_path / "results.json"
+    path.write_text("old")
+
+    with pytest.raises(TypeError):
+        atomic_write_text(path, 5)  # type: ignore[arg-type]
+    assert path.read_text() == "old"
+    assert os.listdir(tmp_path) == ["results.json"]
+
+
+def test_identity_differences_name_each_change() -> None:
+    before = RunIdentity(
+        settings={"max_steps": 10, "variant": "full"},
+        templates={"step.j2": "a", "system.j2": "b"},
+        plans="p1",
+        dataset="d",
+    )
+    now = RunIdentity(
+        settings={"max_steps": 5, "variant": "full"},
+        templates={"step.j2": "changed", "system.j2": "b"},
+        plans="p2",
+        dataset="d",
+    )
+    assert now.differences(before) == [
+        "max_steps (10 before, 5 now)",
+        "template step.j2 (its content changed)",
+        "plans file content",
+    ]
+    assert before.differences(before) == []
+
+
+def test_output_dir_checks(tmp_path: Path) -> None:
+    file = tmp_path / "file"
+    file.write_text("x")
+    with pytest.raises(UserError, match="is a file"):
+        check_output_dir(file)
+    with pytest.raises(UserError, match=r"lies under .*file, which is a file"):
+        check_output_dir(file / "run" / "deeper")
+    check_output_dir(tmp_path / "new" / "run")
+    assert not (tmp_path / "new").exists()
