@@ -119,12 +119,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     config: EvalConfig = _settings(args)
     prepared = prepare_run(config)
-    print(
-        f"evaluating {config.model} on {', '.join(config.splits)} ({config.variant.value} Craftax)"
-        f" -> {config.output_dir}",
-        file=sys.stderr,
-    )
     with _open_model(config) as model:
+        print(
+            f"evaluating {config.model} on {', '.join(config.splits)} "
+            f"({config.variant.value} Craftax) -> {config.output_dir}",
+            file=sys.stderr,
+        )
         try:
             outcome = execute_run(prepared, model, progress=_progress_bar(not args.no_progress))
         except KeyboardInterrupt:

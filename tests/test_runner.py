@@ -173,30 +173,6 @@ def test_resume_refuses_a_directory_of_another_run(
     assert "other settings" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize(
-    ("flags", "message"),
-    [
-        (["--splits", "combo", "hard"], "hard"),
-        (["--model", "hff:x"], "did you mean hf"),
-        (["--model", "nocolon"], "no backend"),
-        (["--renderer", "pixels"], "pixels"),
-        (["--plans", "/nonexistent/plans.json"], "plans.json"),
-        (["--templates-dir", "/nonexistent/templates"], "/nonexistent/templates"),
-        (["--config", "/nonexistent/run.toml"], "run.toml"),
-        (["--max-steps", "0"], "max_steps"),
-    ],
-)
-def test_bad_input_is_one_clear_error(
-    tmp_path: Path, capsys: Any, flags: list[str], message: str
-) -> None:
-    argv = ["eval", "--model", "mock:noop", "--output-dir", str(tmp_path / "out"), *flags]
-    assert main(argv) == EXIT_USER_ERROR
-    err = capsys.readouterr().err
-    error_lines = [line for line in err.splitlines() if line.startswith("craftext-llm: error:")]
-    assert len(error_lines) == 1 and message in error_lines[0]
-    assert "Traceback" not in err
-
-
 def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:
     from llm_agents.config import load_config_file
 
