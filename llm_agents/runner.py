@@ -385,7 +385,9 @@ class _Sink:
     ) -> None:
         with self._lock:
             if steps:
-                append_records(self.out / STEPS_FILE, steps)
+                # Steps of an unfinished episode are dropped on resume, so they need to reach
+                # the disk only before the line that declares their episode finished.
+                append_records(self.out / STEPS_FILE, steps, sync=bool(ended))
             if ended:
                 append_records(self.out / EPISODES_FILE, ended)
                 self.episodes.extend(ended)
