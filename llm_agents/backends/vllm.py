@@ -62,6 +62,7 @@ class VLLMModel(ModelAPI):
     """vLLM offline inference; choices are enforced by structured outputs (guided choice)."""
 
     backend_name = "vllm"
+    options_model = VLLMOptions
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
