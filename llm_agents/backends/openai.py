@@ -14,6 +14,7 @@ import concurrent.futures
 import difflib
 import json
 import os
+import socket
 import time
 from collections.abc import Coroutine, Sequence
 from typing import Any, TypeVar
@@ -344,7 +345,7 @@ class OpenAIModel(ModelAPI):
                 "the server is up"
             ) from None
         except httpx.TransportError as err:
-            cause = self._excerpt(str(err), 120) or type(err).__name__
+            cause = self._excerpt(_transport_cause(err), 120)
             raise UserError(
                 f"cannot reach {self.base_url}: {cause}; check the URL and that the server is up"
             ) from None
@@ -392,6 +393,20 @@ def _run_blocking(work: Coroutine[Any, Any, T]) -> T:
     # re-entered, so the work gets its own loop on a worker thread.
     with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
         return pool.submit(asyncio.run, work).result()
+
+
+def _transport_cause(err: BaseException) -> str:
+    """The root cause of a transport error: httpx often says only "All connection attempts
+    failed", while the OS error it wraps says "Connection refused" or names the DNS failure."""
+    cause: BaseException | None = err
+    while cause is not None:
+        if isinstance(cause, socket.gaierror):
+            return f"cannot resolve the host name ({cause.strerror or cause})"
+        if isinstance(cause, OSError) and cause.errno:
+            # asyncio's own strerror ("Connect call failed (...)") hides the reason; errno has it.
+            return os.strerror(cause.errno).lower()
+        cause = cause.__cause__ or cause.__context__
+    return str(err) or type(err).__name__
 
 
 def _served_models(response: httpx.Response) -> list[str] | None:
