@@ -8,13 +8,14 @@ import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
+from pathlib import Path
 from typing import Any
 
 import pytest
 from fault_server import Fault, FaultServer
 
 from env.errors import UserError
-from llm_agents.backends import get_model
+from llm_agents.backends import CachedModel, get_model
 from llm_agents.backends.base import ChatMessage, GenerateConfig
 from llm_agents.backends.openai import OpenAIModel
 from llm_agents.backends.retry import RetryPolicy, backoff_wait, parse_retry_after
@@ -311,3 +312,29 @@ def test_an_unexpected_reply_shape_is_an_error_output_not_a_crash(server: FaultS
     server.answer = lambda body: {"role": "assistant", "content": ["not", "text"]}
     [odd, *_] = model(server).generate([conv("odd")])
     assert odd.finish_reason == "error" and "not a chat completion" in (odd.error or "")
+
+
+def test_cached_and_followups_describe_each_answer_through_the_cache(
+    server: FaultServer, tmp_path: Path
+) -> None:
+    def answer(body: dict[str, Any]) -> dict[str, Any]:
+        if len(body["messages"]) == 2:
+            return {"role": "assistant", "content": "<think>hmm", "finish_reason": "length"}
+        return {"role": "assistant", "content": "DO"}
+
+    server.answer = answer
+    server.plan = {"down": [Fault("status", status=503)] * 8}
+    cached = CachedModel(model(server, max_retries=1), tmp_path / "cache.sqlite")
+    first = cached.generate([conv("cut"), conv("down")])
+    again = cached.generate([conv("cut"), conv("down")])
+    cached.close()
+    assert [(o.cached, o.followups, o.finish_reason) for o in first] == [
+        (False, 1, "stop"),
+        (False, 0, "error"),
+    ]
+    # The hit replays the answer and what it cost then; the failure is asked again, not replayed.
+    assert [(o.cached, o.followups, o.finish_reason) for o in again] == [
+        (True, 1, "stop"),
+        (False, 0, "error"),
+    ]
+    assert server.count("down") == 4 and server.count("cut") == 1

@@ -14,7 +14,7 @@ import logging
 from collections.abc import Sequence
 from typing import Any, ClassVar, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from env.errors import UserError
 
@@ -69,6 +69,8 @@ TRANSPORT_FIELDS = frozenset({"timeout_s", "max_concurrency", "max_retries"})
 ANSWER_FIELDS = frozenset(GenerateConfig.model_fields) - TRANSPORT_FIELDS
 #: Longest a probe request may take: a dead server must fail the start within seconds.
 PROBE_TIMEOUT_S = 10.0
+#: Longest error text an output keeps; server bodies and tracebacks can be megabytes.
+ERROR_CHARS = 1000
 
 
 class ModelOutput(BaseModel):
@@ -92,6 +94,16 @@ class ModelOutput(BaseModel):
     """True when the answer came from the response cache: no request was made now; tokens and followups are the original generation's."""
     error: str | None = None
     """Why the generation failed (one line, secrets removed), when finish_reason is `error`."""
+
+    @field_validator("error")
+    @classmethod
+    def _one_line(cls, error: str | None) -> str | None:
+        # Every backend's error lands in one line of steps.jsonl and of the run's summary; a
+        # backend redacts its own secrets before this (only it knows them).
+        if error is None:
+            return None
+        line = " ".join(error.split())
+        return line if len(line) <= ERROR_CHARS else line[:ERROR_CHARS] + "..."
 
 
 class ModelAPI(abc.ABC):
