@@ -36,6 +36,7 @@ def models_server(require_key: str | None = None) -> Iterator[str]:
             return None
 
         def do_GET(self) -> None:
+            payload: dict[str, Any]
             if require_key and self.headers.get("Authorization") != f"Bearer {require_key}":
                 status, payload = 401, {"error": {"message": "invalid API key"}}
             else:

@@ -14,7 +14,7 @@ from fault_server import Fault, FaultServer
 
 from env.errors import UserError
 from llm_agents.backends import CachedModel, get_model, load_backend_class
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.base import ChatMessage, GenerateConfig, ModelAPI
 from llm_agents.backends.mock import MockModel
 from llm_agents.backends.openai import OpenAIModel
 
@@ -220,3 +220,31 @@ def test_an_ignored_transport_setting_is_a_warning(caplog: pytest.LogCaptureFixt
     with caplog.at_level(logging.WARNING):
         OpenAIModel.check_settings(GenerateConfig(timeout_s=5, max_concurrency=2), {})
     assert not caplog.records
+
+
+# ---------------------------------------------------------------- the default probe
+
+
+def test_the_default_probe_turns_an_error_output_into_one_line() -> None:
+    # The base implementation on a real backend whose every generation fails.
+    failing = MockModel("error:engine died")
+    with pytest.raises(UserError) as caught:
+        ModelAPI.probe(failing)
+    assert (
+        str(caught.value)
+        == "mock:error:engine died does not answer a one-token request: engine died"
+    )
+    answering = MockModel("cycle:A|B", GenerateConfig(max_tokens=50, max_retries=3))
+    ModelAPI.probe(answering)
+    assert answering.requests[0][0][0].content == "Say OK."
+    assert (answering.config.max_tokens, answering.config.max_retries) == (50, 3)
+
+
+@pytest.mark.slow
+def test_the_default_probe_generates_one_token_with_a_real_model() -> None:
+    pytest.importorskip("torch")
+    model = get_model("hf:smollm2-135m", GenerateConfig(max_tokens=12), threads=1)
+    start = time.monotonic()
+    model.probe()
+    assert time.monotonic() - start < 10
+    assert model.config.max_tokens == 12
