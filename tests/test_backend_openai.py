@@ -338,3 +338,18 @@ def test_cached_and_followups_describe_each_answer_through_the_cache(
         (False, 0, "error"),
     ]
     assert server.count("down") == 4 and server.count("cut") == 1
+
+
+def test_a_password_in_the_url_is_a_secret_too(
+    server: FaultServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    port = server.url.split(":")[2].split("/")[0]
+    url = f"http://user:pa%40ss-w0rd-xyz@127.0.0.1:{port}/v1"
+    server.plan = {"down": [Fault("status", status=503)] * 3}
+    backend = OpenAIModel("test-model", GenerateConfig(max_retries=1), base_url=url, **FAST)
+    with caplog.at_level(logging.DEBUG):
+        [failed] = backend.generate([conv("down")])
+    assert server.requests[0].headers["Authorization"].startswith("Basic ")  # it was used
+    visible = [failed.model_dump_json(), caplog.text, repr(backend), str(backend.info())]
+    assert backend.info()["base_url"] == f"http://127.0.0.1:{port}/v1"
+    assert not any(secret in text for text in visible for secret in ("pa%40ss", "pa@ss"))

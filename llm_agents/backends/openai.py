@@ -10,6 +10,7 @@ inside the synchronous `generate`; transient failures are retried by the policy 
 from __future__ import annotations
 
 import asyncio
+import base64
 import concurrent.futures
 import difflib
 import json
@@ -100,7 +101,19 @@ class OpenAIModel(ModelAPI):
             )
         if not base_url.startswith(("http://", "https://")):
             raise UserError(f"server URL {base_url!r} must start with http:// or https://")
-        self.base_url = base_url.rstrip("/")
+        try:
+            url = httpx.URL(base_url.rstrip("/"))
+        except httpx.InvalidURL as err:
+            raise UserError(f"server URL is not a valid URL: {err}") from None
+        # Credentials in the URL travel as a Basic auth header instead, so that neither httpx's
+        # request log nor any message shows them; the password is then redacted like the key.
+        self.base_url = str(url.copy_with(userinfo=b""))
+        self._auth = httpx.BasicAuth(url.username, url.password) if url.userinfo else None
+        written = url.userinfo.decode("ascii", "replace").partition(":")[2]
+        header = base64.b64encode(f"{url.username}:{url.password}".encode()).decode()
+        self._url_secrets = (
+            [SecretStr(p) for p in {written, url.password, header} if p] if url.userinfo else []
+        )
         key = os.environ.get(self.settings.api_key_env)
         # SecretStr keeps the key out of reprs, tracebacks' locals and debug dumps.
         self._api_key = SecretStr(key) if key else None
@@ -157,7 +170,11 @@ class OpenAIModel(ModelAPI):
         limits = httpx.Limits(max_connections=limit, max_keepalive_connections=limit)
         semaphore = asyncio.Semaphore(limit)
         async with httpx.AsyncClient(
-            base_url=self.base_url, timeout=timeout, limits=limits, headers=self._headers()
+            base_url=self.base_url,
+            timeout=timeout,
+            limits=limits,
+            headers=self._headers(),
+            auth=self._auth,
         ) as client:
 
             async def one(conversation: Conversation) -> ModelOutput:
@@ -279,10 +296,16 @@ class OpenAIModel(ModelAPI):
         return reply
 
     def _redact(self, text: str) -> str:
-        if self._api_key is not None:
-            key = self._api_key.get_secret_value()
-            # A JSON body may carry the key escaped (quotes, backslashes, non-ASCII).
-            for form in {key, json.dumps(key)[1:-1], json.dumps(key, ensure_ascii=False)[1:-1]}:
+        for secret in (self._api_key, *self._url_secrets):
+            if secret is None:
+                continue
+            value = secret.get_secret_value()
+            # A JSON body may carry the secret escaped (quotes, backslashes, non-ASCII).
+            for form in {
+                value,
+                json.dumps(value)[1:-1],
+                json.dumps(value, ensure_ascii=False)[1:-1],
+            }:
                 text = text.replace(form, "***")
         return text
 
@@ -307,7 +330,10 @@ class OpenAIModel(ModelAPI):
     async def _probe(self) -> None:
         timeout_s = min(self.config.timeout_s, PROBE_TIMEOUT_S)
         async with httpx.AsyncClient(
-            base_url=self.base_url, timeout=httpx.Timeout(timeout_s), headers=self._headers()
+            base_url=self.base_url,
+            timeout=httpx.Timeout(timeout_s),
+            headers=self._headers(),
+            auth=self._auth,
         ) as client:
             listing = await self._probe_request(client, "GET", "/models", None, timeout_s)
             served = _served_models(listing) if listing.status_code == 200 else None
