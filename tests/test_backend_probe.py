@@ -248,3 +248,12 @@ def test_the_default_probe_generates_one_token_with_a_real_model() -> None:
     model.probe()
     assert time.monotonic() - start < 10
     assert model.config.max_tokens == 12
+
+
+def test_a_bad_option_value_is_one_line_naming_the_option() -> None:
+    with pytest.raises(UserError) as caught:
+        get_model("openai:m@http://127.0.0.1:9/v1", backoff_initial_s=-1, jitter_s="lots")
+    message = str(caught.value)
+    assert "\n" not in message
+    assert message.startswith("bad option for the openai backend: backoff_initial_s: ")
+    assert "; jitter_s: " in message

@@ -14,7 +14,7 @@ import logging
 from collections.abc import Sequence
 from typing import Any, ClassVar, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from env.errors import UserError
 
@@ -104,6 +104,15 @@ class ModelOutput(BaseModel):
             return None
         line = " ".join(error.split())
         return line if len(line) <= ERROR_CHARS else line[:ERROR_CHARS] + "..."
+
+
+def bad_options(backend: str, err: ValidationError) -> UserError:
+    """One line naming each option a backend's options model refused, and why."""
+    problems = "; ".join(
+        f"{'.'.join(str(part) for part in problem['loc']) or 'options'}: {problem['msg']}"
+        for problem in err.errors()
+    )
+    return UserError(f"bad option for the {backend} backend: {problems}")
 
 
 class ModelAPI(abc.ABC):

@@ -32,6 +32,7 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    bad_options,
 )
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
 from llm_agents.backends.retry import (
@@ -92,7 +93,7 @@ class OpenAIModel(ModelAPI):
         try:
             self.settings = OpenAIOptions(**options)
         except ValidationError as err:
-            raise UserError(f"bad option for the openai backend: {err}") from err
+            raise bad_options("openai", err) from None
         base_url = self.settings.base_url or os.environ.get("OPENAI_BASE_URL")
         if not base_url:
             raise UserError(
