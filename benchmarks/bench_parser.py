@@ -2,6 +2,7 @@
 
 - time per typical answer (target <= 0.1 ms);
 - time per character for long answers of growing length (flat per-char time = linear);
+- time for 80 KB and 320 KB of reasoning blocks of several shapes (4x the time = linear);
 - agreement with the BALROG harness on its 2,250 real Crafter outputs (classic variant):
   on the rows it parsed, and how many of the rows it failed on we turn into an action.
 
@@ -58,6 +59,16 @@ def per_call_seconds(run: Callable[[], object], calls: int, repeats: int) -> flo
     return best
 
 
+def cpu_seconds(run: Callable[[], object], repeats: int) -> float:
+    """Best of `repeats` in this thread's CPU time: other processes on a busy machine do not count."""
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.thread_time()
+        run()
+        best = min(best, time.thread_time() - start)
+    return best
+
+
 def bench_typical(repeats: int) -> None:
     print("time per typical answer (classic):")
     total = 0.0
@@ -85,6 +96,29 @@ def bench_long(repeats: int) -> None:
         per_char = ", ".join(f"{chars:>7} ch: {ns * 1e9:6.1f} ns/ch" for chars, ns in figures)
         growth = figures[-1][1] / figures[0][1]
         print(f"  {label}: {per_char}; per-char ratio longest/shortest {growth:.2f}")
+
+
+def bench_reasoning_scaling(repeats: int) -> None:
+    print("reasoning blocks, 80 KB vs 320 KB, CPU time (ratio 4 = linear, 16 = quadratic):")
+    units = {
+        "closed <think> blocks": "<think>x</think>",
+        "mixed tags and cases": "<thought>a</THOUGHT>b<reasoning>c</reasoning>",
+        "nested <think> blocks": "<think>a<think>b</think>c</think>",
+        "stray closes": "</think>x",
+        "opens of another tag inside one block": "<thinking>",
+    }
+    for label, unit in units.items():
+        timings = []
+        for size in (80_000, 320_000):
+            text = unit * (size // len(unit)) + "UP"
+            timings.append(cpu_seconds(partial(parse_action, text, Variant.CLASSIC), repeats))
+        print(
+            f"  {label:<40} {timings[0] * 1e3:7.2f} ms -> {timings[1] * 1e3:7.2f} ms"
+            f"  (x{timings[1] / timings[0]:.1f})"
+        )
+    nested = "<think>" + "<thinking>" * 20_000 + "</think>UP"
+    seconds = cpu_seconds(partial(parse_action, nested, Variant.CLASSIC), repeats)
+    print(f"  one block holding 20,000 other openings: {seconds * 1e3:.2f} ms")
 
 
 def crafter_to_ours(name: str) -> str:
@@ -126,6 +160,7 @@ def main() -> None:
     args = parser.parse_args()
     bench_typical(args.repeats)
     bench_long(args.repeats)
+    bench_reasoning_scaling(args.repeats)
     bench_balrog()
 
 

@@ -1,8 +1,9 @@
 """Turns a model's free-text answer into one action id of a variant.
 
 Stages, first match wins:
-1. reasoning blocks (`<think>...</think>` and the like) are dropped; an opening tag with no
-   close makes the rest reasoning, a close with no opening makes what precedes it reasoning;
+1. reasoning blocks (`<think>...</think>` and the like) are dropped by the backends' own
+   `split_reasoning`: an opening tag with no close makes the rest reasoning, a close with no
+   opening makes what precedes it reasoning;
 2. `field`: the last explicit answer field or tag (`ACTION: X`, `<action>X</action>`,
    `<|ACTION|>X<|END|>`, `{"action": "X"}`) decides; placeholders such as `<NAME>` (the
    answer-format instruction echoed back) are not answers;
@@ -32,6 +33,7 @@ from rapidfuzz import fuzz, process
 
 from env.variant import Variant, as_variant
 from llm_agents.actions import action_names
+from llm_agents.backends.reasoning import split_reasoning
 
 ParseStage = Literal["field", "exact", "alias", "mention", "fuzzy", "invalid"]
 
@@ -67,7 +69,6 @@ class ParseResult(BaseModel):
 
 # ---------------------------------------------------------------- normalisation
 
-_REASONING_TAGS = ("think", "thinking", "reasoning", "thought")
 _WORD_SUBSTITUTIONS = {
     "wooden": "wood",
     "armor": "armour",
@@ -85,36 +86,6 @@ def _normalise(text: str) -> str:
     words = _NON_WORD.sub(" ", text.lower()).strip()
     words = _DIAGONAL.sub(r"\1\2", words)
     return _SUBSTITUTION.sub(lambda m: _WORD_SUBSTITUTIONS[m.group(1)], words)
-
-
-def _strip_reasoning(text: str) -> str:
-    lowered = text.lower()
-    kept: list[str] = []
-    position = 0
-    while True:
-        opening = _next_opening(lowered, position)
-        if opening is None:
-            kept.append(text[position:])
-            break
-        start, tag = opening
-        kept.append(text[position:start])
-        close = lowered.find(f"</{tag}>", start)
-        if close < 0:
-            break
-        position = close + len(tag) + 3
-    answer = "".join(kept)
-    lowered_answer = answer.lower()
-    # A template may open the block in the prompt, leaving only its close in the answer.
-    last_close = max(lowered_answer.rfind(f"</{tag}>") for tag in _REASONING_TAGS)
-    if last_close >= 0:
-        answer = answer[lowered_answer.index(">", last_close) + 1 :]
-    return answer
-
-
-def _next_opening(lowered: str, position: int) -> tuple[int, str] | None:
-    found = [(lowered.find(f"<{tag}>", position), tag) for tag in _REASONING_TAGS]
-    present = [(index, tag) for index, tag in found if index >= 0]
-    return min(present) if present else None
 
 
 # ---------------------------------------------------------------- vocabulary
@@ -464,7 +435,7 @@ def parse_action(
     step is read once.
     """
     vocabulary = _vocabulary(as_variant(variant))
-    answer = _strip_reasoning(text)
+    answer = split_reasoning(text).answer
 
     fields = _fields(answer)
     if fields:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Literal
 
-FaultKind = Literal["drop", "status", "slow", "malformed"]
+FaultKind = Literal["drop", "status", "slow", "malformed", "echo_auth"]
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,10 @@ class Fault:
     """Seconds a `slow` fault waits before answering normally."""
     body: str = ""
     """Extra text in a `status` fault's body."""
+    pad: int = 0
+    """Characters before the echoed Authorization header in an `echo_auth` fault's body."""
+    as_json: bool = False
+    """Whether an `echo_auth` fault's body is a JSON object (else plain text)."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,10 @@ class FaultServer:
     """Answer 400 to any request asking for structured outputs, like a server that lacks them."""
     echo_authorization: bool = False
     """Put the request's Authorization header in every error body, like a careless proxy."""
+    models: list[str] | None = None
+    """Model ids `GET /models` lists; None answers it 404, like a server without the endpoint."""
+    required_key: str | None = None
+    """When set, every request without `Authorization: Bearer <key>` gets a 401."""
     max_requests: int = 200
     requests: list[Request] = field(default_factory=list)
     in_flight: int = 0
@@ -91,9 +99,34 @@ class FaultServer:
             def log_message(self, format: str, *args: Any) -> None:
                 return None
 
+            def _authorised(self) -> bool:
+                if state.required_key is None:
+                    return True
+                if self.headers.get("Authorization") == f"Bearer {state.required_key}":
+                    return True
+                self._send(401, self._error("invalid API key"))
+                return False
+
+            def do_GET(self) -> None:
+                with state._lock:
+                    state.requests.append(
+                        Request(
+                            f"GET {self.path}", {}, dict(self.headers.items()), time.monotonic()
+                        )
+                    )
+                if not self._authorised():
+                    return
+                if self.path.rstrip("/").endswith("/models") and state.models is not None:
+                    listing = [{"id": model, "object": "model"} for model in state.models]
+                    self._send(200, {"object": "list", "data": listing})
+                    return
+                self._send(404, self._error(f"no route {self.path}"))
+
             def do_POST(self) -> None:
                 length = int(self.headers.get("Content-Length") or 0)
                 body = json.loads(self.rfile.read(length) or b"{}")
+                if not self._authorised():
+                    return
                 key = str(body.get("messages", [{}])[-1].get("content", ""))
                 with state._lock:
                     if len(state.requests) >= state.max_requests:
@@ -127,6 +160,13 @@ class FaultServer:
                     return
                 if fault is not None and fault.kind == "slow":
                     time.sleep(fault.delay_s)
+                if fault is not None and fault.kind == "echo_auth":
+                    echoed = "x" * fault.pad + f"{self.headers.get('Authorization')} and more text"
+                    if fault.as_json:
+                        self._send(fault.status, {"detail": echoed})
+                    else:
+                        self._send_raw(fault.status, echoed.encode())
+                    return
                 if fault is not None and fault.kind == "malformed":
                     self._send_raw(200, b'{"choices": [{"message": ')
                     return

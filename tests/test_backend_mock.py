@@ -9,7 +9,7 @@ import pytest
 
 from env.errors import UserError
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage
+from llm_agents.backends.base import ERROR_CHARS, ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
 
 
@@ -85,3 +85,12 @@ def test_a_responder_sees_the_conversation_and_requests_are_recorded() -> None:
 def test_fixed_latency_is_reported() -> None:
     [output] = MockModel("noop", latency_s=0.01).generate([ask("x")])
     assert output.latency_s == 0.01
+
+
+def test_an_error_is_one_bounded_line_whatever_the_backend_wrote() -> None:
+    output = ModelOutput(
+        text="", finish_reason="error", error="Traceback:\n  line 1\n\tboom  " + "x" * 5000
+    )
+    assert output.error is not None and "\n" not in output.error and "\t" not in output.error
+    assert output.error.startswith("Traceback: line 1 boom x")
+    assert len(output.error) == ERROR_CHARS + 3

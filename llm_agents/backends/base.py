@@ -8,10 +8,17 @@ in order. Backends never raise for a single bad generation: they return an outpu
 from __future__ import annotations
 
 import abc
+import difflib
+import inspect
+import logging
 from collections.abc import Sequence
-from typing import Any, Literal, Self
+from typing import Any, ClassVar, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from env.errors import UserError
+
+logger = logging.getLogger(__name__)
 
 Role = Literal["system", "user", "assistant"]
 FinishReason = Literal["stop", "length", "choice", "error"]
@@ -56,6 +63,16 @@ class GenerateConfig(BaseModel):
     """Retries of a transient failure (HTTP backends), after the first attempt."""
 
 
+#: Generation parameters that cannot change an answer: they only bound waiting and retrying.
+TRANSPORT_FIELDS = frozenset({"timeout_s", "max_concurrency", "max_retries"})
+#: Generation parameters that shape the answer itself.
+ANSWER_FIELDS = frozenset(GenerateConfig.model_fields) - TRANSPORT_FIELDS
+#: Longest a probe request may take: a dead server must fail the start within seconds.
+PROBE_TIMEOUT_S = 10.0
+#: Longest error text an output keeps; server bodies and tracebacks can be megabytes.
+ERROR_CHARS = 1000
+
+
 class ModelOutput(BaseModel):
     """What a backend returns for one conversation."""
 
@@ -74,16 +91,46 @@ class ModelOutput(BaseModel):
     followups: int = 0
     """Extra requests made for this answer (e.g. an "answer only" follow-up after truncated thinking)."""
     cached: bool = False
-    """True when the answer came from the response cache."""
+    """True when the answer came from the response cache: no request was made now; tokens and followups are the original generation's."""
     error: str | None = None
-    """Why the generation failed, when finish_reason is `error`."""
+    """Why the generation failed (one line, secrets removed), when finish_reason is `error`."""
+
+    @field_validator("error")
+    @classmethod
+    def _one_line(cls, error: str | None) -> str | None:
+        # Every backend's error lands in one line of steps.jsonl and of the run's summary; a
+        # backend redacts its own secrets before this (only it knows them).
+        if error is None:
+            return None
+        line = " ".join(error.split())
+        return line if len(line) <= ERROR_CHARS else line[:ERROR_CHARS] + "..."
+
+
+def bad_options(backend: str, err: ValidationError) -> UserError:
+    """One line naming each option a backend's options model refused, and why."""
+    problems = "; ".join(
+        f"{'.'.join(str(part) for part in problem['loc']) or 'options'}: {problem['msg']}"
+        for problem in err.errors()
+    )
+    return UserError(f"bad option for the {backend} backend: {problems}")
 
 
 class ModelAPI(abc.ABC):
-    """Base class of every backend. Subclasses are registered in `llm_agents.backends`."""
+    """Base class of every backend. Subclasses are registered in `llm_agents.backends`.
+
+    Each backend declares what it honours, so that nothing a user sets is silently ignored:
+    `options_model` (or, without one, the keyword-only parameters of `__init__`) lists the backend
+    options `get_model` accepts, and `honoured_config` the `GenerateConfig` fields it reads.
+    `check_settings` refuses an unknown option and an answer-shaping field the backend would
+    ignore, and warns about an ignored transport field (a timeout cannot change an answer).
+    """
 
     #: The registry name, e.g. "hf"; set by each subclass.
     backend_name: str = ""
+    #: The pydantic model of this backend's options, when it has one.
+    options_model: ClassVar[type[BaseModel] | None] = None
+    #: The `GenerateConfig` fields this backend reads; any other must stay at its default.
+    honoured_config: ClassVar[frozenset[str]] = ANSWER_FIELDS - {"reasoning_budget"}
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         self.model_name = model_name
@@ -98,13 +145,81 @@ class ModelAPI(abc.ABC):
     ) -> list[ModelOutput]:
         """Answer every conversation; with `choices`, each answer is exactly one of them."""
 
-    def probe(self) -> None:
-        """Check with one cheap request that the model answers; raise `UserError` naming why not."""
-        output = self.generate([[ChatMessage(role="user", content="Answer with one word: OK")]])[0]
-        if output.finish_reason == "error":
-            from env.errors import UserError
+    @classmethod
+    def accepted_options(cls) -> list[str]:
+        """Names of the backend options (`get_model` keyword arguments) this backend accepts."""
+        if cls.options_model is not None:
+            return list(cls.options_model.model_fields)
+        parameters = inspect.signature(cls.__init__).parameters.values()
+        return [p.name for p in parameters if p.kind is inspect.Parameter.KEYWORD_ONLY]
 
-            raise UserError(f"model {self.model_name!r} does not answer: {output.error}")
+    @classmethod
+    def check_settings(cls, config: GenerateConfig | None, options: dict[str, Any]) -> None:
+        """Refuse what this backend would silently ignore; warn where results cannot differ.
+
+        An unknown option is a `UserError` naming it, with a did-you-mean and the accepted ones.
+        A `GenerateConfig` field the backend does not read, set away from its default, is refused
+        when it shapes answers (the run would not be what was asked for) and logged as a warning
+        when it only bounds waiting (`TRANSPORT_FIELDS`).
+        """
+        accepted = cls.accepted_options()
+        for name in options:
+            if name not in accepted:
+                close = difflib.get_close_matches(name, accepted, n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                listed = ", ".join(accepted) if accepted else "none"
+                raise UserError(
+                    f"the {cls.backend_name} backend has no option {name!r}{hint} (accepted: {listed})"
+                )
+        if config is None:
+            return
+        defaults = GenerateConfig()
+        ignored = [
+            field
+            for field in GenerateConfig.model_fields
+            if field not in cls.honoured_config
+            and getattr(config, field) != getattr(defaults, field)
+        ]
+        refused = [field for field in ignored if field not in TRANSPORT_FIELDS]
+        if refused:
+            raise UserError(
+                f"the {cls.backend_name} backend cannot honour {', '.join(refused)}; leave "
+                f"{'it' if len(refused) == 1 else 'them'} unset (it honours: "
+                f"{', '.join(sorted(cls.honoured_config)) or 'no generation settings'})"
+            )
+        for field in ignored:
+            logger.warning(
+                "the %s backend ignores %s=%r (no answer depends on it, so the run goes on)",
+                cls.backend_name,
+                field,
+                getattr(config, field),
+            )
+
+    def probe(self) -> None:
+        """Check that the model answers at all, cheaply, before a run starts.
+
+        The default generates a one-token answer with no retries and a short timeout, so that a
+        backend that cannot answer fails in seconds with a `UserError` naming the cause.
+        Backends with a cheaper check override this.
+        """
+        quick = self.config.model_copy(
+            update={
+                "max_tokens": 1,
+                "max_retries": 0,
+                "reasoning_budget": None,
+                "timeout_s": min(self.config.timeout_s, PROBE_TIMEOUT_S),
+            }
+        )
+        saved, self.config = self.config, quick
+        try:
+            [output] = self.generate([[ChatMessage(role="user", content="Say OK.")]])
+        finally:
+            self.config = saved
+        if output.finish_reason == "error":
+            raise UserError(
+                f"{self.backend_name}:{self.model_name} does not answer a one-token request: "
+                f"{output.error or 'no error given'}"
+            )
 
     def info(self) -> dict[str, str]:
         """Backend, model and library versions, recorded in results."""

@@ -26,10 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from env.errors import UserError
-from llm_agents.backends.base import Conversation, ModelAPI, ModelOutput
-
-#: Generation parameters that cannot change an answer (they only bound waiting and retrying).
-TRANSPORT_FIELDS = frozenset({"timeout_s", "max_concurrency", "max_retries"})
+from llm_agents.backends.base import TRANSPORT_FIELDS, Conversation, ModelAPI, ModelOutput
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS responses (
@@ -114,6 +111,9 @@ class CachedModel(ModelAPI):
         }
         encoded = json.dumps(payload, sort_keys=True, ensure_ascii=False).encode()
         return hashlib.sha256(encoded).hexdigest()
+
+    def probe(self) -> None:
+        self.model.probe()
 
     def info(self) -> dict[str, str]:
         return {**self.model.info(), "response_cache": str(self.path)}

@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 from env.errors import UserError
 from llm_agents.backends.base import (
+    ANSWER_FIELDS,
     ChatMessage,
     Conversation,
     FinishReason,
@@ -77,6 +78,7 @@ class HFModel(ModelAPI):
     """
 
     backend_name = "hf"
+    honoured_config = ANSWER_FIELDS
     # transformers' own annotations of its model classes do not type-check cleanly.
     model: Any
 

@@ -6,7 +6,9 @@ Spec forms (`mock:<script>`):
 - `mock:list:A|B|C` answers A, B, C, then fails with an error output;
 - `mock:file:PATH` reads a JSON list of answers and cycles through it;
 - `mock:hash:A|B|C` picks the answer from a hash of the conversation, so the same prompt always
-  gets the same answer whatever the batch or request order (resume tests rely on this).
+  gets the same answer whatever the batch or request order (resume tests rely on this);
+- `mock:error` or `mock:error:MESSAGE` fails every request with an error output, as a backend
+  whose server went away does (its probe fails too).
 From Python, `MockModel(outputs=callable)` answers `callable(conversation)`.
 Every request is recorded in `requests`.
 """
@@ -36,6 +38,8 @@ class MockModel(ModelAPI):
     """Answers from a script; optional fixed latency per batch for benchmarks."""
 
     backend_name = "mock"
+    # Scripted answers depend on no generation setting, by design: a dry run takes real ones.
+    honoured_config = frozenset(GenerateConfig.model_fields)
 
     def __init__(
         self,
@@ -54,15 +58,20 @@ class MockModel(ModelAPI):
         self._responder: Responder | None = None
         self._outputs: list[str] = []
         self._mode = "cycle" if cycle else "list"
+        self._error = ""
         if callable(outputs):
             self._responder = outputs
         elif outputs is not None:
             self._outputs = list(outputs)
         else:
             self._outputs, self._mode = _parse_script(model_name)
+            if self._mode == "error":
+                self._error = self._outputs[0]
 
     def probe(self) -> None:
-        """A script always answers; probing must not consume one of its answers."""
+        # A script always answers, and probing must not use up a `list:` script's answers.
+        if self._mode == "error":
+            raise UserError(f"mock:{self.model_name} does not answer: {self._error}")
 
     def generate(
         self,
@@ -80,6 +89,8 @@ class MockModel(ModelAPI):
     def _answer(self, conversation: Conversation, choices: Sequence[str] | None) -> ModelOutput:
         index = self._count
         self._count += 1
+        if self._mode == "error":
+            return ModelOutput(text="", finish_reason="error", error=self._error)
         if self._responder is not None:
             text = self._responder(conversation)
         elif self._mode == "hash":
@@ -115,6 +126,8 @@ def _parse_script(script: str) -> tuple[list[str], str]:
     kind, _, arg = script.partition(":")
     if kind in ("", "noop"):
         return ["NOOP"], "cycle"
+    if kind == "error":
+        return [arg or "scripted mock error"], "error"
     if kind in ("cycle", "list", "hash"):
         outputs = [part for part in arg.split("|") if part]
         if not outputs:
@@ -130,5 +143,5 @@ def _parse_script(script: str) -> tuple[list[str], str]:
             raise UserError(f"mock script file {path} must hold a non-empty JSON list of strings")
         return data, "cycle"
     raise UserError(
-        f"unknown mock script {script!r}; use noop, cycle:A|B, list:A|B, hash:A|B or file:PATH"
+        f"unknown mock script {script!r}; use noop, cycle:A|B, list:A|B, hash:A|B, file:PATH or error"
     )

@@ -10,12 +10,15 @@ inside the synchronous `generate`; transient failures are retried by the policy 
 from __future__ import annotations
 
 import asyncio
+import base64
 import concurrent.futures
+import difflib
 import json
 import os
+import socket
 import time
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Coroutine, Sequence
+from typing import Any, TypeVar
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
@@ -24,10 +27,12 @@ from tenacity import RetryError
 
 from env.errors import UserError
 from llm_agents.backends.base import (
+    PROBE_TIMEOUT_S,
     Conversation,
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    bad_options,
 )
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
 from llm_agents.backends.retry import (
@@ -41,6 +46,10 @@ from llm_agents.backends.retry import (
 DEFAULT_API_KEY_ENV = "OPENAI_API_KEY"
 #: How much of a server's error body is kept in an error message.
 ERROR_BODY_CHARS = 300
+#: Most model ids a probe lists when the requested one is not served.
+LISTED_MODELS = 8
+
+T = TypeVar("T")
 
 
 class OpenAIOptions(BaseModel):
@@ -74,13 +83,17 @@ class OpenAIModel(ModelAPI):
     """Chat completions over HTTP, concurrent, with retries of transient failures."""
 
     backend_name = "openai"
+    options_model = OpenAIOptions
+    # Everything but a thinking budget, which the chat API has no field for (a server-specific
+    # one can go in `extra_body`).
+    honoured_config = frozenset(GenerateConfig.model_fields) - {"reasoning_budget"}
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
         try:
             self.settings = OpenAIOptions(**options)
         except ValidationError as err:
-            raise UserError(f"bad option for the openai backend: {err}") from err
+            raise bad_options("openai", err) from None
         base_url = self.settings.base_url or os.environ.get("OPENAI_BASE_URL")
         if not base_url:
             raise UserError(
@@ -89,7 +102,19 @@ class OpenAIModel(ModelAPI):
             )
         if not base_url.startswith(("http://", "https://")):
             raise UserError(f"server URL {base_url!r} must start with http:// or https://")
-        self.base_url = base_url.rstrip("/")
+        try:
+            url = httpx.URL(base_url.rstrip("/"))
+        except httpx.InvalidURL as err:
+            raise UserError(f"server URL is not a valid URL: {err}") from None
+        # Credentials in the URL travel as a Basic auth header instead, so that neither httpx's
+        # request log nor any message shows them; the password is then redacted like the key.
+        self.base_url = str(url.copy_with(userinfo=b""))
+        self._auth = httpx.BasicAuth(url.username, url.password) if url.userinfo else None
+        written = url.userinfo.decode("ascii", "replace").partition(":")[2]
+        header = base64.b64encode(f"{url.username}:{url.password}".encode()).decode()
+        self._url_secrets = (
+            [SecretStr(p) for p in {written, url.password, header} if p] if url.userinfo else []
+        )
         key = os.environ.get(self.settings.api_key_env)
         # SecretStr keeps the key out of reprs, tracebacks' locals and debug dumps.
         self._api_key = SecretStr(key) if key else None
@@ -97,16 +122,20 @@ class OpenAIModel(ModelAPI):
             raise UserError(
                 f"the API key variable {self.settings.api_key_env} named by api_key_env is not set"
             )
-        self.retry_policy = RetryPolicy(
-            max_retries=self.config.max_retries,
+        # Flipped for good once the server rejects structured outputs, so later batches do not
+        # pay a failed request each.
+        self.structured_choice = self.settings.structured_choice
+
+    @property
+    def retry_policy(self) -> RetryPolicy:
+        """Retry limits from the current `GenerateConfig` (read at each call), waits from options."""
+        return RetryPolicy.for_generation(
+            self.config,
             backoff_initial_s=self.settings.backoff_initial_s,
             backoff_max_s=self.settings.backoff_max_s,
             jitter_s=self.settings.jitter_s,
             retry_after_max_s=self.settings.retry_after_max_s,
         )
-        # Flipped for good once the server rejects structured outputs, so later batches do not
-        # pay a failed request each.
-        self.structured_choice = self.settings.structured_choice
 
     def __repr__(self) -> str:
         return f"OpenAIModel(model={self.model_name!r}, base_url={self.base_url!r})"
@@ -121,18 +150,18 @@ class OpenAIModel(ModelAPI):
     ) -> list[ModelOutput]:
         return generate_with_followup(conversations, choices, self._run)
 
+    def probe(self) -> None:
+        """List the server's models and check ours is one; a one-token chat where none are listed.
+
+        One attempt, no retries, at most `PROBE_TIMEOUT_S`: a dead port, a wrong model name or a
+        refused key ends the start within seconds, with a one-line `UserError` naming the cause.
+        """
+        _run_blocking(self._probe())
+
     def _run(
         self, conversations: Sequence[Conversation], choices: list[str] | None
     ) -> list[ModelOutput]:
-        batch = self._generate_all(conversations, choices)
-        try:
-            asyncio.get_running_loop()
-        except RuntimeError:
-            return asyncio.run(batch)
-        # Called from inside a running loop (a notebook, an async caller): that loop cannot be
-        # re-entered, so the batch gets its own loop on a worker thread.
-        with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
-            return pool.submit(asyncio.run, batch).result()
+        return _run_blocking(self._generate_all(conversations, choices))
 
     async def _generate_all(
         self, conversations: Sequence[Conversation], choices: list[str] | None
@@ -142,7 +171,11 @@ class OpenAIModel(ModelAPI):
         limits = httpx.Limits(max_connections=limit, max_keepalive_connections=limit)
         semaphore = asyncio.Semaphore(limit)
         async with httpx.AsyncClient(
-            base_url=self.base_url, timeout=timeout, limits=limits, headers=self._headers()
+            base_url=self.base_url,
+            timeout=timeout,
+            limits=limits,
+            headers=self._headers(),
+            auth=self._auth,
         ) as client:
 
             async def one(conversation: Conversation) -> ModelOutput:
@@ -175,16 +208,21 @@ class OpenAIModel(ModelAPI):
                     client, self._body(conversation, choices, False)
                 )
                 self.structured_choice = False
-            output = _parse_reply(reply, choices)
+            output = self._parse_reply(reply, choices)
         except (RequestFailed, _Rejected) as failure:
-            return ModelOutput(
-                text="",
-                finish_reason="error",
-                error=self._redact(str(failure)),
-                latency_s=time.perf_counter() - start,
-            )
+            return self._failed(str(failure), start)
+        except Exception as unexpected:  # one odd reply must not lose the rest of the batch
+            return self._failed(f"{type(unexpected).__name__}: {unexpected}", start)
         output.latency_s = time.perf_counter() - start
         return output
+
+    def _failed(self, cause: str, start: float) -> ModelOutput:
+        return ModelOutput(
+            text="",
+            finish_reason="error",
+            error=self._excerpt(cause, limit=2 * ERROR_BODY_CHARS),
+            latency_s=time.perf_counter() - start,
+        )
 
     def _body(
         self, conversation: Conversation, choices: list[str] | None, constrained: bool
@@ -210,10 +248,11 @@ class OpenAIModel(ModelAPI):
         self, client: httpx.AsyncClient, body: dict[str, Any]
     ) -> dict[str, Any]:
         url = f"{self.base_url}/chat/completions"
+        policy = self.retry_policy
         try:
-            async for attempt in async_retrying(self.retry_policy, f"POST {url}"):
+            async for attempt in async_retrying(policy, f"POST {url}"):
                 with attempt:
-                    return await self._post_once(client, body)
+                    return await self._post_once(client, body, policy.attempt_timeout_s)
         except RetryError as exhausted:
             last = exhausted.last_attempt
             raise RequestFailed(
@@ -221,8 +260,9 @@ class OpenAIModel(ModelAPI):
             ) from None
         raise AssertionError("tenacity returned without a result")  # pragma: no cover
 
-    async def _post_once(self, client: httpx.AsyncClient, body: dict[str, Any]) -> dict[str, Any]:
-        timeout_s = self.config.timeout_s
+    async def _post_once(
+        self, client: httpx.AsyncClient, body: dict[str, Any], timeout_s: float
+    ) -> dict[str, Any]:
         try:
             # httpx's timeout bounds each read; this bounds the whole request, so a server that
             # trickles bytes cannot hold a slot for ever.
@@ -232,11 +272,13 @@ class OpenAIModel(ModelAPI):
             raise TransientError(f"no answer within {timeout_s:g} s") from None
         except httpx.TransportError as err:
             raise TransientError(
-                f"connection failed ({type(err).__name__}: {err or 'closed by the server'})"
+                self._excerpt(
+                    f"connection failed ({type(err).__name__}: {err or 'closed by the server'})"
+                )
             ) from None
         status = response.status_code
         if status >= 400:
-            message = f"HTTP {status}: {self._redact(response.text[:ERROR_BODY_CHARS])}"
+            message = f"HTTP {status}: {self._excerpt(response.text)}"
             if is_transient_status(status):
                 retry_after = parse_retry_after(response.headers.get("retry-after"))
                 raise TransientError(message, status=status, retry_after_s=retry_after)
@@ -248,31 +290,168 @@ class OpenAIModel(ModelAPI):
         except (json.JSONDecodeError, UnicodeDecodeError):
             # A cut or garbled body from a proxy or an overloaded server; worth another try.
             raise TransientError(
-                f"HTTP {status} with a body that is not JSON: {response.text[:80]!r}"
+                f"HTTP {status} with a body that is not JSON: {self._excerpt(response.text, 80)!r}"
             ) from None
         if not isinstance(reply, dict):
             raise TransientError(f"HTTP {status} with a JSON body that is not an object")
         return reply
 
     def _redact(self, text: str) -> str:
-        if self._api_key is not None:
-            text = text.replace(self._api_key.get_secret_value(), "***")
+        for secret in (self._api_key, *self._url_secrets):
+            if secret is None:
+                continue
+            value = secret.get_secret_value()
+            # A JSON body may carry the secret escaped (quotes, backslashes, non-ASCII).
+            for form in {
+                value,
+                json.dumps(value)[1:-1],
+                json.dumps(value, ensure_ascii=False)[1:-1],
+            }:
+                text = text.replace(form, "***")
         return text
+
+    def _excerpt(self, text: str, limit: int = ERROR_BODY_CHARS) -> str:
+        """Server text fit for an error or a log line: the key removed first, then one line, cut.
+
+        Redacting after the cut would miss a key the cut splits, so the order matters.
+        """
+        line = " ".join(self._redact(text).split())
+        return line if len(line) <= limit else line[:limit] + "..."
+
+    def _parse_reply(self, reply: dict[str, Any], choices: list[str] | None) -> ModelOutput:
+        try:
+            return _parse_reply(reply, choices)
+        except (KeyError, IndexError, TypeError, AttributeError, ValueError):
+            raise RequestFailed(
+                f"the server's answer is not a chat completion: {self._excerpt(json.dumps(reply))}"
+            ) from None
+
+    # ------------------------------------------------------------------ probe
+
+    async def _probe(self) -> None:
+        timeout_s = min(self.config.timeout_s, PROBE_TIMEOUT_S)
+        async with httpx.AsyncClient(
+            base_url=self.base_url,
+            timeout=httpx.Timeout(timeout_s),
+            headers=self._headers(),
+            auth=self._auth,
+        ) as client:
+            listing = await self._probe_request(client, "GET", "/models", None, timeout_s)
+            served = _served_models(listing) if listing.status_code == 200 else None
+            if served is not None:
+                self._check_served(served)
+                return
+            if listing.status_code not in (404, 405, 200):
+                self._probe_refused(listing, "GET /models")
+            # No model list here: one real request of a single token tells as much.
+            body = {
+                "model": self.model_name,
+                "messages": [{"role": "user", "content": "Say OK."}],
+                "max_tokens": 1,
+                **self.settings.extra_body,
+            }
+            chat = await self._probe_request(client, "POST", "/chat/completions", body, timeout_s)
+            if chat.status_code != 200:
+                self._probe_refused(chat, f"a one-token request to model {self.model_name!r}")
+
+    async def _probe_request(
+        self,
+        client: httpx.AsyncClient,
+        method: str,
+        path: str,
+        body: dict[str, Any] | None,
+        timeout_s: float,
+    ) -> httpx.Response:
+        try:
+            # Bounds name resolution too, which httpx's own timeout does not.
+            async with asyncio.timeout(timeout_s):
+                return await client.request(method, path, json=body)
+        except (TimeoutError, httpx.TimeoutException):
+            raise UserError(
+                f"no answer from {self.base_url} within {timeout_s:g} s: check the URL and that "
+                "the server is up"
+            ) from None
+        except httpx.TransportError as err:
+            cause = self._excerpt(_transport_cause(err), 120)
+            raise UserError(
+                f"cannot reach {self.base_url}: {cause}; check the URL and that the server is up"
+            ) from None
+
+    def _probe_refused(self, response: httpx.Response, what: str) -> None:
+        status = response.status_code
+        excerpt = self._excerpt(response.text, 160)
+        if status in (401, 403):
+            env = self.settings.api_key_env
+            advice = (
+                f"no key was sent: set {env}"
+                if self._api_key is None
+                else f"check the key in {env}"
+            )
+            raise UserError(
+                f"{self.base_url} refused the API key (HTTP {status}): {advice}; server said: {excerpt}"
+            )
+        if status >= 500:
+            raise UserError(f"{self.base_url} failed {what} (HTTP {status}): {excerpt}")
+        raise UserError(f"{self.base_url} refused {what} (HTTP {status}): {excerpt}")
+
+    def _check_served(self, served: list[str]) -> None:
+        if self.model_name in served:
+            return
+        close = difflib.get_close_matches(self.model_name, served, n=3, cutoff=0.4)
+        hint = f"; did you mean {' or '.join(repr(m) for m in close)}?" if close else ""
+        shown = ", ".join(served[:LISTED_MODELS]) + (" ..." if len(served) > LISTED_MODELS else "")
+        raise UserError(
+            f"model {self.model_name!r} is not served at {self.base_url}{hint} "
+            f"(served: {shown or 'none'})"
+        )
 
 
 class _Rejected(Exception):
     """The server refused the request itself (a 4xx other than 429): retrying cannot help."""
 
 
-def _parse_reply(reply: dict[str, Any], choices: list[str] | None) -> ModelOutput:
+def _run_blocking(work: Coroutine[Any, Any, T]) -> T:
+    """Run a coroutine to completion from synchronous code."""
     try:
-        choice = reply["choices"][0]
-        message = choice["message"]
-        text = message.get("content") or ""
-    except (KeyError, IndexError, TypeError, AttributeError):
-        raise RequestFailed(
-            f"the server's answer has no choices[0].message: {json.dumps(reply)[:ERROR_BODY_CHARS]}"
-        ) from None
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return asyncio.run(work)
+    # Called from inside a running loop (a notebook, an async caller): that loop cannot be
+    # re-entered, so the work gets its own loop on a worker thread.
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
+        return pool.submit(asyncio.run, work).result()
+
+
+def _transport_cause(err: BaseException) -> str:
+    """The root cause of a transport error: httpx often says only "All connection attempts
+    failed", while the OS error it wraps says "Connection refused" or names the DNS failure."""
+    cause: BaseException | None = err
+    while cause is not None:
+        if isinstance(cause, socket.gaierror):
+            return f"cannot resolve the host name ({cause.strerror or cause})"
+        if isinstance(cause, OSError) and cause.errno:
+            # asyncio's own strerror ("Connect call failed (...)") hides the reason; errno has it.
+            return os.strerror(cause.errno).lower()
+        cause = cause.__cause__ or cause.__context__
+    return str(err) or type(err).__name__
+
+
+def _served_models(response: httpx.Response) -> list[str] | None:
+    """Model ids from a `GET /models` answer; None when the body is not such a list."""
+    try:
+        data = response.json()["data"]
+        return [str(entry["id"]) for entry in data]
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def _parse_reply(reply: dict[str, Any], choices: list[str] | None) -> ModelOutput:
+    """Read a chat completion; raises KeyError, TypeError or ValueError on any other shape."""
+    choice = reply["choices"][0]
+    message = choice["message"]
+    text = message.get("content") or ""
+    if not isinstance(text, str):
+        raise TypeError("content is not text")
     usage = reply.get("usage") or {}
     output = ModelOutput(
         text=text,

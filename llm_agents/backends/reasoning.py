@@ -13,6 +13,8 @@ outputs (wording: `prompts/answer_only.j2`) and counts it in `ModelOutput.follow
 
 from __future__ import annotations
 
+import collections
+import re
 from collections.abc import Callable, Sequence
 
 from pydantic import BaseModel, ConfigDict
@@ -22,6 +24,11 @@ from prompts import render_template
 
 THINK_OPEN = "<think>"
 THINK_CLOSE = "</think>"
+#: Tags of a reasoning block; `<thinking>`, `<reasoning>` and `<thought>` come from prompts and
+#: models that name the block themselves.
+REASONING_TAGS = ("think", "thinking", "reasoning", "thought")
+_TAG = re.compile(r"<(/?)(" + "|".join(REASONING_TAGS) + r")>", re.IGNORECASE | re.ASCII)
+_CLOSE_TAG = re.compile(r"</(?:" + "|".join(REASONING_TAGS) + r")>", re.IGNORECASE | re.ASCII)
 ANSWER_ONLY_TEMPLATE = "answer_only.j2"
 
 #: One batched backend call: conversations in, one raw output per conversation out.
@@ -43,44 +50,59 @@ class ReasoningSplit(BaseModel):
     """False when the completion stopped inside the thinking block (no closing tag)."""
 
 
-def split_reasoning(
-    text: str,
-    *,
-    thinking_open_in_prompt: bool = False,
-    open_tag: str = THINK_OPEN,
-    close_tag: str = THINK_CLOSE,
-) -> ReasoningSplit:
-    """Separate the thinking block from the answer in one raw completion."""
-    start = text.find(open_tag)
-    end = text.find(close_tag)
-    if thinking_open_in_prompt or (end != -1 and (start == -1 or start > end)):
-        # The prompt opened the block, so the completion starts inside it.
-        body_start = 0
-    elif start != -1:
-        body_start = start + len(open_tag)
-        # Text before the opening tag is part of the answer, not the thinking.
-        preamble = text[:start]
-        if end == -1:
-            return ReasoningSplit(
-                answer=preamble.strip(),
-                reasoning=text[body_start:].strip(),
-                thinking_finished=False,
-            )
-        return ReasoningSplit(
-            answer=(preamble + text[end + len(close_tag) :]).strip(),
-            reasoning=text[body_start:end].strip(),
-            thinking_finished=True,
-        )
+def split_reasoning(text: str, *, thinking_open_in_prompt: bool = False) -> ReasoningSplit:
+    """Separate the reasoning blocks from the answer in one raw completion, in linear time.
+
+    The one place reasoning is stripped: the backends split their outputs with it and the parser
+    reads `answer`. Blocks open with any of `REASONING_TAGS` (ASCII case ignored) and close with
+    the same tag; another opening inside a block is part of its text. An opening with no close
+    makes the rest reasoning; a close with no opening (the chat template opened the block in the
+    prompt) makes everything before the last such close reasoning.
+    """
+    if thinking_open_in_prompt:
+        text = THINK_OPEN + text
+    # Pieces as (offset in text, piece), so reasoning is logged in the order it was written.
+    kept: list[tuple[int, str]] = []
+    reasoning: list[tuple[int, str]] = []
+    position = 0
+    # One pass over the tags: each is looked at once, so a completion made of thousands of
+    # closed blocks costs its length, not its length times the number of blocks.
+    block_tag: str | None = None
+    body_start = 0
+    found_tag = False
+    for match in _TAG.finditer(text):
+        found_tag = True
+        closing, tag = match.group(1) == "/", match.group(2).lower()
+        if block_tag is None:
+            if not closing:
+                kept.append((position, text[position : match.start()]))
+                block_tag, body_start = tag, match.end()
+        elif closing and tag == block_tag:
+            reasoning.append((body_start, text[body_start : match.start()]))
+            block_tag, position = None, match.end()
+    finished = block_tag is None
+    if finished:
+        kept.append((position, text[position:]))
     else:
-        return ReasoningSplit(answer=text.strip(), reasoning=None, thinking_finished=True)
-    if end == -1:
-        return ReasoningSplit(
-            answer="", reasoning=text[body_start:].strip(), thinking_finished=False
-        )
+        reasoning.append((body_start, text[body_start:]))
+    answer = "".join(piece for _, piece in kept)
+    # Joining the pieces can bring together a close tag, exactly as one written there would.
+    last_close = collections.deque(_CLOSE_TAG.finditer(answer), maxlen=1)
+    if last_close:
+        # Everything before the last close is reasoning (the template opened the block).
+        cut, seen = last_close[0].start(), 0
+        for offset, piece in kept:
+            if seen >= cut:
+                break
+            reasoning.append((offset, piece[: cut - seen]))
+            seen += len(piece)
+        reasoning.sort()
+        answer = answer[last_close[0].end() :]
+    parts = [piece.strip() for _, piece in reasoning if piece.strip()]
     return ReasoningSplit(
-        answer=text[end + len(close_tag) :].strip(),
-        reasoning=text[body_start:end].strip(),
-        thinking_finished=True,
+        answer=answer.strip(),
+        reasoning="\n\n".join(parts) if found_tag else None,
+        thinking_finished=finished,
     )
 
 

@@ -22,6 +22,8 @@ from tenacity import (
     stop_after_attempt,
 )
 
+from llm_agents.backends.base import GenerateConfig
+
 logger = logging.getLogger(__name__)
 
 #: Statuses worth retrying: request timeout, rate limit, and every server error.
@@ -35,6 +37,8 @@ class RetryPolicy(BaseModel):
 
     max_retries: int = Field(6, ge=0)
     """Retries after the first attempt; 0 tries once."""
+    attempt_timeout_s: float = Field(120.0, gt=0.0)
+    """Longest one attempt may take, start to last byte."""
     backoff_initial_s: float = Field(1.0, ge=0.0)
     """Wait before the first retry, doubled for each further one (before jitter)."""
     backoff_max_s: float = Field(60.0, ge=0.0)
@@ -43,6 +47,12 @@ class RetryPolicy(BaseModel):
     """Up to this many random seconds added to each exponential wait."""
     retry_after_max_s: float = Field(300.0, ge=0.0)
     """Longest wait a server's `Retry-After` may impose."""
+
+    @classmethod
+    def for_generation(cls, config: GenerateConfig, **waits: float) -> RetryPolicy:
+        """The policy a generation asks for: its limits (`max_retries`, `timeout_s`) always come
+        from the `GenerateConfig`, only the waits between attempts from the backend's options."""
+        return cls(max_retries=config.max_retries, attempt_timeout_s=config.timeout_s, **waits)
 
 
 class TransientError(Exception):

@@ -30,6 +30,7 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    bad_options,
 )
 from llm_agents.backends.reasoning import THINK_OPEN, generate_with_followup, with_reasoning_split
 
@@ -62,13 +63,14 @@ class VLLMModel(ModelAPI):
     """vLLM offline inference; choices are enforced by structured outputs (guided choice)."""
 
     backend_name = "vllm"
+    options_model = VLLMOptions
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
         try:
             self.settings = VLLMOptions(**options)
         except ValidationError as err:
-            raise UserError(f"bad option for the vllm backend: {err}") from err
+            raise bad_options("vllm", err) from None
         self.model_path = resolve_model(model_name)
         engine_args: dict[str, Any] = {
             "dtype": self.settings.dtype,
