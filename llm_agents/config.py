@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from env.dataset import parse_categories
 from env.errors import UserError
+from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
 from llm_agents.backends.base import GenerateConfig
 
@@ -41,8 +42,9 @@ class EvalConfig(BaseModel):
     splits: tuple[str, ...] = DEFAULT_CATEGORIES
     """Instruction categories to run: `one`, `combo`, `paraphrased`, `new_objects`."""
     dataset: str | None = None
-    """Dataset source: None for the craftext 0.2.2 wheel's data, else an official repository
-    clone, a craftext wheel or a dataset JSON written by this tool."""
+    """Dataset source: None for the official data (downloaded and cached on first use; the
+    craftext 0.2.2 wheel's when that fails), else an official repository clone, a craftext wheel
+    or a dataset JSON written by this tool."""
     paraphrases: bool = True
     """Run every paraphrase of each goal as well as its original instruction."""
     episodes_per_instruction: int = Field(1, ge=1)
@@ -74,6 +76,18 @@ class EvalConfig(BaseModel):
     """SQLite file caching model responses, so a repeated run does not pay twice."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
+    protocol: Literal["default", "paper"] = "default"
+    """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
+    `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
+    temperature, 10 tokens, 4 actions shown); see the README's protocol table."""
+    protocol_overrides: tuple[str, ...] = ()
+    """Settings given explicitly that depart from the protocol's (filled in by `build_config`)."""
+    success_rule: SuccessRule = "game_over_counts"
+    """Whether a goal completed on the step the game ends is a success: `game_over_counts` (yes)
+    or `official` (no, as the official CrafText wrapper scores it)."""
+    world_seeding: WorldSeeding = "per_episode"
+    """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
+    episode in the one world of reset key PRNGKey(1), as the official loop plays."""
 
     @field_validator("splits", mode="before")
     @classmethod
@@ -143,11 +157,18 @@ def build_config(
     overrides: dict[str, Any] | None = None,
     generation_overrides: dict[str, Any] | None = None,
 ) -> EvalConfig:
-    """An `EvalConfig` from file settings overridden by flags (None values are ignored)."""
+    """An `EvalConfig` from file settings overridden by flags (None values are ignored), over
+    the chosen protocol's settings."""
+    from llm_agents.protocol import apply_protocol
+
     data = dict(base or {})
     generation = dict(data.pop("generation", None) or {})
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     generation.update({k: v for k, v in (generation_overrides or {}).items() if v is not None})
+    explicit = set(data) | {f"generation.{key}" for key in generation}
+    data, departures = apply_protocol(data | {"generation": generation}, explicit)
+    data["protocol_overrides"] = tuple(departures)
+    generation = data.pop("generation")
     try:
         return EvalConfig(**data, generation=GenerateConfig(**generation))
     except ValidationError as err:

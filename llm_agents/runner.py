@@ -25,12 +25,13 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
+from env.rules import OFFICIAL_WORLD_KEY
 from llm_agents.agent import Decision, ZeroShotAgent
 from llm_agents.backends.base import ModelAPI
 from llm_agents.config import EvalConfig
@@ -98,6 +99,7 @@ class RunOutcome:
 
 
 ProgressFactory = Callable[[int, int], Any]
+GameOver = Literal["death", "timeout"] | None
 
 
 def build_schedule(
@@ -174,8 +176,9 @@ def run_eval(
     for category in config.splits:
         if category not in present:
             logger.warning(
-                "the dataset (%s) has no %r goals; the 57-goal EASY train split of the official "
-                "CrafText repository has them: pass a clone of it with --dataset",
+                "the dataset (%s) has no %r goals; the official CrafText data has them: run "
+                "`craftext-llm data fetch` when online, or pass a clone of the official "
+                "repository with --dataset",
                 dataset.source.path,
                 category,
             )
@@ -201,15 +204,26 @@ def run_eval(
         config=config.model_dump(mode="json"),
         versions=versions(model),
         dataset=dataset.source.model_dump(mode="json")
-        | {"missing_plans": len(missing), "instructions": len(instructions)},
+        | {
+            "missing_plans": len(missing),
+            "instructions": len(instructions),
+            "goals": dataset.category_goals(),
+            "split_sha256": dataset.split_sha256(),
+        },
         summary=summarize(finished) if finished else None,
         started_at=started_at,
     )
     write_results(results_path, results)
 
+    env_config = EnvConfig(
+        variant=config.variant,
+        max_steps=config.max_steps,
+        success_rule=config.success_rule,
+        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
+    )
     if env is None:
-        env = CrafTextEnv(EnvConfig(variant=config.variant, max_steps=config.max_steps))
-    elif env.config.variant != config.variant or env.config.max_steps != config.max_steps:
+        env = CrafTextEnv(env_config)
+    elif env.config != env_config:
         raise ValueError("the env passed to run_eval does not match the config")
     sink = _Sink(out, results, list(finished), list(reversed(pending)))
     sink.bar = progress(len(schedule), len(finished)) if progress else None
@@ -354,9 +368,16 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
             if config.record_steps:
                 step_records.append(_step_record(state, decision, host, slot, reward, new))
             if host.done[slot]:
+                game_over: GameOver = None
+                if host.goal_at_game_over[slot]:
+                    game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
                 ended.append(
                     _episode_record(
-                        state, int(host.steps[slot]), int(host.termination[slot]), config.seed
+                        state,
+                        int(host.steps[slot]),
+                        int(host.termination[slot]),
+                        config.seed,
+                        game_over,
                     )
                 )
                 agent.end_episode(slot)
@@ -411,7 +432,9 @@ def _step_record(
     )
 
 
-def _episode_record(state: _Live, steps: int, termination: int, seed: int) -> EpisodeRecord:
+def _episode_record(
+    state: _Live, steps: int, termination: int, seed: int, goal_at_game_over: GameOver = None
+) -> EpisodeRecord:
     from env import Termination
 
     spec = state.spec
@@ -432,6 +455,7 @@ def _episode_record(state: _Live, steps: int, termination: int, seed: int) -> Ep
         completion_tokens=state.completion_tokens,
         achievements=state.achievements,
         plan_given=spec.plan is not None,
+        goal_at_game_over=goal_at_game_over,
     )
 
 
