@@ -24,7 +24,7 @@ from flax import struct
 from pydantic import BaseModel, ConfigDict, Field
 
 from env.achievements import NUM_ACHIEVEMENTS
-from env.checker import goal_reached
+from env.checker import scored_success
 from env.jax_cache import enable_compilation_cache
 from env.rules import SuccessRule
 from env.variant import Variant
@@ -167,14 +167,17 @@ class CrafTextEnv:
         steps = state.steps + 1
         previous = state.game.achievements[:NUM_ACHIEVEMENTS]
         unlocked = game.achievements[:NUM_ACHIEVEMENTS]
-        reached = goal_reached(unlocked, state.task.required, state.task.forbidden)
         dead = game.player_health <= 0
-        game_ended = game_over | dead
-        # The official wrapper checks the goal on the auto-reset state, so a goal completed on
-        # the step the game ends does not count there; the step cap is ours, not a game end.
-        success = reached & ~game_ended if self.config.success_rule == "official" else reached
+        # The step cap is ours, not a game end: a goal reached on the last capped step counts.
+        success, at_game_over = scored_success(
+            unlocked,
+            state.task.required,
+            state.task.forbidden,
+            game_over | dead,
+            self.config.success_rule,
+        )
         termination = jnp.select(
-            [success, dead, game_ended | (steps >= self.config.max_steps)],
+            [success, dead, game_over | (steps >= self.config.max_steps)],
             [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
             Termination.RUNNING,
         ).astype(jnp.int32)
@@ -198,7 +201,7 @@ class CrafTextEnv:
             termination=next_state.termination,
             craftax_reward=craftax_reward,
             new_achievements=jnp.where(was_done, False, unlocked & ~previous),
-            goal_at_game_over=~was_done & reached & game_ended,
+            goal_at_game_over=~was_done & at_game_over,
         )
         return next_state, info
 
