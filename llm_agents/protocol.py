@@ -163,7 +163,7 @@ def get_protocol(name: str) -> Protocol:
     """The protocol called `name`, or a `UserError` listing the known ones."""
     if name not in PROTOCOLS:
         raise UserError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOL_NAMES)}")
-    return PROTOCOLS[name]  # type: ignore[index]
+    return PROTOCOLS[name]
 
 
 def apply_protocol(
@@ -184,7 +184,9 @@ def apply_protocol(
         head, _, leaf = choice.setting.rpartition(".")
         table = result.setdefault(head, {}) if head else result
         if choice.setting in chosen and leaf in table:
-            if _normalised(choice.setting, table[leaf]) != _normalised(choice.setting, choice.value):
+            if _normalised(choice.setting, table[leaf]) != _normalised(
+                choice.setting, choice.value
+            ):
                 overrides.append(choice.setting)
         else:
             table[leaf] = copy.deepcopy(choice.value)

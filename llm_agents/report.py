@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
 
-from env.dataset import CATEGORY_SPLIT, OFFICIAL_COMMIT, OFFICIAL_SPLIT_SHA256
+from env.dataset import CATEGORY_SPLIT, OFFICIAL_COMMIT, OFFICIAL_SPLIT_SHA256, Category
 from env.errors import UserError
 from env.rules import SUCCESS_RULES, SuccessRule
 from llm_agents.metrics import SuccessRate, Summary, summarize
@@ -62,7 +62,7 @@ PUBLISHED: tuple[PublishedResult, ...] = (
     PublishedResult(model="DeepSeek-R1-Distill-Qwen-32B", one=0.15, combo=0.07, new_objects=0.06),
 )
 
-_PAPER_CATEGORIES = ("one", "combo", "new_objects")
+_PAPER_CATEGORIES: tuple[Category, ...] = ("one", "combo", "new_objects")
 # What the official evaluation does where it changes the numbers (see llm_agents.protocol).
 _PAPER_VARIANT = "classic"
 _PAPER_MAX_STEPS = 250

@@ -149,16 +149,16 @@ def test_the_rules_differ_exactly_on_the_game_over_step() -> None:
 def envs() -> dict[str, Any]:
     built = {}
     for rule in SUCCESS_RULES:
-        env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS, success_rule=rule))
+        env = CrafTextEnv(
+            EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS, success_rule=rule)
+        )
         built[rule] = (env, jax.jit(env.step_from_episode_key))
     return built
 
 
 def env_outcome(env: CrafTextEnv, step: Any, episode: Any) -> tuple[str, int, bool]:
     steps, required, forbidden, game_over_step = episode
-    state = env.jitted_reset(
-        jnp.asarray(np.array([0, 7], np.uint32)), _task(required, forbidden)
-    )
+    state = env.jitted_reset(jnp.asarray(np.array([0, 7], np.uint32)), _task(required, forbidden))
     for index, new in enumerate(steps, start=1):
         game = state.game
         achievements = np.asarray(game.achievements).copy()
@@ -180,7 +180,9 @@ def _task(required: frozenset[str], forbidden: frozenset[str]) -> Any:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("rule", SUCCESS_RULES)
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(episode=episodes())
 def test_the_env_scores_like_the_official_rule(
     rule: str, episode: Any, envs: dict[str, Any]

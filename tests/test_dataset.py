@@ -531,7 +531,7 @@ class _CodeHost:
         host = self
 
         class Handler(http.server.BaseHTTPRequestHandler):
-            def do_GET(self) -> None:  # noqa: N802 (the stdlib's name)
+            def do_GET(self) -> None:
                 host.requests.append(self.path)
                 body = host.files.get(self.path)
                 self.send_response(200 if body is not None else 404)
@@ -576,7 +576,12 @@ def _synthetic_repository(root: Path) -> Path:
     }
     splits = {
         "easy_train": [
-            {**goal, "id": "COLLECT_WOOD", "instruction": "Collect wood.", "required": ["COLLECT_WOOD"]},
+            {
+                **goal,
+                "id": "COLLECT_WOOD",
+                "instruction": "Collect wood.",
+                "required": ["COLLECT_WOOD"],
+            },
             {
                 **goal,
                 "id": "WOOD_NO_TABLE",
@@ -648,12 +653,16 @@ def test_the_pin_equals_the_official_data(
     code_host.serve_repository(official_clone)
     dataset = load_dataset()
     assert dataset.source.kind == "archive"
-    assert dataset.category_goals() == OFFICIAL_GOALS == {
-        "one": 20,
-        "combo": 37,
-        "paraphrased": 41,
-        "new_objects": 44,
-    }
+    assert (
+        dataset.category_goals()
+        == OFFICIAL_GOALS
+        == {
+            "one": 20,
+            "combo": 37,
+            "paraphrased": 41,
+            "new_objects": 44,
+        }
+    )
     for split, goals in reference["splits"].items():
         assert _parsed(dataset.split(split)) == _comparable(goals), split
 
@@ -721,3 +730,35 @@ def test_split_digests_follow_content_not_format(
     assert saved.split_sha256() == official_dataset.split_sha256() == OFFICIAL_SPLIT_SHA256
     assert official_splits(wheel_dataset) == list(TEST_SPLITS)
     assert describe_shortfall(official_dataset) == "which equals the official data"
+
+
+def test_data_command_shows_fetches_and_exports(
+    code_host: _CodeHost,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from llm_agents.cli import EXIT_USER_ERROR, main
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv(CACHE_ENV_VAR, str(cache))
+    repository = _synthetic_repository(tmp_path / "repo")
+    route = code_host.serve_repository(repository)
+    expected = _pin_to(repository, monkeypatch)
+
+    assert main(["data", "show"]) == 0
+    assert f"official: not cached ({official_cache_file(cache)})" in capsys.readouterr().out
+    assert main(["data", "fetch"]) == 0
+    assert "goals: one 1, combo 1, paraphrased 1, new_objects 1" in capsys.readouterr().out
+    assert main(["data", "show"]) == 0
+    shown = capsys.readouterr().out
+    assert f"from archive {code_host.url}{route} (version {OFFICIAL_COMMIT})" in shown
+    assert "splits equal to the official data: " + ", ".join(SPLITS) in shown
+    assert main(["data", "fetch", "--refresh"]) == 0
+    assert code_host.requests == [route, route]
+
+    exported = tmp_path / "export.json"
+    assert main(["data", "export", str(exported)]) == 0
+    assert load_dataset(exported).goals == expected.goals
+    assert main(["data", "export"]) == EXIT_USER_ERROR
+    assert "needs the JSON file" in capsys.readouterr().err

@@ -280,7 +280,9 @@ def test_a_goal_completed_as_the_game_ends_is_scored_by_the_rule(
     ):
         state = with_achievements(reset(key(), make_task(req, forb)), ["COLLECT_WOOD"])
         if dies:
-            state = state.replace(game=state.game.replace(player_health=state.game.player_health * 0))
+            state = state.replace(
+                game=state.game.replace(player_health=state.game.player_health * 0)
+            )
         _, info = step(state, jnp.int32(NOOP))
         outcomes[rule] = (Termination(int(info.termination)), bool(info.goal_at_game_over))
         assert bool(info.done)

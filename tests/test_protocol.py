@@ -117,7 +117,8 @@ def test_a_paper_run_plays_the_official_world_and_records_its_protocol(tmp_path:
     mismatched = config.model_copy(
         update={"world_seeding": "per_episode", "output_dir": str(tmp_path / "other")}
     )
-    with pytest.raises(ValueError, match="does not match"), get_model(
-        config.model, config.generation
-    ) as model:
+    with (
+        pytest.raises(ValueError, match="does not match"),
+        get_model(config.model, config.generation) as model,
+    ):
         run_eval(mismatched, model, env=env)

@@ -318,7 +318,9 @@ def test_categories_missing_from_the_dataset_say_so(tmp_path: Path) -> None:
     assert rows["m (this run)"]["one"] == "-"
 
 
-def at_game_over(index: int, category: str, *, counted: bool, ended: str = "death") -> EpisodeRecord:
+def at_game_over(
+    index: int, category: str, *, counted: bool, ended: str = "death"
+) -> EpisodeRecord:
     """An episode whose goal was completed on the step the game ended (`ended`)."""
     return episode(index, category, success=counted).model_copy(
         update={
@@ -377,3 +379,16 @@ def test_a_game_over_goal_must_agree_with_the_termination() -> None:
     record = at_game_over(0, "one", counted=False)
     with pytest.raises(ValidationError, match="goal_at_game_over"):
         EpisodeRecord.model_validate({**record.model_dump(), "termination": "timeout"})
+
+
+def test_report_command_rescores_with_a_flag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from llm_agents.cli import main
+
+    episodes = [*episodes_with({"one": (0, 1)}), at_game_over(5, "one", counted=True)]
+    run_dir = make_run(tmp_path / "run", episodes, paper_results(success_rule="game_over_counts"))
+    assert main(["report", str(run_dir), "--success-rule", "official"]) == 0
+    assert table_rows(capsys.readouterr().out)["m (this run)"]["one"] == expected_cell(0, 2)
+    assert main(["report", str(run_dir)]) == 0
+    assert table_rows(capsys.readouterr().out)["m (this run)"]["one"] == expected_cell(1, 2)
