@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -18,6 +18,7 @@ from env.errors import UserError
 from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
 from llm_agents.backends.base import GenerateConfig
+from llm_agents.protocol import ProtocolName, apply_protocol
 
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
@@ -76,7 +77,7 @@ class EvalConfig(BaseModel):
     """SQLite file caching model responses, so a repeated run does not pay twice."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
-    protocol: Literal["default", "paper"] = "default"
+    protocol: ProtocolName = "default"
     """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
     `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
     temperature, 10 tokens, 4 actions shown); see the README's protocol table."""
@@ -159,8 +160,6 @@ def build_config(
 ) -> EvalConfig:
     """An `EvalConfig` from file settings overridden by flags (None values are ignored), over
     the chosen protocol's settings."""
-    from llm_agents.protocol import apply_protocol
-
     data = dict(base or {})
     generation = dict(data.pop("generation", None) or {})
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
