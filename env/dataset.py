@@ -485,14 +485,17 @@ def official_cache_file(cache: Path | None = None) -> Path:
 
 
 def load_official(cache: Path | None = None, *, refresh: bool = False) -> Dataset:
-    """The official EASY data at `OFFICIAL_COMMIT`: from the cache, else downloaded, parsed,
-    checked against `OFFICIAL_SPLIT_SHA256` and cached. `refresh` downloads it again.
-    Raises `UserError` when it cannot be had."""
+    """The official EASY data at `OFFICIAL_COMMIT`: from the cache, else (or when the cached copy
+    fails its check, or with `refresh`) downloaded, parsed, checked against
+    `OFFICIAL_SPLIT_SHA256` and cached. Raises `UserError` when it cannot be had."""
     cached_json = official_cache_file(cache)
     if cached_json.is_file() and not refresh:
-        dataset = _read_dataset_json(cached_json)
-        _verify_official(dataset, str(cached_json))
-        return dataset
+        try:
+            dataset = _read_dataset_json(cached_json)
+            _verify_official(dataset, str(cached_json))
+            return dataset
+        except UserError as error:
+            logger.warning("%s; downloading it again", error)
     url = official_archive_url()
     archive = cached_json.with_name(f"CrafText-{OFFICIAL_COMMIT}.zip")
     download_url(url, archive, max_bytes=_ARCHIVE_MAX_BYTES)

