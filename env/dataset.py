@@ -330,7 +330,14 @@ def load_dataset(source: str | Path | None = None) -> Dataset:
         try:
             return load_official(cache)
         except UserError as error:
-            wheel = load_wheel(cache)
+            try:
+                wheel = load_wheel(cache)
+            except UserError as wheel_error:
+                raise UserError(
+                    f"could not get the official CrafText data ({error}) nor the craftext 0.2.2 "
+                    f"wheel ({wheel_error}); pass a clone of https://github.com/"
+                    f"{OFFICIAL_REPOSITORY} with --dataset"
+                ) from None
             logger.warning(
                 "could not get the official CrafText data (%s); using the craftext 0.2.2 wheel "
                 "instead, %s. Run `craftext-llm data fetch` when online, or pass a clone of "

@@ -767,3 +767,23 @@ def test_data_command_shows_fetches_and_exports(
     assert load_dataset(exported).goals == expected.goals
     assert main(["data", "export"]) == EXIT_USER_ERROR
     assert "needs the JSON file" in capsys.readouterr().err
+
+
+def test_without_either_source_the_error_names_both(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(CACHE_ENV_VAR, str(tmp_path))
+
+    def failing_pip(command: list[str], **kwargs: object) -> subprocess.CompletedProcess[str]:
+        return subprocess.CompletedProcess(command, 1, "", "ERROR: No matching distribution found")
+
+    monkeypatch.setattr(downloads_module.subprocess, "run", failing_pip)
+    with pytest.raises(UserError) as raised:
+        load_dataset()
+    message = str(raised.value)
+    assert (
+        "could not get the official CrafText data (cannot download http://127.0.0.1:9/" in message
+    )
+    assert "nor the craftext 0.2.2 wheel (pip could not download craftext==0.2.2" in message
+    assert message.endswith("with --dataset")
+    assert _all_entries(tmp_path) == []
