@@ -504,7 +504,8 @@ def load_official(cache: Path | None = None, *, refresh: bool = False) -> Datase
         except UserError as error:
             logger.warning("%s; downloading it again", error)
     url = official_archive_url()
-    archive = cached_json.with_name(f"CrafText-{OFFICIAL_COMMIT}.zip")
+    # A name of this process's own: concurrent first runs must not delete each other's archive.
+    archive = cached_json.with_name(f".CrafText-{OFFICIAL_COMMIT}.{os.getpid()}.zip")
     download_url(url, archive, max_bytes=_ARCHIVE_MAX_BYTES)
     try:
         from env.official_source import parse_archive
