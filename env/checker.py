@@ -2,11 +2,14 @@
 
 A goal lists required and forbidden achievements over the 22 ids shared by both Craftax variants.
 It is reached when every required achievement is unlocked and no forbidden one is; the order in
-which they were unlocked does not matter.
+which they were unlocked does not matter. Whether reaching it on the step the game ends is a
+success depends on the success rule (`env.rules.SuccessRule`).
 """
 
 import jax
 import jax.numpy as jnp
+
+from env.rules import SuccessRule
 
 
 def goal_reached(unlocked: jax.Array, required: jax.Array, forbidden: jax.Array) -> jax.Array:
@@ -14,3 +17,22 @@ def goal_reached(unlocked: jax.Array, required: jax.Array, forbidden: jax.Array)
     all_required = jnp.all(unlocked | ~required, axis=-1)
     any_forbidden = jnp.any(unlocked & forbidden, axis=-1)
     return all_required & ~any_forbidden
+
+
+def scored_success(
+    unlocked: jax.Array,
+    required: jax.Array,
+    forbidden: jax.Array,
+    game_ended: jax.Array,
+    rule: SuccessRule,
+) -> tuple[jax.Array, jax.Array]:
+    """Whether a step succeeds under `rule`, and whether its goal was reached as the game ended.
+
+    `unlocked` holds the achievements after the step; `game_ended` is True where the step ended
+    the game (the player died, or Craftax's own time limit). The official wrapper checks the goal
+    on the state after the automatic reset, so under `official` such a step never succeeds.
+    """
+    reached = goal_reached(unlocked, required, forbidden)
+    at_game_over = reached & game_ended
+    success = reached & ~game_ended if rule == "official" else reached
+    return success, at_game_over

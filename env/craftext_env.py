@@ -24,8 +24,9 @@ from flax import struct
 from pydantic import BaseModel, ConfigDict, Field
 
 from env.achievements import NUM_ACHIEVEMENTS
-from env.checker import goal_reached
+from env.checker import scored_success
 from env.jax_cache import enable_compilation_cache
+from env.rules import SuccessRule
 from env.variant import Variant
 
 #: Each success is worth this much more than Craftax's own per-step reward, which is divided by it.
@@ -54,6 +55,12 @@ class EnvConfig(BaseModel):
     """Craftax variant: `full` (Craftax-Symbolic-v1, 43 actions) or `classic` (17 actions)."""
     max_steps: int = Field(250, ge=1)
     """Step cap per episode (250 in the official LLM baseline code)."""
+    success_rule: SuccessRule = "game_over_counts"
+    """Whether a goal completed on the step the game ends counts (`game_over_counts`) or not
+    (`official`); see `env.rules.SuccessRule`."""
+    world_key: int | None = None
+    """When set, every episode's world is generated from `jax.random.PRNGKey(world_key)` (the
+    official loop uses 1) instead of its episode key; steps still draw from the episode key."""
 
 
 @struct.dataclass
@@ -88,6 +95,8 @@ class StepInfo:
     termination: jax.Array
     craftax_reward: jax.Array
     new_achievements: jax.Array
+    goal_at_game_over: jax.Array
+    """True when the goal was completed on the step the game ended, whichever rule scored it."""
 
 
 def make_task(required: Any, forbidden: Any) -> Task:
@@ -131,7 +140,12 @@ class CrafTextEnv:
         """A fresh world for `task`; `key` is the episode key."""
         # The craftax symbolic observation is computed by reset_env/step_env but never returned
         # from our jitted functions, so XLA drops it: we textualize from the state instead.
-        _, game = self.craftax.reset_env(jax.random.fold_in(key, 0x7E5E7), self.params)
+        world_key = (
+            jax.random.fold_in(key, 0x7E5E7)
+            if self.config.world_key is None
+            else jax.random.PRNGKey(self.config.world_key)
+        )
+        _, game = self.craftax.reset_env(world_key, self.params)
         # Craftax's reset leaves some leaves weakly typed while step returns them strongly typed;
         # matching types keeps the first step from compiling twice.
         game = jax.tree.map(lambda leaf: jnp.asarray(leaf).astype(jnp.asarray(leaf).dtype), game)
@@ -153,8 +167,15 @@ class CrafTextEnv:
         steps = state.steps + 1
         previous = state.game.achievements[:NUM_ACHIEVEMENTS]
         unlocked = game.achievements[:NUM_ACHIEVEMENTS]
-        success = goal_reached(unlocked, state.task.required, state.task.forbidden)
         dead = game.player_health <= 0
+        # The step cap is ours, not a game end: a goal reached on the last capped step counts.
+        success, at_game_over = scored_success(
+            unlocked,
+            state.task.required,
+            state.task.forbidden,
+            game_over | dead,
+            self.config.success_rule,
+        )
         termination = jnp.select(
             [success, dead, game_over | (steps >= self.config.max_steps)],
             [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
@@ -180,6 +201,7 @@ class CrafTextEnv:
             termination=next_state.termination,
             craftax_reward=craftax_reward,
             new_achievements=jnp.where(was_done, False, unlocked & ~previous),
+            goal_at_game_over=~was_done & at_game_over,
         )
         return next_state, info
 
@@ -212,6 +234,7 @@ class HostBatch(struct.PyTreeNode):
     steps: np.ndarray
     achievements: np.ndarray
     new_achievements: np.ndarray
+    goal_at_game_over: np.ndarray
 
 
 class VectorEnv:
@@ -241,7 +264,7 @@ class VectorEnv:
         self._state = self._reset(*self._device_inputs(keys, required, forbidden))
         zeros = jnp.zeros(self.batch_size, jnp.float32)
         no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
-        return self._to_host(self._state, zeros, no_new)
+        return self._to_host(self._state, zeros, no_new, jnp.zeros(self.batch_size, jnp.bool_))
 
     def refill(
         self, slots: Sequence[int], keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray
@@ -263,14 +286,16 @@ class VectorEnv:
         self._state = state
         zeros = jnp.zeros(self.batch_size, jnp.float32)
         no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
-        return self._to_host(self._state, zeros, no_new)
+        return self._to_host(self._state, zeros, no_new, jnp.zeros(self.batch_size, jnp.bool_))
 
     def step(self, actions: np.ndarray) -> HostBatch:
         """Step every slot; finished slots earn nothing and keep their termination."""
         state = self._require_state()
         actions_device = jnp.asarray(np.asarray(actions, dtype=np.int32).reshape(self.batch_size))
         self._state, info = self._step(state, actions_device)
-        return self._to_host(self._state, info.reward, info.new_achievements)
+        return self._to_host(
+            self._state, info.reward, info.new_achievements, info.goal_at_game_over
+        )
 
     def _require_state(self) -> EpisodeState:
         if self._state is None:
@@ -288,9 +313,11 @@ class VectorEnv:
         return jnp.asarray(keys), task
 
     @staticmethod
-    def _to_host(state: EpisodeState, reward: jax.Array, new: jax.Array) -> HostBatch:
-        game, reward_np, termination, steps, new_np = jax.device_get(
-            (state.game, reward, state.termination, state.steps, new)
+    def _to_host(
+        state: EpisodeState, reward: jax.Array, new: jax.Array, goal_at_game_over: jax.Array
+    ) -> HostBatch:
+        game, reward_np, termination, steps, new_np, at_game_over = jax.device_get(
+            (state.game, reward, state.termination, state.steps, new, goal_at_game_over)
         )
         return HostBatch(
             game=game,
@@ -300,6 +327,7 @@ class VectorEnv:
             steps=steps,
             achievements=np.asarray(game.achievements)[:, :NUM_ACHIEVEMENTS],
             new_achievements=new_np,
+            goal_at_game_over=at_game_over,
         )
 
 

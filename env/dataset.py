@@ -2,13 +2,18 @@
 
 `load_dataset(source)` dispatches on what `source` is:
 
-- `None` (the default): the `craftext==0.2.2` wheel. It is fetched once with
-  `python -m pip download --no-deps` into the cache directory (`$CRAFTEXT_LLM_CACHE`, else the
-  platform's user cache directory for `craftext-llm`), checked against its published sha256,
-  parsed, and the result cached as JSON there; later calls read that JSON and run no pip. The
-  wheel is never installed: its pins conflict with our JAX stack.
-- a directory: a clone of the official repository AIRI-Institute/CrafText (any commit) or an
-  unpacked `craftext` wheel. The commit (clone) or version (wheel) is recorded when found.
+- `None` (the default): the official repository AIRI-Institute/CrafText at the pinned commit
+  `OFFICIAL_COMMIT`. On first use its zip archive is downloaded over HTTPS from the code host
+  (`$CRAFTEXT_LLM_CODE_HOST` replaces `https://github.com`), parsed, checked against the content
+  digests pinned in `OFFICIAL_SPLIT_SHA256`, and the parsed goals cached as JSON in the cache
+  directory (`$CRAFTEXT_LLM_CACHE`, else the platform's user cache directory for `craftext-llm`);
+  later calls read that JSON and touch no network. Offline, or when the download or its check
+  fails, it falls back to the `craftext==0.2.2` wheel (fetched once with `python -m pip download
+  --no-deps`, checked against its published sha256, never installed) with a warning naming what
+  that data lacks: its EASY train split is an older 12-goal version with no `one` goals (the
+  official one has 57: 20 `one`, 37 `combo`). The two test splits are the same in both.
+- a directory: a clone of the official repository (any commit) or an unpacked `craftext` wheel.
+  The commit (clone) or version (wheel) is recorded when found.
 - a `.whl` file: a `craftext` wheel of any version, parsed in place.
 - a `.json` file written by `Dataset.save_json`.
 
@@ -18,17 +23,16 @@ dict literals and `**other_module.name` spreads; each goal is a dict with the in
 paraphrases, and `create_target_state(required=[Achievement.X, ...], forbidden=[...])`, from which
 the required and forbidden achievements are read.
 
-Which train split: the wheel's EASY train split is an older 12-goal version with no single-
-achievement goals. The official repository's current EASY train split has 57 goals (20 `one`,
-37 `combo`), but we may not redistribute it, so the default source stays the wheel. To evaluate on
-the 57-goal split, clone the official repository and pass the clone as the dataset source
-(`--dataset /path/to/CrafText` on the command line, `load_dataset("/path/to/CrafText")` in code).
-The two test splits are the same in both sources. Every `Dataset` records its source (kind, path,
-version or commit, sha256), so results always say which data they used.
+Every `Dataset` records its source (kind, path or URL, version or commit, sha256), and
+`Dataset.split_sha256` digests each split's goals (not the files they came from), so a clone, the
+downloaded archive and a JSON export of the same data have the same digests.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import os
 import uuid
 from collections.abc import Iterable, Sequence
@@ -42,12 +46,21 @@ from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS, NUM_ACHIEVEMENTS
 
 # CACHE_ENV_VAR is re-exported: callers and tests read it from here.
 from env.downloads import CACHE_ENV_VAR as CACHE_ENV_VAR
-from env.downloads import cache_root, fetch_pinned_wheel, sha256_file, verify_sha256
+from env.downloads import (
+    cache_root,
+    code_host,
+    download_url,
+    fetch_pinned_wheel,
+    sha256_file,
+    verify_sha256,
+)
 from env.errors import UserError
+
+logger = logging.getLogger(__name__)
 
 Split = Literal["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
 Category = Literal["one", "combo", "paraphrased", "new_objects"]
-SourceKind = Literal["directory", "wheel", "json"]
+SourceKind = Literal["archive", "directory", "wheel", "json"]
 
 SPLITS: tuple[Split, ...] = get_args(Split)
 CATEGORIES: tuple[Category, ...] = get_args(Category)
@@ -63,6 +76,21 @@ WHEEL_FILENAME = "craftext-0.2.2-py3-none-any.whl"
 WHEEL_SHA256 = "a7d13bc8c6af94496d187a702e50cf621ff9940ac45ed2ac6e8ef6c5474e52cc"
 # Bump when parsing changes what a cached JSON would contain, so stale caches are not reused.
 _CACHE_FORMAT = 1
+
+OFFICIAL_REPOSITORY = "AIRI-Institute/CrafText"
+OFFICIAL_COMMIT = "1c518aeaaf729d0e04b768d907593fb9980efe4e"
+#: The code host's zip archive of a repository at a commit; `{base}` is `code_host()`.
+OFFICIAL_ARCHIVE_URL = "{base}/{repository}/archive/{commit}.zip"
+#: `Dataset.split_sha256` of the official EASY splits at `OFFICIAL_COMMIT`, as a clone parses.
+OFFICIAL_SPLIT_SHA256: dict[Split, str] = {
+    "easy_train": "7db0c11d0b363d52baa9467e936e511d12cdc259476e0707a11baa0f0d3fe77e",
+    "easy_test_paraphrased": "500deecdffe39bc82edd45c7eda470408509041674397eb222bade14ea5c2c4f",
+    "easy_test_other_params": "c677decd7de1223f1a2bbaad1e72f4ff1c4538b237e18e31051a9f6f9bf38fc6",
+}
+#: Goals per category in the official EASY splits at `OFFICIAL_COMMIT`.
+OFFICIAL_GOALS: dict[Category, int] = {"one": 20, "combo": 37, "paraphrased": 41, "new_objects": 44}
+# The repository archive is a few MB (mostly GIFs); anything far larger is not it.
+_ARCHIVE_MAX_BYTES = 64 << 20
 
 
 def category_of(split: Split, required: Sequence[str], forbidden: Sequence[str]) -> Category:
@@ -203,13 +231,15 @@ class DatasetSource(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     kind: SourceKind
-    """`directory` (official repository clone or unpacked wheel), `wheel` or `json`."""
+    """`archive` (the official repository's zip from the code host), `directory` (official
+    repository clone or unpacked wheel), `wheel` or `json`."""
     path: str
-    """The directory, wheel file or JSON file read."""
+    """The URL, directory, wheel file or JSON file read."""
     version: str | None = None
     """The craftext package version or the repository's git commit, where known."""
     sha256: str | None = None
-    """SHA-256 of the wheel or JSON file; for a directory, of the parsed modules (paths and bytes)."""
+    """SHA-256 of the wheel or JSON file; for an archive or a directory, of the parsed modules
+    (paths and bytes)."""
     built_from: DatasetSource | None = None
     """For a JSON file: the source its goals were parsed from."""
 
@@ -253,6 +283,15 @@ class Dataset(BaseModel):
             for variant, text in enumerate(goal.texts if include_paraphrases else goal.texts[:1])
         ]
 
+    def split_sha256(self) -> dict[str, str]:
+        """A content digest of each split present: its goals' ids, texts and achievements in
+        order, whatever file or format they were read from."""
+        return {split: split_digest(goals) for split in SPLITS if (goals := self.split(split))}
+
+    def category_goals(self) -> dict[str, int]:
+        """Goals per category, zeros included."""
+        return {category: len(self.select(category)) for category in CATEGORIES}
+
     def save_json(self, path: str | Path) -> Path:
         """Write the dataset as JSON (atomically: a reader never sees a partial file)."""
         target = Path(path)
@@ -260,11 +299,54 @@ class Dataset(BaseModel):
         return target
 
 
+def split_digest(goals: Sequence[Goal]) -> str:
+    """SHA-256 of goals' ids, instruction texts and achievements, in order (see `split_sha256`)."""
+    content = [
+        [
+            goal.id,
+            goal.instruction,
+            list(goal.paraphrases),
+            list(goal.required),
+            list(goal.forbidden),
+        ]
+        for goal in goals
+    ]
+    text = json.dumps(content, ensure_ascii=False, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def official_splits(dataset: Dataset) -> list[str]:
+    """The splits of `dataset` whose content equals the official data at `OFFICIAL_COMMIT`."""
+    digests = dataset.split_sha256()
+    return [split for split in SPLITS if digests.get(split) == OFFICIAL_SPLIT_SHA256[split]]
+
+
 def load_dataset(source: str | Path | None = None) -> Dataset:
-    """The EASY dataset from `source`: None (the cached `craftext==0.2.2` wheel), a directory
-    (official repository clone or unpacked wheel), a `.whl` file, or a `.json` file."""
+    """The EASY dataset from `source`: None (the official data at `OFFICIAL_COMMIT`, downloaded
+    and cached on first use; the `craftext==0.2.2` wheel's when that fails), a directory (official
+    repository clone or unpacked wheel), a `.whl` file, or a `.json` file."""
     if source is None:
-        return _load_default_wheel(cache_root())
+        cache = cache_root()
+        try:
+            return load_official(cache)
+        except UserError as error:
+            try:
+                wheel = load_wheel(cache)
+            except UserError as wheel_error:
+                raise UserError(
+                    f"could not get the official CrafText data ({error}) nor the craftext 0.2.2 "
+                    f"wheel ({wheel_error}); pass a clone of https://github.com/"
+                    f"{OFFICIAL_REPOSITORY} with --dataset"
+                ) from None
+            logger.warning(
+                "could not get the official CrafText data (%s); using the craftext 0.2.2 wheel "
+                "instead, %s. Run `craftext-llm data fetch` when online, or pass a clone of "
+                "https://github.com/%s with --dataset",
+                error,
+                describe_shortfall(wheel),
+                OFFICIAL_REPOSITORY,
+            )
+            return wheel
     path = Path(source).expanduser().resolve()
     if path.is_dir():
         from env.official_source import parse_directory
@@ -282,6 +364,52 @@ def load_dataset(source: str | Path | None = None) -> Dataset:
         f"dataset source {str(path)!r} is not a directory, a .whl or a .json file; "
         "pass a clone of the official CrafText repository, a craftext wheel or a saved dataset JSON"
     )
+
+
+class CachedData(BaseModel):
+    """One dataset the cache can hold (for `craftext-llm data show`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: Literal["official", "wheel"]
+    """`official` (the repository at `OFFICIAL_COMMIT`) or `wheel` (`craftext==0.2.2`)."""
+    path: str
+    """The cached JSON file."""
+    present: bool
+    """True when the file is there and readable."""
+    source: DatasetSource | None = None
+    """Where the cached goals were read from, when present."""
+    goals: dict[str, int] = {}
+    """Goals per category, when present."""
+    official_splits: list[str] = []
+    """The splits whose content equals the official data, when present."""
+
+
+def cache_status(cache: Path | None = None) -> list[CachedData]:
+    """What the cache holds of the official data and of the wheel's."""
+    entries = []
+    name: Literal["official", "wheel"]
+    for name, path in (
+        ("official", official_cache_file(cache)),
+        ("wheel", wheel_cache_file(cache)),
+    ):
+        try:
+            dataset = _read_dataset_json(path) if path.is_file() else None
+        except UserError:
+            dataset = None
+        entries.append(
+            CachedData(name=name, path=str(path), present=False)
+            if dataset is None
+            else CachedData(
+                name=name,
+                path=str(path),
+                present=True,
+                source=dataset.source,
+                goals=dataset.category_goals(),
+                official_splits=official_splits(dataset),
+            )
+        )
+    return entries
 
 
 # --- files: writing ------------------------------------------------------------------------
@@ -331,11 +459,94 @@ def _load_user_json(path: Path) -> Dataset:
     )
 
 
-# --- the default wheel ----------------------------------------------------------------------
+def describe_shortfall(dataset: Dataset) -> str:
+    """What `dataset` lacks against the official data, in words (for warnings and reports)."""
+    differing = [split for split in SPLITS if split not in official_splits(dataset)]
+    if not differing:
+        return "which equals the official data"
+    counts = dataset.category_goals()
+    missing = [
+        f"{counts[category]} of {OFFICIAL_GOALS[category]} `{category}` goals"
+        for category in CATEGORIES
+        if CATEGORY_SPLIT[category] in differing and counts[category] != OFFICIAL_GOALS[category]
+    ]
+    has = f" (it has {', '.join(missing)})" if missing else ""
+    verb = "s differ" if len(differing) > 1 else " differs"
+    return f"whose {', '.join(differing)} split{verb} from the official one{has}"
+
+
+# --- the official data ------------------------------------------------------------------------
+
+
+def official_archive_url() -> str:
+    """The URL of the official repository's archive at the pinned commit."""
+    return OFFICIAL_ARCHIVE_URL.format(
+        base=code_host(), repository=OFFICIAL_REPOSITORY, commit=OFFICIAL_COMMIT
+    )
+
+
+def official_cache_file(cache: Path | None = None) -> Path:
+    """Where the parsed official data is cached."""
+    root = cache_root() if cache is None else cache
+    return root / f"CrafText-{OFFICIAL_COMMIT[:12]}.easy.v{_CACHE_FORMAT}.json"
+
+
+def load_official(cache: Path | None = None, *, refresh: bool = False) -> Dataset:
+    """The official EASY data at `OFFICIAL_COMMIT`: from the cache, else (or when the cached copy
+    fails its check, or with `refresh`) downloaded, parsed, checked against
+    `OFFICIAL_SPLIT_SHA256` and cached. Raises `UserError` when it cannot be had."""
+    cached_json = official_cache_file(cache)
+    if cached_json.is_file() and not refresh:
+        try:
+            dataset = _read_dataset_json(cached_json)
+            _verify_official(dataset, str(cached_json))
+            return dataset
+        except UserError as error:
+            logger.warning("%s; downloading it again", error)
+    url = official_archive_url()
+    # A name of this process's own: concurrent first runs must not delete each other's archive.
+    archive = cached_json.with_name(f".CrafText-{OFFICIAL_COMMIT}.{os.getpid()}.zip")
+    download_url(url, archive, max_bytes=_ARCHIVE_MAX_BYTES)
+    try:
+        from env.official_source import parse_archive
+
+        dataset = parse_archive(archive, url, OFFICIAL_COMMIT)
+        _verify_official(dataset, url)
+    finally:
+        # Only the parsed goals are kept: the archive is mostly images.
+        archive.unlink(missing_ok=True)
+    dataset.save_json(cached_json)
+    return dataset
+
+
+def _verify_official(dataset: Dataset, origin: str) -> None:
+    matching = official_splits(dataset)
+    differing = [split for split in SPLITS if split not in matching]
+    if differing:
+        raise UserError(
+            f"the data from {origin} is not the official CrafText data at commit "
+            f"{OFFICIAL_COMMIT[:7]}: its {', '.join(differing)} content digest differs from the "
+            "pinned one"
+        )
+
+
+# --- the craftext 0.2.2 wheel -----------------------------------------------------------------
+
+
+def wheel_cache_file(cache: Path | None = None) -> Path:
+    """Where the parsed `craftext==0.2.2` wheel data is cached."""
+    root = cache_root() if cache is None else cache
+    return root / f"{WHEEL_FILENAME.removesuffix('.whl')}.easy.v{_CACHE_FORMAT}.json"
+
+
+def load_wheel(cache: Path | None = None) -> Dataset:
+    """The EASY data of the `craftext==0.2.2` wheel, downloaded with pip and cached on first use."""
+    cache = cache_root() if cache is None else cache
+    return _load_default_wheel(cache)
 
 
 def _load_default_wheel(cache: Path) -> Dataset:
-    cached_json = cache / f"{WHEEL_FILENAME.removesuffix('.whl')}.easy.v{_CACHE_FORMAT}.json"
+    cached_json = wheel_cache_file(cache)
     if cached_json.is_file():
         try:
             return _read_dataset_json(cached_json)

@@ -99,3 +99,48 @@ def fetch_pinned_wheel(
         target = dest_dir / filename
         os.replace(downloaded, target)
     return target
+
+
+#: Environment variable that replaces the code host's base URL (tests point it at a loopback server).
+CODE_HOST_ENV_VAR = "CRAFTEXT_LLM_CODE_HOST"
+CODE_HOST = "https://github.com"
+_DOWNLOAD_TIMEOUT_S = 30.0
+
+
+def code_host() -> str:
+    """The code host's base URL: `$CRAFTEXT_LLM_CODE_HOST` if set, else GitHub."""
+    return (os.environ.get(CODE_HOST_ENV_VAR) or CODE_HOST).rstrip("/")
+
+
+def download_url(url: str, target: Path, *, max_bytes: int) -> Path:
+    """Download `url` to `target` over HTTP(S), at most `max_bytes`; raise `UserError` on failure.
+
+    The body is written to a private sibling file and renamed over `target` once complete, so a
+    failed or interrupted download leaves nothing behind.
+    """
+    import urllib.error
+    import urllib.request
+
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(f".{target.name}.{os.getpid()}.part")
+    request = urllib.request.Request(url, headers={"User-Agent": "craftext-llm"})
+    try:
+        with (
+            urllib.request.urlopen(request, timeout=_DOWNLOAD_TIMEOUT_S) as response,
+            partial.open("wb") as out,
+        ):
+            received = 0
+            for chunk in iter(lambda: response.read(1 << 16), b""):
+                received += len(chunk)
+                if received > max_bytes:
+                    raise UserError(f"{url} is larger than {max_bytes} bytes; refusing it")
+                out.write(chunk)
+        os.replace(partial, target)
+    except urllib.error.HTTPError as error:
+        raise UserError(f"cannot download {url}: HTTP {error.code} {error.reason}") from None
+    except (urllib.error.URLError, OSError) as error:
+        reason = getattr(error, "reason", None) or getattr(error, "strerror", None) or error
+        raise UserError(f"cannot download {url}: {reason}") from None
+    finally:
+        partial.unlink(missing_ok=True)
+    return target

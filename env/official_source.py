@@ -83,14 +83,21 @@ class _DirectoryFiles:
 
 
 @dataclass
-class _WheelFiles:
+class _ZipFiles:
+    """A wheel, or a code host's zip archive of a repository (its files under one top folder)."""
+
     archive: zipfile.ZipFile
+    root: str = ""
 
     def read(self, relpath: str) -> bytes | None:
         try:
-            return self.archive.read(relpath)
+            info = self.archive.getinfo(self.root + relpath)
         except KeyError:
             return None
+        # Only small source modules are read; a huge member is not a dataset module.
+        if info.file_size > _MAX_MODULE_BYTES:
+            return None
+        return self.archive.read(info)
 
     def dist_info_metadata(self) -> bytes | None:
         names = sorted(
@@ -102,6 +109,9 @@ class _WheelFiles:
 
     def git_commit(self) -> str | None:
         return None
+
+
+_MAX_MODULE_BYTES = 16 << 20
 
 
 # Where each split lives, relative to the `scenarious` package. The released wheel and the
@@ -125,7 +135,7 @@ _ACHIEVEMENT_ENUM = "Achievement"
 def parse_wheel(wheel: Path) -> Dataset:
     try:
         with zipfile.ZipFile(wheel) as archive:
-            dataset = _parse_tree(_WheelFiles(archive), kind="wheel", label=wheel)
+            dataset = _parse_tree(_ZipFiles(archive), kind="wheel", label=wheel)
     except zipfile.BadZipFile:
         raise UserError(f"{wheel} is not a valid wheel (zip) file") from None
     return Dataset(
@@ -134,7 +144,23 @@ def parse_wheel(wheel: Path) -> Dataset:
     )
 
 
-def _parse_tree(files: _SourceFiles, kind: SourceKind, label: Path) -> Dataset:
+def parse_archive(archive: Path, url: str, commit: str) -> Dataset:
+    """Parse a code host's zip archive of the official repository at `commit`, downloaded from
+    `url`. The parsed modules' digest equals that of a clone of the same commit."""
+    try:
+        with zipfile.ZipFile(archive) as opened:
+            tops = {name.split("/", 1)[0] for name in opened.namelist()}
+            root = f"{tops.pop()}/" if len(tops) == 1 else ""
+            dataset = _parse_tree(_ZipFiles(opened, root), kind="archive", label=url)
+    except zipfile.BadZipFile:
+        raise UserError(f"{url} is not a valid zip archive") from None
+    return Dataset(
+        source=dataset.source.model_copy(update={"path": url, "version": commit}),
+        goals=dataset.goals,
+    )
+
+
+def _parse_tree(files: _SourceFiles, kind: SourceKind, label: str | Path) -> Dataset:
     prefix = next(
         (
             candidate
@@ -373,7 +399,7 @@ def _merge(table: _Table, other: Any, where: str) -> _Table:
 class _SourceTree:
     """The dataset modules of one source, parsed on demand, with the bytes of each file read."""
 
-    def __init__(self, files: _SourceFiles, prefix: str, label: Path):
+    def __init__(self, files: _SourceFiles, prefix: str, label: str | Path):
         self.files = files
         self.prefix = prefix
         self.label = label

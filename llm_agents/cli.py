@@ -67,6 +67,25 @@ def build_parser() -> argparse.ArgumentParser:
         "report", help="print the table and redraw the chart of a finished or partial run"
     )
     report.add_argument("run_dir", help="a run's output directory")
+    report.add_argument(
+        "--success-rule",
+        choices=["game_over_counts", "official"],
+        help="re-score the run: does a goal completed on the step the game ends count? "
+        "(default: the rule the run was played under)",
+    )
+
+    data = commands.add_parser(
+        "data",
+        help="show, fetch or export the CrafText dataset the cache holds",
+        description="show: what the cache holds; fetch: download the official data at the pinned "
+        "commit into the cache (again with --refresh); export PATH: write a dataset (the default "
+        "source, or --dataset) as JSON, usable later with --dataset PATH.",
+    )
+    data.add_argument("action", choices=["show", "fetch", "export"])
+    data.add_argument("path", nargs="?", help="export: the JSON file to write")
+    data.add_argument("--dataset", help="export: official CrafText clone, craftext wheel or JSON")
+    data.add_argument("--refresh", action="store_true", help="fetch: download even when cached")
+
     _settings_command(
         commands,
         "plan",
@@ -154,7 +173,46 @@ def _print_report(run_dir: str | Path) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     from llm_agents.report import report_run
 
-    print(report_run(args.run_dir))
+    print(report_run(args.run_dir, success_rule=args.success_rule))
+    return 0
+
+
+def cmd_data(args: argparse.Namespace) -> int:
+    from env.dataset import cache_status, load_dataset, load_official, official_splits
+    from env.downloads import cache_root
+
+    def counts(goals: dict[str, int]) -> str:
+        return ", ".join(f"{category} {count}" for category, count in goals.items())
+
+    if args.action == "show":
+        print(f"cache: {cache_root()}")
+        for entry in cache_status():
+            if not entry.present or entry.source is None:
+                print(f"{entry.name}: not cached ({entry.path})")
+                continue
+            official = ", ".join(entry.official_splits) or "none"
+            print(
+                f"{entry.name}: {entry.path}\n  from {entry.source.kind} {entry.source.path}"
+                f" (version {entry.source.version})\n  goals: {counts(entry.goals)}"
+                f"\n  splits equal to the official data: {official}"
+            )
+        return 0
+    if args.action == "fetch":
+        dataset = load_official(refresh=args.refresh)
+        print(
+            f"official data at {dataset.source.version} from {dataset.source.path}\n"
+            f"goals: {counts(dataset.category_goals())}"
+        )
+        return 0
+    if not args.path:
+        raise UserError("data export needs the JSON file to write: craftext-llm data export PATH")
+    dataset = load_dataset(args.dataset)
+    target = dataset.save_json(args.path)
+    print(
+        f"wrote {target}: goals {counts(dataset.category_goals())} "
+        f"from {dataset.source.kind} {dataset.source.path}; splits equal to the official data: "
+        f"{', '.join(official_splits(dataset)) or 'none'}"
+    )
     return 0
 
 
@@ -178,7 +236,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"eval": cmd_eval, "report": cmd_report, "plan": cmd_plan}
+COMMANDS = {"eval": cmd_eval, "report": cmd_report, "plan": cmd_plan, "data": cmd_data}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

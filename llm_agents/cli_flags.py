@@ -76,7 +76,8 @@ def add_settings_flags(
     """Add a flag for every field of `model` (recursing into nested models)."""
     targets: list[FlagTarget] = []
     for name, field in model.model_fields.items():
-        if name in skip:
+        extra = field.json_schema_extra
+        if name in skip or (isinstance(extra, dict) and extra.get("flag") is False):
             continue
         annotation = _unwrap_optional(field.annotation)
         if isinstance(annotation, type) and issubclass(annotation, BaseModel):

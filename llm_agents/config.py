@@ -19,8 +19,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from env.dataset import parse_categories
 from env.errors import UserError
+from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
 from llm_agents.backends.base import GenerateConfig
+from llm_agents.protocol import ProtocolName, apply_protocol
 
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
@@ -52,12 +54,18 @@ class ModelSettings(BaseModel):
     """Directory whose .j2 files override the packaged prompt templates of the same name."""
     dataset: str | None = None
     """Dataset source: an official CrafText clone, a craftext wheel or a dataset JSON written by
-    this tool; unset: the default source."""
+    this tool; unset: the official data (downloaded and cached on first use; the craftext 0.2.2
+    wheel's, with a warning, when that fails)."""
     variant: Variant = Variant.FULL
     """Craftax variant: full (43 actions) or classic (17 actions)."""
     probe: bool = True
     """Send one cheap request before any work to check that the model answers (a dead server,
     a wrong model name or a bad key then fails in seconds, before anything is written)."""
+
+    @classmethod
+    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        """The merged file and flag settings with any preset filled in under them."""
+        return settings
 
     @field_validator("model")
     @classmethod
@@ -114,6 +122,30 @@ class EvalConfig(ModelSettings):
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
     max_consecutive_failures: int = Field(8, ge=1)
     """Stop the run (keeping what finished) after this many failed model answers in a row."""
+    protocol: ProtocolName = "default"
+    """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
+    `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
+    temperature, 10 tokens, 4 actions shown); see the README's protocol table."""
+    protocol_overrides: tuple[str, ...] = Field((), json_schema_extra={"flag": False})
+    """Settings given explicitly that depart from the protocol's (filled in from the protocol,
+    never set by hand)."""
+    success_rule: SuccessRule = "game_over_counts"
+    """Whether a goal completed on the step the game ends is a success: `game_over_counts` (yes)
+    or `official` (no, as the official CrafText wrapper scores it)."""
+    world_seeding: WorldSeeding = "per_episode"
+    """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
+    episode in the one world of reset key PRNGKey(1), as the official loop plays."""
+
+    @classmethod
+    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        """The settings over their protocol's choices; explicit departures are recorded."""
+        generation = settings.get("generation") or {}
+        explicit = (set(settings) - {"generation"}) | {f"generation.{key}" for key in generation}
+        if "protocol_overrides" in explicit:
+            raise UserError("protocol_overrides is recorded by the run, not a setting")
+        completed, departures = apply_protocol(settings | {"generation": generation}, explicit)
+        completed["protocol_overrides"] = tuple(departures)
+        return completed
 
     @field_validator("splits", mode="before")
     @classmethod
@@ -217,6 +249,8 @@ def build_settings(
     """
     merged = _merge(dict(base or {}), overrides or {}, cls)
     unknown = sorted(set(merged) - set(cls.model_fields))
+    if not unknown:
+        merged = cls.with_presets(merged)
     if unknown:
         close = difflib.get_close_matches(unknown[0], list(cls.model_fields), n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""

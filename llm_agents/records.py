@@ -107,6 +107,10 @@ class EpisodeRecord(BaseModel):
     """Achievement names unlocked during the episode, in order."""
     plan_given: bool = False
     """True when the agent was given a plan for the goal."""
+    goal_at_game_over: Literal["death", "timeout"] | None = None
+    """Set when the goal was completed on the step the game ended (the episode's last step): how
+    the game ended (`timeout`: Craftax's own time limit). Recorded under either success rule, so
+    `report --success-rule` can re-score the episode both ways without replaying it."""
 
     # A computed field is written to JSON but ignored on reading, so the rate can never
     # disagree with the count it comes from.
@@ -120,6 +124,14 @@ class EpisodeRecord(BaseModel):
     def _consistent(self) -> EpisodeRecord:
         if self.success != (self.termination == "success"):
             raise ValueError(f"success={self.success} contradicts termination={self.termination!r}")
+        if self.goal_at_game_over is not None and self.termination not in (
+            "success",
+            self.goal_at_game_over,
+        ):
+            raise ValueError(
+                f"goal_at_game_over={self.goal_at_game_over!r} contradicts "
+                f"termination={self.termination!r}"
+            )
         if self.invalid_actions > self.steps:
             raise ValueError(f"invalid_actions={self.invalid_actions} exceeds steps={self.steps}")
         return self

@@ -1,21 +1,43 @@
 """The results table and chart of a run, beside the published zero-shot CrafText numbers.
 
 The table follows the paper's layout (success rate on the `one`, `combo` and `New objects`
-goal sets), adding the `paraphrased` set and the overall rate when the run has them.
+goal sets), adding the `paraphrased` set and the overall rate when the run has them. The
+published numbers sit beside a run's only when the run followed the paper's protocol where it
+changes the numbers (variant, dataset splits, step cap, success rule); otherwise they are printed
+under a heading that lists each difference. A run can be re-scored under either success rule
+from its records alone (`report_run(..., success_rule=...)`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Collection, Sequence
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
 
+from env.dataset import CATEGORY_SPLIT, OFFICIAL_COMMIT, OFFICIAL_SPLIT_SHA256, Category
 from env.errors import UserError
-from llm_agents.metrics import SuccessRate, Summary
-from llm_agents.run_store import RESULTS_FILE, RunResults, read_results
+from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.metrics import SuccessRate, Summary, summarize
+from llm_agents.records import EpisodeRecord
+from llm_agents.run_store import (
+    EPISODES_FILE,
+    RESULTS_FILE,
+    RunResults,
+    read_episodes,
+    read_results,
+)
 
-__all__ = ["PUBLISHED", "PublishedResult", "format_table", "plot_success", "report_run"]
+__all__ = [
+    "PUBLISHED",
+    "PublishedResult",
+    "format_table",
+    "paper_differences",
+    "plot_success",
+    "report_run",
+    "rescore",
+]
 
 CHART_FILE = "success.png"
 
@@ -45,7 +67,14 @@ PUBLISHED: tuple[PublishedResult, ...] = (
     PublishedResult(model="DeepSeek-R1-Distill-Qwen-32B", one=0.15, combo=0.07, new_objects=0.06),
 )
 
-_PAPER_CATEGORIES = ("one", "combo", "new_objects")
+_PAPER_CATEGORIES: tuple[Category, ...] = ("one", "combo", "new_objects")
+# What the official evaluation does where it changes the numbers (see llm_agents.protocol).
+_PAPER_VARIANT = "classic"
+_PAPER_MAX_STEPS = 250
+_PAPER_SUCCESS_RULE: SuccessRule = "official"
+# Runs recorded before the success rule was a setting scored the game-over step as a success.
+_RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
+NOT_IN_DATASET = "not in this dataset"
 _LABELS = {
     "one": "one",
     "combo": "combo",
@@ -70,9 +99,9 @@ def _ours(summary: Summary, column: str) -> SuccessRate | None:
     return summary.overall if column == "overall" else summary.by_category.get(column)
 
 
-def _our_cell(rate: SuccessRate | None) -> str:
+def _our_cell(rate: SuccessRate | None, absent: bool = False) -> str:
     if rate is None:
-        return "-"
+        return NOT_IN_DATASET if absent else "-"
     return f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}] n={rate.episodes}"
 
 
@@ -81,18 +110,7 @@ def _published_cell(result: PublishedResult, column: str) -> str:
     return "-" if rate is None else f"{rate:.2f}"
 
 
-def format_table(summary: Summary, model_name: str, *, partial: bool = False) -> str:
-    """Our success rates (95% Wilson interval, episodes) beside the published ones, as text."""
-    columns = _table_columns(summary)
-    ours_label = f"{model_name} (this run{', partial' if partial else ''})"
-    rows = [
-        ["Model", *(_LABELS[column] for column in columns)],
-        [ours_label, *(_our_cell(_ours(summary, column)) for column in columns)],
-        *(
-            [f"{result.model} (published)", *(_published_cell(result, c) for c in columns)]
-            for result in PUBLISHED
-        ),
-    ]
+def _render(rows: list[list[str]]) -> list[str]:
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
 
     def line(cells: list[str]) -> str:
@@ -101,22 +119,126 @@ def format_table(summary: Summary, model_name: str, *, partial: bool = False) ->
         ).rstrip()
 
     rule = "-+-".join("-" * width for width in widths)
-    table = [line(rows[0]), rule, *(line(row) for row in rows[1:])]
+    return [line(rows[0]), rule, *(line(row) for row in rows[1:])]
+
+
+def format_table(
+    summary: Summary,
+    model_name: str,
+    *,
+    partial: bool = False,
+    differences: Sequence[str] = (),
+    absent: Collection[str] = (),
+    notes: Sequence[str] = (),
+) -> str:
+    """Our success rates (95% Wilson interval, episodes) beside the published ones, as text.
+
+    With `differences` (how the run departs from the paper's protocol) the published numbers
+    go under a heading listing them instead. Categories in `absent` are not in the run's dataset.
+    """
+    columns = _table_columns(summary)
+    ours_label = f"{model_name} (this run{', partial' if partial else ''})"
+    header = ["Model", *(_LABELS[column] for column in columns)]
+    ours = [
+        ours_label,
+        *(_our_cell(_ours(summary, column), column in absent) for column in columns),
+    ]
+    published = [
+        [f"{result.model} (published)", *(_published_cell(result, c) for c in columns)]
+        for result in PUBLISHED
+    ]
+    if differences:
+        table = [
+            *_render([header, ours]),
+            "",
+            "Published zero-shot numbers (EASY), NOT comparable with this run:",
+            *(f"  - {difference}" for difference in differences),
+            *_render([header, *published]),
+        ]
+    else:
+        table = _render([header, ours, *published])
     ends = summary.terminations
     steps = (
         f"mean {summary.steps_to_success_mean:.1f}, median {summary.steps_to_success_median:.1f}"
         if summary.steps_to_success_mean is not None and summary.steps_to_success_median is not None
         else "no successes"
     )
-    notes = [
+    footer = [
         "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split.",
         f"Episodes: {summary.overall.episodes} (success {ends['success']}, "
         f"death {ends['death']}, timeout {ends['timeout']}).",
         f"Invalid-action rate: {summary.invalid_action_rate:.3f}. Steps to success: {steps}.",
         f"Tokens per step: {summary.prompt_tokens_per_step:.0f} prompt, "
         f"{summary.completion_tokens_per_step:.0f} completion.",
+        *notes,
     ]
-    return "\n".join([*table, "", *notes])
+    return "\n".join([*table, "", *footer])
+
+
+def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:
+    """The episodes scored under `rule`: those whose goal was completed on the step the game
+    ended succeed under `game_over_counts` and fail (ending as the game did) under `official`."""
+    scored = []
+    for episode in episodes:
+        if episode.goal_at_game_over is None:
+            scored.append(episode)
+            continue
+        success = rule == "game_over_counts"
+        bonus = float(success) - float(episode.success)
+        scored.append(
+            episode.model_copy(
+                update={
+                    "success": success,
+                    "termination": "success" if success else episode.goal_at_game_over,
+                    "episode_return": episode.episode_return + bonus,
+                }
+            )
+        )
+    return scored
+
+
+def recorded_rule(results: RunResults) -> SuccessRule:
+    """The success rule a run was scored under when played."""
+    rule = results.config.get("success_rule")
+    return rule if rule in SUCCESS_RULES else _RECORDED_RULE_BEFORE_SETTING
+
+
+def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
+    """How a run departs from the paper's protocol where that changes the numbers: variant,
+    dataset splits, step cap, and the success rule it is scored under (`rule`)."""
+    config = results.config
+    differences = []
+    variant = config.get("variant")
+    if variant != _PAPER_VARIANT:
+        differences.append(f"variant: {variant} Craftax (paper: {_PAPER_VARIANT})")
+    digests = results.dataset.get("split_sha256")
+    source = f"{results.dataset.get('kind', '?')} {results.dataset.get('path', '?')}"
+    if not isinstance(digests, dict):
+        differences.append(f"dataset: split digests not recorded (source: {source})")
+    else:
+        splits = dict.fromkeys(CATEGORY_SPLIT[c] for c in _PAPER_CATEGORIES)
+        other = [split for split in splits if digests.get(split) != OFFICIAL_SPLIT_SHA256[split]]
+        if other:
+            differences.append(
+                f"dataset: {', '.join(other)} not the official data at {OFFICIAL_COMMIT[:7]} "
+                f"(source: {source})"
+            )
+    max_steps = config.get("max_steps")
+    if max_steps != _PAPER_MAX_STEPS:
+        differences.append(f"step cap: {max_steps} steps (paper: {_PAPER_MAX_STEPS})")
+    if rule != _PAPER_SUCCESS_RULE:
+        differences.append(
+            f"success rule: {rule}, a goal completed on the step the game ends counts "
+            f"(paper: {_PAPER_SUCCESS_RULE}, it does not; try --success-rule official)"
+        )
+    return differences
+
+
+def _absent_categories(results: RunResults) -> set[str]:
+    goals = results.dataset.get("goals")
+    if not isinstance(goals, dict):
+        return set()
+    return {category for category, count in goals.items() if count == 0}
 
 
 def _tick_label(category: str, ours: SuccessRate | None) -> str:
@@ -126,8 +248,11 @@ def _tick_label(category: str, ours: SuccessRate | None) -> str:
     return f"{_LABELS[category]}\n({', '.join(notes)})"
 
 
-def plot_success(summary: Summary, model_name: str, path: Path) -> None:
-    """Save a PNG bar chart of success per category: our run with its intervals, and the paper's."""
+def plot_success(
+    summary: Summary, model_name: str, path: Path, *, with_published: bool = True
+) -> None:
+    """Save a PNG bar chart of success per category: our run with its intervals, and the paper's
+    (left out with `with_published=False`, for a run not comparable with it)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -142,7 +267,8 @@ def plot_success(summary: Summary, model_name: str, path: Path) -> None:
             [0.0 if rate is None else rate.high - rate.rate for rate in ours],
         )
     )
-    for result in PUBLISHED:
+    shown = PUBLISHED if with_published else ()
+    for result in shown:
         published = [result.rate(category) for category in categories]
         zeros = [0.0] * len(categories)
         series.append(
@@ -178,10 +304,15 @@ def plot_success(summary: Summary, model_name: str, path: Path) -> None:
     # Bars with no height (nothing published) do not count for autoscaling.
     axes.set_xlim(-0.5, len(categories) - 0.5)
     axes.set_ylabel("success rate")
-    axes.set_title("CrafText zero-shot success (ours: 95% Wilson interval)")
+    axes.set_title(
+        "CrafText zero-shot success (ours: 95% Wilson interval)"
+        if with_published
+        else "CrafText zero-shot success (ours: 95% Wilson interval; published: not comparable)"
+    )
     tallest = max(
         [rate.high for rate in ours if rate is not None]
-        + [rate for result in PUBLISHED for rate in (result.one, result.combo, result.new_objects)]
+        + [rate for result in shown for rate in (result.one, result.combo, result.new_objects)]
+        + [0.0]
     )
     axes.set_ylim(0, min(1.0, tallest * 1.25 + 0.02))
     axes.grid(axis="y", alpha=0.3)
@@ -213,19 +344,48 @@ def run_status(results: RunResults) -> str:
     return "\n".join(lines)
 
 
-def report_run(run_dir: str | Path) -> str:
-    """Rebuild the table (returned) and `success.png` of a run directory, finished or not."""
+def scheduled_episodes(run_dir: Path, results: RunResults) -> list[EpisodeRecord]:
+    """The finished episodes of the run's current schedule (what its summary counts)."""
+    path = run_dir / EPISODES_FILE
+    if not path.is_file():
+        return []
+    wanted = set(results.schedule)
+    return [episode for episode in read_episodes(path) if episode.episode_id in wanted]
+
+
+def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) -> str:
+    """Rebuild the table (returned) and `success.png` of a run directory, finished or not,
+    scored under `success_rule` (None: the rule the run was played under)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise UserError(f"run directory {run_dir} does not exist")
+    if success_rule is not None and success_rule not in SUCCESS_RULES:
+        raise UserError(f"unknown success rule {success_rule!r}; known: {', '.join(SUCCESS_RULES)}")
     results_path = run_dir / RESULTS_FILE
     if not results_path.is_file():
         raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
     results = read_results(results_path)
-    summary = results.summary
-    if summary is None:
+    episodes = scheduled_episodes(run_dir, results)
+    if not episodes:
         raise UserError(f"no episode of the run in {run_dir} has finished yet")
+    played = recorded_rule(results)
+    rule = success_rule or played
+    at_game_over = sum(episode.goal_at_game_over is not None for episode in episodes)
+    notes = [
+        f"Success rule: {rule}"
+        + (f" (re-scored; the run was played under {played})" if rule != played else "")
+        + f". Goals completed on the step the game ended: {at_game_over}."
+    ]
+    summary = summarize(rescore(episodes, rule))
     model_name = _model_name(results)
-    plot_success(summary, model_name, run_dir / CHART_FILE)
-    table = format_table(summary, model_name, partial=results.status != "complete")
+    differences = paper_differences(results, rule)
+    plot_success(summary, model_name, run_dir / CHART_FILE, with_published=not differences)
+    table = format_table(
+        summary,
+        model_name,
+        partial=results.status != "complete",
+        differences=differences,
+        absent=_absent_categories(results),
+        notes=notes,
+    )
     return f"{table}\n{run_status(results)}"

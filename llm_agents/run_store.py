@@ -23,7 +23,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_field
 
 from env.errors import UserError
 from llm_agents.metrics import Summary
@@ -241,10 +241,17 @@ class RunResults(BaseModel):
     """Versions of the packages and backend that produced the run."""
     dataset: dict[str, Any] = Field(default_factory=dict)
     """Where the instruction dataset came from (path or revision, checksum)."""
-    scheduled: int = 0
-    """Episodes this run's schedule holds (after `limit`)."""
+    schedule: list[str] = Field(default_factory=list)
+    """Ids of the episodes this run's schedule holds (after `limit`), in schedule order."""
     finished: int = 0
     """Of those, finished episodes (the ones the summary counts)."""
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def scheduled(self) -> int:
+        """How many episodes the schedule holds."""
+        return len(self.schedule)
+
     summary: Summary | None = None
     """Metrics over the scheduled episodes finished so far; None before the first one ends."""
     status: RunStatus = "partial"

@@ -27,12 +27,13 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
+from env.rules import OFFICIAL_WORLD_KEY
 from llm_agents.agent import Decision, ZeroShotAgent
 from llm_agents.backends.base import ModelAPI
 from llm_agents.config import EvalConfig
@@ -122,6 +123,7 @@ class PreparedRun:
 
 
 ProgressFactory = Callable[[int, int], Any]
+GameOver = Literal["death", "timeout"] | None
 
 
 def build_schedule(
@@ -215,8 +217,9 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     for category in config.splits:
         if category not in present:
             logger.warning(
-                "the dataset (%s) has no %r goals; the 57-goal EASY train split of the official "
-                "CrafText repository has them: pass a clone of it with --dataset",
+                "the dataset (%s) has no %r goals; the official CrafText data has them: run "
+                "`craftext-llm data fetch` when online, or pass a clone of the official "
+                "repository with --dataset",
                 dataset.source.path,
                 category,
             )
@@ -236,7 +239,8 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     return PreparedRun(
         config=config,
         output_dir=out,
-        dataset_source=dataset.source.model_dump(mode="json"),
+        dataset_source=dataset.source.model_dump(mode="json")
+        | {"goals": dataset.category_goals(), "split_sha256": dataset.split_sha256()},
         instructions=len(instructions),
         schedule=schedule,
         missing_plans=missing,
@@ -295,9 +299,15 @@ def execute_run(
     from env import CrafTextEnv, EnvConfig
 
     config, out = prepared.config, prepared.output_dir
+    env_config = EnvConfig(
+        variant=config.variant,
+        max_steps=config.max_steps,
+        success_rule=config.success_rule,
+        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
+    )
     if env is None:
-        env = CrafTextEnv(EnvConfig(variant=config.variant, max_steps=config.max_steps))
-    elif env.config.variant != config.variant or env.config.max_steps != config.max_steps:
+        env = CrafTextEnv(env_config)
+    elif env.config != env_config:
         raise ValueError("the env passed to run_eval does not match the config")
     make_output_dir(out)
     scheduled_ids = {spec.episode_id for spec in prepared.schedule}
@@ -312,7 +322,7 @@ def execute_run(
         versions=versions(model),
         dataset=prepared.dataset_source
         | {"missing_plans": len(prepared.missing_plans), "instructions": prepared.instructions},
-        scheduled=len(prepared.schedule),
+        schedule=[spec.episode_id for spec in prepared.schedule],
         started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
     )
     sink = _Sink(out, results, scheduled_ids, finished, list(reversed(pending)), config)
@@ -514,9 +524,16 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
                 # The backend failed, not the agent: this episode is not scored; a rerun plays it.
                 aborted.append(state.spec.episode_id)
             elif host.done[slot]:
+                game_over: GameOver = None
+                if host.goal_at_game_over[slot]:
+                    game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
                 ended.append(
                     _episode_record(
-                        state, int(host.steps[slot]), int(host.termination[slot]), config.seed
+                        state,
+                        int(host.steps[slot]),
+                        int(host.termination[slot]),
+                        config.seed,
+                        game_over,
                     )
                 )
             else:
@@ -577,7 +594,9 @@ def _step_record(
     )
 
 
-def _episode_record(state: _Live, steps: int, termination: int, seed: int) -> EpisodeRecord:
+def _episode_record(
+    state: _Live, steps: int, termination: int, seed: int, goal_at_game_over: GameOver = None
+) -> EpisodeRecord:
     from env import Termination
 
     spec = state.spec
@@ -598,6 +617,7 @@ def _episode_record(state: _Live, steps: int, termination: int, seed: int) -> Ep
         completion_tokens=state.completion_tokens,
         achievements=state.achievements,
         plan_given=spec.plan is not None,
+        goal_at_game_over=goal_at_game_over,
     )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -9,6 +10,19 @@ from typing import Any
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+# Port 9 (discard) on loopback refuses connections: no test reaches the real code host.
+UNREACHABLE_CODE_HOST = "http://127.0.0.1:9"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_real_code_host() -> Iterator[None]:
+    """Point the official-data download at a refusing loopback port; tests that download serve
+    their own archive and set the variable themselves."""
+    from env.downloads import CODE_HOST_ENV_VAR
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(CODE_HOST_ENV_VAR, UNREACHABLE_CODE_HOST)
+        yield
 
 
 @pytest.fixture(scope="session")

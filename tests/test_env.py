@@ -258,3 +258,57 @@ def test_new_achievements_are_reported_on_the_unlocking_step_only(any_env: Any) 
     assert float(info.reward) > 0  # Craftax's achievement reward, divided by 50
     _, info = any_env.step(state, jnp.int32(do))
     assert not np.asarray(info.new_achievements)[wood]
+
+
+@pytest.fixture(scope="module")
+def official_env() -> Any:
+    """Classic under the official success rule and world seeding."""
+    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, success_rule="official", world_key=1))
+    return env, jax.jit(env.step_from_episode_key)
+
+
+@pytest.mark.parametrize("dies", [True, False])
+def test_a_goal_completed_as_the_game_ends_is_scored_by_the_rule(
+    classic_env: Any, official_env: Any, dies: bool
+) -> None:
+    official, official_step = official_env
+    req, forb = masks(["COLLECT_WOOD"])
+    outcomes = {}
+    for rule, reset, step in (
+        ("game_over_counts", classic_env.reset, classic_env.step),
+        ("official", official.jitted_reset, official_step),
+    ):
+        state = with_achievements(reset(key(), make_task(req, forb)), ["COLLECT_WOOD"])
+        if dies:
+            state = state.replace(
+                game=state.game.replace(player_health=state.game.player_health * 0)
+            )
+        _, info = step(state, jnp.int32(NOOP))
+        outcomes[rule] = (Termination(int(info.termination)), bool(info.goal_at_game_over))
+        assert bool(info.done)
+        assert (float(info.reward) >= 1.0) == (outcomes[rule][0] == Termination.SUCCESS)
+    if dies:
+        # Whatever the rule, the env reports that the goal was met on the game-over step.
+        assert outcomes == {
+            "game_over_counts": (Termination.SUCCESS, True),
+            "official": (Termination.DEATH, True),
+        }
+    else:
+        assert outcomes == {
+            "game_over_counts": (Termination.SUCCESS, False),
+            "official": (Termination.SUCCESS, False),
+        }
+
+
+def test_official_world_seeding_gives_every_episode_the_world_of_prng_key_1(
+    official_env: Any,
+) -> None:
+    env, _ = official_env
+    req, forb = masks(["COLLECT_DIAMOND"])
+    first = env.jitted_reset(key(0), make_task(req, forb))
+    second = env.jitted_reset(key(1), make_task(req, forb))
+    _, expected = env.craftax.reset_env(jax.random.PRNGKey(1), env.params)
+    assert np.array_equal(np.asarray(first.game.map), np.asarray(expected.map))
+    assert np.array_equal(np.asarray(second.game.map), np.asarray(expected.map))
+    # The episode key still drives the steps.
+    assert not np.array_equal(np.asarray(first.episode_key), np.asarray(second.episode_key))

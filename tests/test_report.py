@@ -11,10 +11,11 @@ import pytest
 from pydantic import ValidationError
 from scipy.stats import binomtest
 
+from env.dataset import OFFICIAL_SPLIT_SHA256
 from env.errors import UserError
 from llm_agents.metrics import summarize
 from llm_agents.records import EpisodeRecord
-from llm_agents.report import PUBLISHED, format_table, plot_success, report_run
+from llm_agents.report import PUBLISHED, format_table, plot_success, report_run, rescore
 from llm_agents.run_store import RunIdentity, RunResults, append_records, write_results
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -67,24 +68,33 @@ def table_rows(table: str) -> dict[str, dict[str, str]]:
 
 
 def make_run(
-    run_dir: Path, episodes: list[EpisodeRecord], scheduled: int | None = None, **fields: object
+    run_dir: Path,
+    episodes: list[EpisodeRecord],
+    base: RunResults | None = None,
+    scheduled: int | None = None,
+    **fields: object,
 ) -> Path:
-    """A run directory as the runner leaves it: episodes appended, results summarising them."""
+    """A run directory as the runner leaves it: episodes appended, results summarising them.
+
+    `base` lends its config and dataset; `scheduled` adds unfinished episodes to the schedule.
+    """
     run_dir.mkdir(parents=True, exist_ok=True)
     append_records(run_dir / "episodes.jsonl", episodes)
     scheduled = len(episodes) if scheduled is None else scheduled
-    results = RunResults.model_validate(
-        {
-            "config": {"model": "hf:Qwen/QwQ-32B", "variant": "full"},
-            "identity": RunIdentity(settings={}, templates={}),
-            "scheduled": scheduled,
-            "finished": len(episodes),
-            "summary": summarize(episodes) if episodes else None,
-            "status": "complete" if len(episodes) == scheduled else "partial",
-            "started_at": datetime(2025, 1, 1, tzinfo=UTC),
-            **fields,
-        }
-    )
+    schedule = [e.episode_id for e in episodes]
+    schedule += [f"pending{i}" for i in range(scheduled - len(episodes))]
+    data: dict[str, object] = {
+        "config": {"model": "hf:Qwen/QwQ-32B", "variant": "full"},
+        "identity": RunIdentity(settings={}, templates={}),
+        "schedule": schedule,
+        "finished": len(episodes),
+        "summary": summarize(episodes) if episodes else None,
+        "status": "complete" if len(episodes) == scheduled else "partial",
+        "started_at": datetime(2025, 1, 1, tzinfo=UTC),
+    }
+    if base is not None:
+        data |= base.model_dump(include={"config", "dataset"})
+    results = RunResults.model_validate(data | fields)
     write_results(run_dir / "results.json", results)
     return run_dir
 
@@ -216,3 +226,161 @@ def test_episode_records_round_trip_and_stay_consistent() -> None:
         EpisodeRecord.model_validate({**record.model_dump(), "termination": "death"})
     with pytest.raises(ValidationError, match="exceeds"):
         EpisodeRecord.model_validate({**record.model_dump(), "invalid_actions": 13})
+
+
+# --- the paper's protocol: comparable or labelled; re-scoring under either success rule ---------
+
+
+def paper_results(**config: object) -> RunResults:
+    """Results of a run that followed the paper's protocol, with `config` changes."""
+    return RunResults(
+        config={
+            "model": "m",
+            "variant": "classic",
+            "max_steps": 250,
+            "success_rule": "official",
+            **config,
+        },
+        dataset={
+            "kind": "archive",
+            "path": "https://github.com/AIRI-Institute/CrafText/archive/x.zip",
+            "split_sha256": dict(OFFICIAL_SPLIT_SHA256),
+            "goals": {"one": 20, "combo": 37, "paraphrased": 41, "new_objects": 44},
+        },
+        identity=RunIdentity(settings={}, templates={}),
+        started_at=datetime(2025, 1, 1, tzinfo=UTC),
+    )
+
+
+def published_section(table: str) -> tuple[list[str], dict[str, dict[str, str]]]:
+    """The listed differences and the published rows of a table with a 'NOT comparable' part."""
+    lines = table.splitlines()
+    start = next(i for i, line in enumerate(lines) if "NOT comparable" in line)
+    differences = []
+    index = start + 1
+    while lines[index].startswith("  - "):
+        differences.append(lines[index].removeprefix("  - "))
+        index += 1
+    return differences, table_rows("\n".join(lines[index:]))
+
+
+def test_published_numbers_sit_beside_a_run_under_the_papers_protocol(tmp_path: Path) -> None:
+    episodes = episodes_with({"one": (1, 4), "combo": (0, 3), "new_objects": (1, 2)})
+    table = report_run(make_run(tmp_path / "run", episodes, paper_results()))
+    assert "NOT comparable" not in table
+    rows = table_rows(table)
+    assert rows["m (this run)"]["one"] == expected_cell(1, 4)
+    assert rows["Qwen QwQ-32B (published)"]["one"] == "0.21"
+    assert (tmp_path / "run" / "success.png").is_file()
+
+
+def test_published_numbers_of_an_incomparable_run_come_under_its_differences(
+    tmp_path: Path,
+) -> None:
+    episodes = episodes_with({"one": (1, 4), "combo": (0, 3), "new_objects": (1, 2)})
+    results = paper_results(variant="full", max_steps=100, success_rule="game_over_counts")
+    wheel_train = "1f4fcafcf70b518ab29681ff6a834e25f40bdb4d0584b8606ef090b4c9044aa6"
+    results.dataset["split_sha256"]["easy_train"] = wheel_train
+    results.dataset["kind"], results.dataset["path"] = "wheel", "craftext-0.2.2.whl"
+    table = report_run(make_run(tmp_path / "run", episodes, results))
+
+    rows = table_rows(table)
+    assert list(rows) == ["m (this run)"]
+    differences, published = published_section(table)
+    assert differences == [
+        "variant: full Craftax (paper: classic)",
+        "dataset: easy_train not the official data at 1c518ae (source: wheel craftext-0.2.2.whl)",
+        "step cap: 100 steps (paper: 250)",
+        "success rule: game_over_counts, a goal completed on the step the game ends counts "
+        "(paper: official, it does not; try --success-rule official)",
+    ]
+    assert published["Mistral-Small-24B (published)"]["New objects"] == "0.09"
+    assert len(published) == len(PUBLISHED)
+
+
+def test_categories_missing_from_the_dataset_say_so(tmp_path: Path) -> None:
+    results = paper_results()
+    results.dataset["goals"] = {"one": 0, "combo": 12, "paraphrased": 41, "new_objects": 44}
+    episodes = episodes_with({"combo": (1, 3), "new_objects": (0, 2)})
+    rows = table_rows(report_run(make_run(tmp_path / "run", episodes, results)))
+    assert rows["m (this run)"]["one"] == "not in this dataset"
+    # A category the dataset has but the run did not reach stays a dash.
+    results.dataset["goals"]["one"] = 20
+    rows = table_rows(report_run(make_run(tmp_path / "other", episodes, results)))
+    assert rows["m (this run)"]["one"] == "-"
+
+
+def at_game_over(
+    index: int, category: str, *, counted: bool, ended: str = "death"
+) -> EpisodeRecord:
+    """An episode whose goal was completed on the step the game ended (`ended`)."""
+    return episode(index, category, success=counted).model_copy(
+        update={
+            "goal_at_game_over": ended,
+            "termination": "success" if counted else ended,
+            "episode_return": 1.0 if counted else 0.0,
+        }
+    )
+
+
+@pytest.mark.parametrize("played", ["game_over_counts", "official"])
+def test_a_run_is_rescored_under_either_rule_from_its_records(tmp_path: Path, played: str) -> None:
+    counted = played == "game_over_counts"
+    episodes = [
+        *episodes_with({"one": (1, 3)}),
+        at_game_over(10, "one", counted=counted),
+        at_game_over(11, "one", counted=counted, ended="timeout"),
+    ]
+    run_dir = make_run(tmp_path / "run", episodes, paper_results(success_rule=played))
+    as_played = report_run(run_dir)
+    lenient = report_run(run_dir, success_rule="game_over_counts")
+    official = report_run(run_dir, success_rule="official")
+
+    assert table_rows(lenient)["m (this run)"]["one"] == expected_cell(3, 5)
+    assert table_rows(official)["m (this run)"]["one"] == expected_cell(1, 5)
+    assert as_played == (lenient if counted else official)
+    assert "Episodes: 5 (success 1, death 3, timeout 1)." in official
+    assert "Episodes: 5 (success 3, death 2, timeout 0)." in lenient
+    assert "Goals completed on the step the game ended: 2." in official
+    # Only the official rule matches the paper's protocol.
+    assert "NOT comparable" in lenient and "NOT comparable" not in official
+    rescored = "re-scored; the run was played under"
+    assert (rescored in official) == counted and (rescored in lenient) != counted
+
+
+def test_rescoring_keeps_other_episodes_and_fixes_the_return() -> None:
+    plain = episode(0, "combo", success=False)
+    lucky = at_game_over(1, "combo", counted=True)
+    official = rescore([plain, lucky], "official")
+    assert official[0] == plain
+    assert (official[1].success, official[1].termination, official[1].episode_return) == (
+        False,
+        "death",
+        0.0,
+    )
+    assert rescore(official, "game_over_counts")[1] == lucky
+
+
+def test_an_unknown_success_rule_is_a_user_error(tmp_path: Path) -> None:
+    run_dir = make_run(tmp_path / "run", episodes_with({"one": (1, 2)}))
+    with pytest.raises(UserError, match="unknown success rule 'strict'"):
+        report_run(run_dir, success_rule="strict")  # type: ignore[arg-type]
+
+
+def test_a_game_over_goal_must_agree_with_the_termination() -> None:
+    record = at_game_over(0, "one", counted=False)
+    with pytest.raises(ValidationError, match="goal_at_game_over"):
+        EpisodeRecord.model_validate({**record.model_dump(), "termination": "timeout"})
+
+
+def test_report_command_rescores_with_a_flag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from llm_agents.cli import main
+
+    episodes = [*episodes_with({"one": (0, 1)}), at_game_over(5, "one", counted=True)]
+    run_dir = make_run(tmp_path / "run", episodes, paper_results(success_rule="game_over_counts"))
+    assert main(["report", str(run_dir), "--success-rule", "official"]) == 0
+    assert table_rows(capsys.readouterr().out)["m (this run)"]["one"] == expected_cell(0, 2)
+    assert main(["report", str(run_dir)]) == 0
+    assert table_rows(capsys.readouterr().out)["m (this run)"]["one"] == expected_cell(1, 2)

@@ -81,7 +81,7 @@ def test_run_writes_consistent_steps_episodes_and_results(
     assert results.status == "complete" and results.finished_at is not None
     assert results.config["model"] == SCRIPT
     assert results.versions["craftax"] == "1.6.1"
-    assert results.dataset["kind"] in {"wheel", "directory", "json"}
+    assert results.dataset["kind"] in {"archive", "wheel", "directory", "json"}
     assert outcome.summary is not None and outcome.summary.overall.episodes == 7
 
 

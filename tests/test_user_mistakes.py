@@ -62,6 +62,12 @@ MISTAKES: dict[str, Mistake] = {
     "dead server": Mistake(
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1"], "connection refused"
     ),
+    "unknown protocol": Mistake([*EVAL, "--protocol", "papers"], "papers"),
+    "unknown success rule": Mistake([*EVAL, "--success-rule", "lenient"], "lenient"),
+    "protocol overrides set by hand": config_file("run.toml", 'protocol_overrides = ["x"]\n'),
+    "report under an unknown success rule": Mistake(
+        ["report", "{tmp}/nope", "--success-rule", "lenient"], "lenient"
+    ),
     # numbers out of range
     "lanes 0": Mistake([*EVAL, "--lanes", "0"], "lanes"),
     "negative lanes": Mistake([*EVAL, "--lanes", "-3"], "lanes"),
@@ -180,6 +186,7 @@ for name, fragment in {
     "misspelt config key": "did you mean 'max_steps'",
     "unknown generation key": "temprature",
     "config value of the wrong type": "history_length",
+    "protocol overrides set by hand": "protocol_overrides",
 }.items():
     MISTAKES[name].message = fragment
 

@@ -1,0 +1,203 @@
+"""Evaluation protocols: named presets of run settings, each choice with its source.
+
+`default` is this project's protocol; `paper` is what the official CrafText evaluation does
+(AIRI-Institute/CrafText at commit 1c518ae and its LLM baseline loop), so a run under it can be
+set beside the published zero-shot numbers. A preset only fills in the settings a user did not
+set: `apply_protocol` puts it under the file and flag settings and lists the explicit settings
+that depart from it, which the run records as `protocol_overrides`.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterable, Mapping
+from enum import Enum
+from typing import Any, Literal, get_args
+
+from pydantic import BaseModel, ConfigDict
+
+from env.dataset import parse_categories
+from env.errors import UserError
+
+ProtocolName = Literal["default", "paper"]
+PROTOCOL_NAMES: tuple[ProtocolName, ...] = get_args(ProtocolName)
+
+
+class ProtocolChoice(BaseModel):
+    """One setting a protocol fixes."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    setting: str
+    """The `EvalConfig` key; generation settings as `generation.NAME`."""
+    value: Any
+    """The value the protocol gives it."""
+    source: str
+    """Where the choice comes from (shown in the README's protocol table)."""
+
+
+class Protocol(BaseModel):
+    """A named set of choices."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: ProtocolName
+    """The name `--protocol` takes."""
+    summary: str
+    """One line on what the protocol is for."""
+    choices: tuple[ProtocolChoice, ...]
+    """The settings it fixes."""
+
+    def value(self, setting: str) -> Any:
+        """The protocol's value of `setting`; KeyError when it fixes none."""
+        for choice in self.choices:
+            if choice.setting == setting:
+                return choice.value
+        raise KeyError(setting)
+
+
+_OFFICIAL = "official CrafText code (AIRI-Institute/CrafText at 1c518ae)"
+_LOOP = "the official LLM baseline loop"
+
+PROTOCOLS: dict[ProtocolName, Protocol] = {
+    "default": Protocol(
+        name="default",
+        summary="this project's protocol: the harder game, independent worlds, reproducible answers",
+        choices=(
+            ProtocolChoice(
+                setting="variant",
+                value="full",
+                source="ours: full Craftax is the current game; the checker's 22 achievement ids "
+                "exist in both variants",
+            ),
+            ProtocolChoice(
+                setting="splits",
+                value=("one", "combo", "new_objects"),
+                source="the paper's zero-shot table (Achievements one / combo, New objects)",
+            ),
+            ProtocolChoice(
+                setting="max_steps", value=250, source=f"{_LOOP} (the paper states no step cap)"
+            ),
+            ProtocolChoice(
+                setting="episodes_per_instruction",
+                value=1,
+                source=f"{_LOOP}; raise it for tighter intervals",
+            ),
+            ProtocolChoice(
+                setting="success_rule",
+                value="game_over_counts",
+                source="ours: a goal completed on the step the player dies was completed",
+            ),
+            ProtocolChoice(
+                setting="world_seeding",
+                value="per_episode",
+                source="ours: a world per episode, so episodes are independent samples "
+                "(the Wilson intervals assume it)",
+            ),
+            ProtocolChoice(
+                setting="generation.temperature",
+                value=0.0,
+                source="ours: greedy answers make runs reproducible and resumable",
+            ),
+            ProtocolChoice(
+                setting="generation.max_tokens",
+                value=256,
+                source="ours: room for a short thought before the action",
+            ),
+            ProtocolChoice(
+                setting="history_length",
+                value=5,
+                source="ours: the last 5 actions, with their outcomes",
+            ),
+        ),
+    ),
+    "paper": Protocol(
+        name="paper",
+        summary="the official CrafText evaluation, to compare with the published numbers",
+        choices=(
+            ProtocolChoice(
+                setting="variant",
+                value="classic",
+                source=f"{_OFFICIAL}: its EASY checker masks 22 Craftax-Classic achievements "
+                "and fails on full Craftax",
+            ),
+            ProtocolChoice(
+                setting="splits",
+                value=("one", "combo", "new_objects"),
+                source="the paper's zero-shot table (Achievements one / combo, New objects)",
+            ),
+            ProtocolChoice(
+                setting="max_steps", value=250, source=f"{_LOOP} (the paper states no step cap)"
+            ),
+            ProtocolChoice(
+                setting="episodes_per_instruction",
+                value=1,
+                source=f"{_LOOP}: one episode per instruction, averaged per episode",
+            ),
+            ProtocolChoice(
+                setting="success_rule",
+                value="official",
+                source=f"{_OFFICIAL}: the wrapper checks the goal on the auto-reset state, so a "
+                "goal completed on the step the game ends fails",
+            ),
+            ProtocolChoice(
+                setting="world_seeding",
+                value="official",
+                source=f"{_LOOP}: every instruction in the one world of reset key PRNGKey(1)",
+            ),
+            ProtocolChoice(
+                setting="generation.temperature", value=0.7, source=f"{_LOOP}: samples at 0.7"
+            ),
+            ProtocolChoice(
+                setting="generation.max_tokens", value=10, source=f"{_LOOP}: a 10-token answer"
+            ),
+            ProtocolChoice(
+                setting="history_length", value=4, source=f"{_LOOP}: the last 4 actions shown"
+            ),
+        ),
+    ),
+}
+
+
+def get_protocol(name: str) -> Protocol:
+    """The protocol called `name`, or a `UserError` listing the known ones."""
+    if name not in PROTOCOLS:
+        raise UserError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOL_NAMES)}")
+    return PROTOCOLS[name]
+
+
+def apply_protocol(
+    settings: Mapping[str, Any], explicit: Iterable[str]
+) -> tuple[dict[str, Any], list[str]]:
+    """`settings` with its protocol's choices filled in under the `explicit` ones.
+
+    `settings` are the merged file and flag settings, generation settings nested under
+    `generation`; its `protocol` key names the protocol (`default` when absent). `explicit`
+    holds the keys the user set (`generation.NAME` for generation settings). Returns the
+    completed settings and the explicit settings whose values depart from the protocol's.
+    """
+    protocol = get_protocol(str(settings.get("protocol") or "default"))
+    chosen = set(explicit)
+    result = copy.deepcopy(dict(settings))
+    overrides = []
+    for choice in protocol.choices:
+        head, _, leaf = choice.setting.rpartition(".")
+        table = result.setdefault(head, {}) if head else result
+        if choice.setting in chosen and leaf in table:
+            if _normalised(choice.setting, table[leaf]) != _normalised(
+                choice.setting, choice.value
+            ):
+                overrides.append(choice.setting)
+        else:
+            table[leaf] = copy.deepcopy(choice.value)
+    return result, overrides
+
+
+def _normalised(setting: str, value: Any) -> Any:
+    if setting == "splits":
+        return parse_categories(value)
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, list | tuple):
+        return tuple(value)
+    return value

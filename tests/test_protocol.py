@@ -1,0 +1,123 @@
+"""Protocol presets: the default one is today's settings, the paper one the official evaluation's;
+a preset fills in what the user did not set, and a run records its protocol and overrides."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from env import CrafTextEnv, EnvConfig, Variant
+from env.errors import UserError
+from llm_agents.backends import get_model
+from llm_agents.backends.base import GenerateConfig
+from llm_agents.config import EvalConfig, build_config
+from llm_agents.protocol import PROTOCOLS, apply_protocol, get_protocol
+from llm_agents.run_store import read_episodes, read_results
+from llm_agents.runner import run_eval
+
+
+def _value(config: EvalConfig, setting: str) -> object:
+    head, _, leaf = setting.rpartition(".")
+    owner = getattr(config, head) if head else config
+    value = getattr(owner, leaf)
+    return value.value if isinstance(value, Variant) else value
+
+
+def test_the_default_protocol_is_the_configs_defaults() -> None:
+    config = EvalConfig()
+    for choice in PROTOCOLS["default"].choices:
+        assert _value(config, choice.setting) == choice.value, choice.setting
+    assert build_config({}) == config
+
+
+def test_the_paper_protocol_sets_the_official_evaluation() -> None:
+    config = build_config({"protocol": "paper"})
+    assert (config.variant, config.max_steps, config.episodes_per_instruction) == (
+        Variant.CLASSIC,
+        250,
+        1,
+    )
+    assert (config.success_rule, config.world_seeding) == ("official", "official")
+    assert (config.generation.temperature, config.generation.max_tokens) == (0.7, 10)
+    assert config.history_length == 4
+    assert config.protocol_overrides == ()
+    for choice in PROTOCOLS["paper"].choices:
+        assert _value(config, choice.setting) == choice.value, choice.setting
+        assert choice.source
+
+
+def test_explicit_settings_win_and_are_recorded_as_overrides() -> None:
+    config = build_config(
+        {"protocol": "paper", "history_length": 4, "splits": "one,combo,new_objects"},
+        {"max_steps": 100, "variant": "classic", "generation": {"temperature": 0.0}},
+    )
+    assert config.max_steps == 100 and config.generation.temperature == 0.0
+    # Settings given with the protocol's own value are not overrides.
+    assert config.protocol_overrides == ("max_steps", "generation.temperature")
+    assert config.generation.max_tokens == 10 and config.success_rule == "official"
+
+
+def test_a_preset_only_fills_in() -> None:
+    settings = {"protocol": "paper", "generation": {"seed": 3}, "limit": 2}
+    applied, overrides = apply_protocol(settings, {"generation.seed", "limit"})
+    assert applied["generation"] == {"seed": 3, "temperature": 0.7, "max_tokens": 10}
+    assert applied["limit"] == 2 and overrides == []
+    assert settings == {"protocol": "paper", "generation": {"seed": 3}, "limit": 2}
+
+
+def test_every_choice_names_a_real_setting() -> None:
+    fields = set(EvalConfig.model_fields)
+    generation = set(GenerateConfig.model_fields)
+    for protocol in PROTOCOLS.values():
+        for choice in protocol.choices:
+            head, _, leaf = choice.setting.rpartition(".")
+            assert leaf in (generation if head == "generation" else fields), choice.setting
+    assert [c.setting for c in PROTOCOLS["default"].choices] == [
+        c.setting for c in PROTOCOLS["paper"].choices
+    ]
+
+
+def test_an_unknown_protocol_is_a_user_error() -> None:
+    with pytest.raises(UserError, match="unknown protocol 'papers'; known: default, paper"):
+        get_protocol("papers")
+    with pytest.raises(UserError, match="unknown protocol"):
+        build_config({"protocol": "papers"})
+
+
+@pytest.mark.slow
+def test_a_paper_run_plays_the_official_world_and_records_its_protocol(tmp_path: Path) -> None:
+    config = build_config(
+        {
+            "protocol": "paper",
+            "model": "mock:hash:ACTION: LEFT|ACTION: DO|ACTION: UP",
+            "splits": ["combo", "new_objects"],
+            "max_steps": 6,
+            "batch_size": 2,
+            "limit": 4,
+            "output_dir": str(tmp_path),
+        }
+    )
+    env = CrafTextEnv(
+        EnvConfig(variant=Variant.CLASSIC, max_steps=6, success_rule="official", world_key=1)
+    )
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model, env=env)
+    saved = read_results(tmp_path / "results.json").config
+    assert saved["protocol"] == "paper"
+    assert saved["protocol_overrides"] == ["splits", "max_steps"]
+    assert (saved["success_rule"], saved["world_seeding"]) == ("official", "official")
+    assert len(read_episodes(tmp_path / "episodes.jsonl")) == 4
+    steps = [json.loads(line) for line in (tmp_path / "steps.jsonl").read_text().splitlines()]
+    first_views = {s["observation"] for s in steps if s["step"] == 0}
+    # Four instructions, one world: every episode starts from the same observation.
+    assert len(first_views) == 1
+    mismatched = config.model_copy(
+        update={"world_seeding": "per_episode", "output_dir": str(tmp_path / "other")}
+    )
+    with (
+        pytest.raises(ValueError, match="does not match"),
+        get_model(config.model, config.generation) as model,
+    ):
+        run_eval(mismatched, model, env=env)
