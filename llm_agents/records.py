@@ -116,6 +116,9 @@ class EpisodeRecord(BaseModel):
     """Achievement names unlocked during the episode, in order."""
     plan_given: bool = False
     """True when the agent was given a plan for the goal."""
+    reset_key: list[int] | None = Field(None, min_length=2, max_length=2)
+    """The raw PRNG key (two uint32 words) the episode's world was reset with; None in records
+    written before it was stored (replays then derive it the way the runner did)."""
 
     # A computed field is written to JSON but ignored on reading, so the rate can never
     # disagree with the count it comes from.

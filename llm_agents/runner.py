@@ -297,8 +297,16 @@ def _play_lanes(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> N
             raise
 
 
+def world_key(seed: int, goal_id: str, instruction_variant: int, repeat: int) -> np.ndarray:
+    """The key an episode's world is reset with: the one place the runner derives it, so the
+    recorded `EpisodeRecord.reset_key` and replays of older records agree with the worlds played."""
+    from env import episode_key
+
+    return episode_key(seed, goal_id, instruction_variant, repeat)
+
+
 def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink) -> None:
-    from env import VectorEnv, episode_key, goal_masks
+    from env import VectorEnv, goal_masks
     from textualizer import observe_batch
 
     agent = ZeroShotAgent(
@@ -320,7 +328,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
     def task_rows(specs: Sequence[ScheduledEpisode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         keys = np.stack(
             [
-                episode_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
+                world_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
                 for s in specs
             ]
         )
@@ -432,6 +440,9 @@ def _episode_record(state: _Live, steps: int, termination: int, seed: int) -> Ep
         completion_tokens=state.completion_tokens,
         achievements=state.achievements,
         plan_given=spec.plan is not None,
+        reset_key=world_key(
+            seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
+        ).tolist(),
     )
 
 
