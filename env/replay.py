@@ -176,9 +176,7 @@ def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
     if env.variant is Variant.FULL:
         from craftax.craftax.renderer import make_craftax_pixel_renderer
     else:
-        from craftax.craftax_classic.renderer import (  # type: ignore[assignment]
-            make_craftax_pixel_renderer,
-        )
+        from craftax.craftax_classic.renderer import make_craftax_pixel_renderer
     # craftax announces its texture loading on stdout, which belongs to the command's output.
     with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
         renderer: Callable[[Any], jax.Array] = make_craftax_pixel_renderer(BLOCK_SIZE)

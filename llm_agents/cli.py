@@ -148,7 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("run_dir", help="a run's output directory")
     view.add_argument("--episode", help="an episode id (or index) to export with --gif")
     view.add_argument(
-        "--gif", metavar="OUT", help="write --episode as an animated GIF (.gif) or MP4 (.mp4, ffmpeg)"
+        "--gif",
+        metavar="OUT",
+        help="write --episode as an animated GIF (.gif) or MP4 (.mp4, ffmpeg)",
     )
     view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 

@@ -199,9 +199,7 @@ def _status(view: EpisodeView, replay: Any) -> ReplayStatus:
             f"achievements {replay.achievements or 'none'}, recorded {record.achievements or 'none'}"
         )
     if not np.isclose(replay.episode_return, record.episode_return, atol=1e-4):
-        problems.append(
-            f"return {replay.episode_return:.4f}, recorded {record.episode_return:.4f}"
-        )
+        problems.append(f"return {replay.episode_return:.4f}, recorded {record.episode_return:.4f}")
     return ReplayStatus(
         "mismatch" if problems else "reproduced", problems, frames=len(replay.frames)
     )
@@ -273,17 +271,18 @@ def _run_context(run: LoadedRun, statuses: dict[str, ReplayStatus]) -> dict[str,
             for result in PUBLISHED
         ],
     }
+    ours = {category: _ours(summary, category) for category in _chart_categories(summary)}
     categories = [
         {
             "label": _LABELS[category],
-            "ours": _ours(summary, category),
+            "ours": rate,
             "published": [(result.model, result.rate(category)) for result in PUBLISHED],
         }
-        for category in _chart_categories(summary)
+        for category, rate in ours.items()
     ]
     # The y range of report.plot_success: the tallest interval or published bar, plus headroom.
     tallest = max(
-        [rate.high for category in categories if (rate := category["ours"]) is not None]
+        [rate.high for rate in ours.values() if rate is not None]
         + [rate for result in PUBLISHED for rate in (result.one, result.combo, result.new_objects)]
     )
     goals = sorted(summary.by_goal.items(), key=lambda item: (-item[1].rate, item[0]))
