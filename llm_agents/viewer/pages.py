@@ -7,6 +7,7 @@ folder opens from disk, offline, with no server.
 
 from __future__ import annotations
 
+import functools
 import logging
 import statistics
 import time
@@ -160,17 +161,22 @@ def _replays(
 
 
 def _replayer(run: LoadedRun, *, batch_size: int) -> Any:
-    from env import CrafTextEnv, EnvConfig
-    from env.replay import Replayer
     from env.variant import as_variant
 
     config = run.config
-    env = CrafTextEnv(
-        EnvConfig(
-            variant=as_variant(config.get("variant", "full")),
-            max_steps=config.get("max_steps", 250),
-        )
+    return _compiled_replayer(
+        as_variant(config.get("variant", "full")).value, config.get("max_steps", 250), batch_size
     )
+
+
+# Tracing and compiling the replay costs seconds: a process that views several runs (tests,
+# benchmarks, a notebook) does it once per setting.
+@functools.cache
+def _compiled_replayer(variant: str, max_steps: int, batch_size: int) -> Any:
+    from env import CrafTextEnv, EnvConfig, Variant
+    from env.replay import Replayer
+
+    env = CrafTextEnv(EnvConfig(variant=Variant(variant), max_steps=max_steps))
     return Replayer(env, batch_size=batch_size)
 
 
