@@ -99,55 +99,79 @@ class Replayer:
     ) -> Iterator[Replay]:
         """Replays of `episodes`, in order, computed a batch at a time (memory stays bounded).
 
-        `on_batch(n)` is called after each batch with the number of episodes it held.
+        The next batch is computed while the caller handles the current one (JAX dispatches
+        asynchronously), so encoding frames overlaps rendering them. `on_batch(n)` is called
+        after each batch with the number of episodes it held.
         """
+        pending: tuple[list[ReplayInput], Any] | None = None
         for start in range(0, len(episodes), self.batch_size):
             batch = list(episodes[start : start + self.batch_size])
-            yield from self._replay_batch(batch)
+            launched = (batch, self._launch(batch))
+            if pending is not None:
+                yield from self._collect(*pending)
+                if on_batch is not None:
+                    on_batch(len(pending[0]))
+            pending = launched
+        if pending is not None:
+            yield from self._collect(*pending)
             if on_batch is not None:
-                on_batch(len(batch))
+                on_batch(len(pending[0]))
 
-    def _replay_batch(self, batch: list[ReplayInput]) -> list[Replay]:
+    def _launch(self, batch: list[ReplayInput]) -> tuple[jax.Array, list[Any]]:
+        """Start the batch's computation; returns its (not yet computed) outputs."""
         # Padding slots repeat the last episode; their output is dropped.
         padded = batch + [batch[-1]] * (self.batch_size - len(batch))
         keys = jnp.asarray(np.stack([np.asarray(e.reset_key, np.uint32) for e in padded]))
         task = make_task(
             np.stack([e.required for e in padded]), np.stack([e.forbidden for e in padded])
         )
-        lengths = [len(e.actions) for e in padded]
-        longest = max(lengths)
-        steps = -(-longest // self.chunk) * self.chunk
-        actions = np.zeros((self.batch_size, max(steps, self.chunk)), np.int32)
+        longest = max(len(e.actions) for e in padded)
+        actions = np.zeros(
+            (self.batch_size, max(1, -(-longest // self.chunk)) * self.chunk), np.int32
+        )
         for row, episode in enumerate(padded):
-            actions[row, : lengths[row]] = episode.actions
-
+            actions[row, : len(episode.actions)] = episode.actions
         state, first = self._reset(keys, task)
-        frames = [np.asarray(first)[:, None]]
-        rewards, dones, terminations, new = [], [], [], []
-        for offset in range(0, longest, self.chunk):
-            chunk = jnp.asarray(actions[:, offset : offset + self.chunk])
-            state, outputs = self._advance(state, chunk)
-            drawn, reward, done, termination, unlocked = jax.device_get(outputs)
-            frames.append(np.swapaxes(drawn, 0, 1))
-            rewards.append(reward.T)
-            dones.append(done.T)
-            terminations.append(termination.T)
-            new.append(np.swapaxes(unlocked, 0, 1))
-        all_frames = np.concatenate(frames, axis=1)
-        all_rewards = np.concatenate(rewards, axis=1) if rewards else np.zeros((len(padded), 0))
-        all_dones = np.concatenate(dones, axis=1) if dones else np.zeros((len(padded), 0), bool)
-        all_terms = np.concatenate(terminations, axis=1) if terminations else all_dones
-        all_new = np.concatenate(new, axis=1) if new else np.zeros((len(padded), 0, 1), bool)
-        return [
-            _summarize(
-                all_frames[row, : lengths[row] + 1],
-                all_rewards[row, : lengths[row]],
-                all_dones[row, : lengths[row]],
-                all_terms[row, : lengths[row]],
-                all_new[row, : lengths[row]],
+        chunks = []
+        # At least one chunk, so even a batch of empty episodes has step outputs to slice.
+        for offset in range(0, max(longest, 1), self.chunk):
+            state, outputs = self._advance(
+                state, jnp.asarray(actions[:, offset : offset + self.chunk])
             )
-            for row in range(len(batch))
-        ]
+            chunks.append(outputs)
+        return first, chunks
+
+    def _collect(
+        self, batch: list[ReplayInput], launched: tuple[jax.Array, list[Any]]
+    ) -> list[Replay]:
+        first, chunks = jax.device_get(launched)
+        # Chunk outputs are time-major: (chunk, batch, ...). Frames, the bulk, are copied once,
+        # straight from the chunks into each episode's array.
+        reward, done, termination, unlocked = (
+            np.concatenate([chunk[field] for chunk in chunks]) for field in range(1, 5)
+        )
+        replays = []
+        for row, episode in enumerate(batch):
+            length = len(episode.actions)
+            frames = np.empty((length + 1, *first.shape[1:]), np.uint8)
+            frames[0] = first[row]
+            for number, chunk in enumerate(chunks):
+                start = number * self.chunk
+                if start >= length:
+                    break
+                frames[1 + start : 1 + min(length, start + self.chunk)] = chunk[0][
+                    : length - start, row
+                ]
+            replays.append(
+                _summarize(
+                    frames,
+                    reward[:length, row],
+                    done[:length, row],
+                    termination[:length, row],
+                    unlocked[:length, row],
+                )
+            )
+        return replays
 
 
 def _summarize(
@@ -162,7 +186,7 @@ def _summarize(
     achievements = [ACHIEVEMENTS[i] for step in unlocked[:last] for i in np.flatnonzero(step)]
     termination = Termination(int(terminations[last - 1])).label if ended.size else "running"
     return Replay(
-        frames=np.ascontiguousarray(frames),
+        frames=frames,
         achievements=achievements,
         termination=termination,
         ended_at=last if ended.size else None,
