@@ -48,6 +48,7 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int, default=250)
     parser.add_argument("--variant", default="full", choices=["full", "classic"])
     parser.add_argument("--batch-size", type=int, default=32, help="episodes played in lockstep")
+    parser.add_argument("--replay-batch", type=int, default=16, help="episodes replayed at once")
     args = parser.parse_args()
 
     env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
@@ -56,20 +57,21 @@ def main() -> None:
         warm = workdir / "warm"
         play(env, warm, args.batch_size, args.batch_size)
         start = time.perf_counter()
-        cold = build_view(warm, progress=False)
+        cold = build_view(warm, progress=False, batch_size=args.replay_batch)
         cold_seconds = time.perf_counter() - start
 
         run = workdir / "run"
         played = play(env, run, args.episodes, args.batch_size)
         start = time.perf_counter()
-        outcome = build_view(run, progress=False)
+        outcome = build_view(run, progress=False, batch_size=args.replay_batch)
         rendered = time.perf_counter() - start
 
     episodes = len(outcome.statuses)
     mismatches = len(outcome.mismatches)
     print(
         f"{episodes} episodes, {outcome.frames} frames ({args.variant} Craftax, "
-        f"at most {args.max_steps} steps), mock backend at batch {args.batch_size}"
+        f"at most {args.max_steps} steps), mock backend at batch {args.batch_size}, "
+        f"replayed {args.replay_batch} at a time"
     )
     print(f"play (mock backend):   {played:8.1f} s")
     print(
