@@ -197,11 +197,15 @@ def _summarize(
 def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
     from env.variant import Variant
 
-    if env.variant is Variant.FULL:
-        from craftax.craftax.renderer import make_craftax_pixel_renderer
-    else:
-        from craftax.craftax_classic.renderer import make_craftax_pixel_renderer
     # craftax announces its texture loading on stdout, which belongs to the command's output.
     with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
-        renderer: Callable[[Any], jax.Array] = make_craftax_pixel_renderer(BLOCK_SIZE)
-    return renderer
+        if env.variant is Variant.FULL:
+            from craftax.craftax.renderer import make_craftax_pixel_renderer
+
+            # Night drawn as an even darkening instead of random static: the same scene, but
+            # a 64-episode report of 250-step episodes is 2.5x smaller (night frames compress).
+            return make_craftax_pixel_renderer(BLOCK_SIZE, do_night_noise=False)
+        # Classic's renderer has no such option: its nights keep their static.
+        from craftax.craftax_classic.renderer import make_craftax_pixel_renderer as classic
+
+        return classic(BLOCK_SIZE)

@@ -142,6 +142,19 @@ def test_a_replay_that_differs_from_its_record_is_flagged_loudly(
     assert 'id="replay-mismatch"' not in others.read_text()
 
 
+def test_a_run_without_step_log_gets_pages_without_replays(
+    run_dir: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy_run(run_dir, tmp_path)
+    (run / "steps.jsonl").unlink()
+    outcome = build_view(run, progress=False)
+    assert {s.state for s in outcome.statuses.values()} == {"not replayed"}
+    assert outcome.frames == 0 and not list((run / "report" / "episodes").glob("*.png"))
+    page = (run / "report" / "episodes" / "episode-00000.html").read_text()
+    assert 'id="replay-missing"' in page and "--no-step-log" in page
+    assert 'id="frame"' not in page
+
+
 @pytest.mark.slow
 def test_gif_export_shows_every_state_for_the_same_time(run_dir: Path, tmp_path: Path) -> None:
     episode = read_episodes(run_dir / "episodes.jsonl")[1]

@@ -96,7 +96,12 @@ def load_run(run_dir: str | Path) -> LoadedRun:
         raise UserError(f"{path / EPISODES_FILE} holds no finished episode")
     finished = {record.episode_id for record in records}
     steps, errors, stages, latencies = _read_steps(path / STEPS_FILE, finished)
-    goals = _goals(results.config.get("dataset"))
+    try:
+        goals = _goals(results.config.get("dataset"))
+        no_dataset = None
+    except UserError as exc:
+        # The pages are still worth having; only the replays need the goals.
+        goals, no_dataset = {}, f"the run's dataset cannot be loaded ({exc})"
     episodes = []
     for record in records:
         own = sorted(steps.get(record.episode_id, []), key=lambda s: s.step)
@@ -106,7 +111,9 @@ def load_run(run_dir: str | Path) -> LoadedRun:
             errors=errors.get(record.episode_id, []),
             goal=goals.get((record.category, record.goal_id)),
         )
-        view.unreplayable = _why_unreplayable(view, has_steps=(path / STEPS_FILE).is_file())
+        view.unreplayable = no_dataset or _why_unreplayable(
+            view, has_steps=(path / STEPS_FILE).is_file()
+        )
         episodes.append(view)
     return LoadedRun(
         path=path,
