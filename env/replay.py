@@ -21,9 +21,11 @@ import numpy as np
 
 from env.achievements import ACHIEVEMENTS
 from env.craftext_env import CrafTextEnv, EpisodeState, Termination, make_task
+from env.variant import Variant
 
-#: Pixels per map block: the one size craftax caches textures for in both variants.
-BLOCK_SIZE = 16
+#: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for
+#: the full game, only at 16 for Classic; 10 makes a full-game report 2.5x smaller.
+BLOCK_SIZES = {Variant.FULL: 10, Variant.CLASSIC: 16}
 
 
 @dataclass(frozen=True)
@@ -195,8 +197,7 @@ def _summarize(
 
 
 def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
-    from env.variant import Variant
-
+    block_size = BLOCK_SIZES[env.variant]
     # craftax announces its texture loading on stdout, which belongs to the command's output.
     with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
         if env.variant is Variant.FULL:
@@ -204,8 +205,8 @@ def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
 
             # Night drawn as an even darkening instead of random static: the same scene, but
             # a 64-episode report of 250-step episodes is 2.5x smaller (night frames compress).
-            return make_craftax_pixel_renderer(BLOCK_SIZE, do_night_noise=False)
+            return make_craftax_pixel_renderer(block_size, do_night_noise=False)
         # Classic's renderer has no such option: its nights keep their static.
         from craftax.craftax_classic.renderer import make_craftax_pixel_renderer as classic
 
-        return classic(BLOCK_SIZE)
+        return classic(block_size)

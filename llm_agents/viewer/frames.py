@@ -81,11 +81,16 @@ def sprite_sheet(frames: np.ndarray) -> SpriteSheet:
     )
 
 
-def export_animation(frames: np.ndarray, path: Path, *, scale: int = 2) -> Path:
+#: Exported frames are enlarged (by a whole factor) to at least this height.
+_EXPORT_MIN_HEIGHT = 280
+
+
+def export_animation(frames: np.ndarray, path: Path) -> Path:
     """Write `frames` as an animated GIF, or as an MP4 when `path` ends in `.mp4` (needs ffmpeg).
 
-    Frames are enlarged `scale` times without smoothing, so the pixel art stays sharp.
+    Frames are enlarged by a whole factor without smoothing, so the pixel art stays sharp.
     """
+    scale = max(1, -(-_EXPORT_MIN_HEIGHT // frames.shape[1]))
     frames = frames.repeat(scale, axis=1).repeat(scale, axis=2)
     suffix = path.suffix.lower()
     try:

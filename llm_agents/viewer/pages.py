@@ -52,6 +52,7 @@ class ReplayStatus:
     problems: list[str] = field(default_factory=list)
     """What differs from the record (mismatch), or why there is no replay."""
     frames: int = 0
+    """Frames the replay drew (actions + 1); 0 without a replay."""
 
 
 @dataclass
@@ -61,7 +62,8 @@ class ViewOutcome:
     index: Path
     statuses: dict[str, ReplayStatus]
     render_seconds: float
-    """Wall time of replaying, rendering and encoding the episodes (pages excluded)."""
+    """Wall time of replaying, rendering and encoding the episodes and writing their pages (the
+    run page and reading the run excluded)."""
     frames: int
     """Frames rendered."""
     size_bytes: int
@@ -72,7 +74,7 @@ class ViewOutcome:
         return {key: s for key, s in self.statuses.items() if s.state == "mismatch"}
 
 
-def build_view(run_dir: str | Path, *, progress: bool = True, batch_size: int = 8) -> ViewOutcome:
+def build_view(run_dir: str | Path, *, progress: bool = True, batch_size: int = 16) -> ViewOutcome:
     """Replay every episode of `run_dir` and write its HTML report; returns where and how it went.
 
     A replay that does not reproduce its record is logged as a warning and flagged on its page
