@@ -57,6 +57,8 @@ lint: $(VENV)/.stamp-dev
 test: lint
 	@if [ -f scripts/setup_vllm_cpu.sh ]; then bash scripts/setup_vllm_cpu.sh; \
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment"; fi
+	@# Debian's Chromium for the browser test of `craftext-llm view` (apt-get, only when missing).
+	bash scripts/setup_chromium.sh
 	$(BIN)/python -m pytest -ra
 
 # compare_plans.py is a comparison tool that needs a plans file, not a benchmark: not run here.

@@ -86,6 +86,22 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--dataset", help="export: official CrafText clone, craftext wheel or JSON")
     data.add_argument("--refresh", action="store_true", help="fetch: download even when cached")
 
+    view = commands.add_parser(
+        "view",
+        help="write a run's HTML report with episode replays (RUN_DIR/report/index.html)",
+        description="Replay every episode of a run with Craftax's pixel renderer and write a "
+        "static, offline HTML report: results, charts, and a frame-by-frame page per episode. "
+        "With --episode and --gif, export one episode as an animation instead.",
+    )
+    view.add_argument("run_dir", help="a run's output directory")
+    view.add_argument("--episode", help="an episode id (or index) to export with --gif")
+    view.add_argument(
+        "--gif",
+        metavar="OUT",
+        help="write --episode as an animated GIF (.gif) or MP4 (.mp4, ffmpeg)",
+    )
+    view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
     _settings_command(
         commands,
         "plan",
@@ -216,6 +232,34 @@ def cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    from llm_agents.viewer import build_view, export_episode
+
+    if (args.episode is None) != (args.gif is None):
+        raise UserError("--episode and --gif go together: give both to export one episode")
+    if args.gif is not None:
+        status = export_episode(args.run_dir, args.episode, args.gif)
+        print(f"wrote {args.gif} ({status.frames} frames)")
+        problems = {args.episode: status} if status.state == "mismatch" else {}
+    else:
+        outcome = build_view(args.run_dir, progress=not args.no_progress)
+        print(
+            f"wrote {outcome.index} ({len(outcome.statuses)} episodes, {outcome.frames} frames, "
+            f"{outcome.size_bytes / 1e6:.1f} MB)"
+        )
+        problems = outcome.mismatches
+    if problems:
+        print(
+            f"WARNING: {len(problems)} replays do NOT reproduce their recorded episodes "
+            "(a bug, or a Craftax / craftext-llm version other than the run's):",
+            file=sys.stderr,
+        )
+        for episode, status in problems.items():
+            print(f"  {episode}: {'; '.join(status.problems)}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     from llm_agents.planner import PlannerConfig, plan_instructions, planned_instructions
 
@@ -236,7 +280,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"eval": cmd_eval, "report": cmd_report, "plan": cmd_plan, "data": cmd_data}
+COMMANDS = {
+    "eval": cmd_eval,
+    "report": cmd_report,
+    "view": cmd_view,
+    "plan": cmd_plan,
+    "data": cmd_data,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -111,6 +111,9 @@ class EpisodeRecord(BaseModel):
     """Set when the goal was completed on the step the game ended (the episode's last step): how
     the game ended (`timeout`: Craftax's own time limit). Recorded under either success rule, so
     `report --success-rule` can re-score the episode both ways without replaying it."""
+    reset_key: list[int] | None = Field(None, min_length=2, max_length=2)
+    """The raw PRNG key (two uint32 words) the episode's world was reset with; None in records
+    written before it was stored (replays then derive it the way the runner did)."""
 
     # A computed field is written to JSON but ignored on reading, so the rate can never
     # disagree with the count it comes from.

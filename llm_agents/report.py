@@ -75,7 +75,7 @@ _PAPER_SUCCESS_RULE: SuccessRule = "official"
 # Runs recorded before the success rule was a setting scored the game-over step as a success.
 _RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
 NOT_IN_DATASET = "not in this dataset"
-_LABELS = {
+CATEGORY_LABELS = {
     "one": "one",
     "combo": "combo",
     "new_objects": "New objects",
@@ -84,28 +84,28 @@ _LABELS = {
 }
 
 
-def _chart_categories(summary: Summary) -> list[str]:
+def chart_categories(summary: Summary) -> list[str]:
     extra = ["paraphrased"] if "paraphrased" in summary.by_category else []
     return [*_PAPER_CATEGORIES, *extra]
 
 
-def _table_columns(summary: Summary) -> list[str]:
+def table_columns(summary: Summary) -> list[str]:
     # With a single category the overall column would only repeat it.
     overall = ["overall"] if len(summary.by_category) > 1 else []
-    return [*_chart_categories(summary), *overall]
+    return [*chart_categories(summary), *overall]
 
 
-def _ours(summary: Summary, column: str) -> SuccessRate | None:
+def our_rate(summary: Summary, column: str) -> SuccessRate | None:
     return summary.overall if column == "overall" else summary.by_category.get(column)
 
 
-def _our_cell(rate: SuccessRate | None, absent: bool = False) -> str:
+def our_cell(rate: SuccessRate | None, absent: bool = False) -> str:
     if rate is None:
         return NOT_IN_DATASET if absent else "-"
     return f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}] n={rate.episodes}"
 
 
-def _published_cell(result: PublishedResult, column: str) -> str:
+def published_cell(result: PublishedResult, column: str) -> str:
     rate = result.rate(column)
     return "-" if rate is None else f"{rate:.2f}"
 
@@ -136,15 +136,15 @@ def format_table(
     With `differences` (how the run departs from the paper's protocol) the published numbers
     go under a heading listing them instead. Categories in `absent` are not in the run's dataset.
     """
-    columns = _table_columns(summary)
+    columns = table_columns(summary)
     ours_label = f"{model_name} (this run{', partial' if partial else ''})"
-    header = ["Model", *(_LABELS[column] for column in columns)]
+    header = ["Model", *(CATEGORY_LABELS[column] for column in columns)]
     ours = [
         ours_label,
-        *(_our_cell(_ours(summary, column), column in absent) for column in columns),
+        *(our_cell(our_rate(summary, column), column in absent) for column in columns),
     ]
     published = [
-        [f"{result.model} (published)", *(_published_cell(result, c) for c in columns)]
+        [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
         for result in PUBLISHED
     ]
     if differences:
@@ -245,7 +245,7 @@ def _tick_label(category: str, ours: SuccessRate | None) -> str:
     notes = [f"n={ours.episodes}" if ours is not None else "not run"]
     if category not in _PAPER_CATEGORIES:
         notes.append("none published")
-    return f"{_LABELS[category]}\n({', '.join(notes)})"
+    return f"{CATEGORY_LABELS[category]}\n({', '.join(notes)})"
 
 
 def plot_success(
@@ -256,9 +256,9 @@ def plot_success(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    categories = _chart_categories(summary)
+    categories = chart_categories(summary)
     series: list[tuple[str, list[float], list[float], list[float]]] = []
-    ours = [_ours(summary, category) for category in categories]
+    ours = [our_rate(summary, category) for category in categories]
     series.append(
         (
             f"{model_name} (this run)",
@@ -324,7 +324,7 @@ def plot_success(
         raise UserError(f"cannot write chart {path}: {exc.strerror}") from exc
 
 
-def _model_name(results: RunResults) -> str:
+def model_name_of(results: RunResults) -> str:
     model = results.config.get("model")
     return model if isinstance(model, str) and model else "this model"
 
@@ -377,7 +377,7 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         + f". Goals completed on the step the game ended: {at_game_over}."
     ]
     summary = summarize(rescore(episodes, rule))
-    model_name = _model_name(results)
+    model_name = model_name_of(results)
     differences = paper_differences(results, rule)
     plot_success(summary, model_name, run_dir / CHART_FILE, with_published=not differences)
     table = format_table(

@@ -470,8 +470,16 @@ def _play_lanes(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> N
             raise
 
 
+def world_key(seed: int, goal_id: str, instruction_variant: int, repeat: int) -> np.ndarray:
+    """The key an episode's world is reset with: the one place the runner derives it, so the
+    recorded `EpisodeRecord.reset_key` and replays of older records agree with the worlds played."""
+    from env import episode_key
+
+    return episode_key(seed, goal_id, instruction_variant, repeat)
+
+
 def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink) -> None:
-    from env import VectorEnv, episode_key, goal_masks
+    from env import VectorEnv, goal_masks
     from textualizer import observe_batch
 
     agent = _make_agent(config)
@@ -486,7 +494,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
     def task_rows(specs: Sequence[ScheduledEpisode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         keys = np.stack(
             [
-                episode_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
+                world_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
                 for s in specs
             ]
         )
@@ -618,6 +626,9 @@ def _episode_record(
         achievements=state.achievements,
         plan_given=spec.plan is not None,
         goal_at_game_over=goal_at_game_over,
+        reset_key=world_key(
+            seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
+        ).tolist(),
     )
 
 

@@ -60,8 +60,10 @@ def _source_files() -> dict[str, Path]:
         for init in sorted((REPO / package).rglob("__init__.py")):
             for file in sorted(init.parent.glob("*.py")):
                 wanted[file.relative_to(REPO).as_posix()] = file
-    for template in sorted((REPO / "prompts").glob("*.j2")):
-        wanted[template.relative_to(REPO).as_posix()] = template
+    # Prompt templates, and the HTML templates of `view` (llm_agents/viewer/templates/).
+    for package in PACKAGES:
+        for template in sorted((REPO / package).rglob("*.j2")):
+            wanted[template.relative_to(REPO).as_posix()] = template
     return wanted
 
 

@@ -1,0 +1,212 @@
+"""Re-simulating recorded episodes and drawing them with Craftax's own pixel renderer.
+
+An episode is replayed from the key its world was reset with and the action ids it took; the
+replay reports what it reached (achievements, termination, steps, return) so the caller can check
+it against the record. Episodes are replayed in fixed-size batches, stepped in fixed-length
+chunks: the two compiled functions (reset, chunk) never see a new shape, so a run of any length
+compiles once per process (and once per machine with the persistent compilation cache).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from env.achievements import ACHIEVEMENTS
+from env.craftext_env import CrafTextEnv, EpisodeState, Termination, make_task
+from env.variant import Variant
+
+#: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for
+#: the full game, only at 16 for Classic; 10 makes a full-game report 2.5x smaller.
+BLOCK_SIZES = {Variant.FULL: 10, Variant.CLASSIC: 16}
+
+
+@dataclass(frozen=True)
+class ReplayInput:
+    """What a replay needs from one recorded episode."""
+
+    reset_key: np.ndarray
+    """Raw PRNG key (two uint32 words) the world was reset with."""
+    required: np.ndarray
+    """Boolean mask over the 22 achievement ids: the goal's required achievements."""
+    forbidden: np.ndarray
+    """Boolean mask over the 22 achievement ids: the goal's forbidden achievements."""
+    actions: Sequence[int]
+    """Action ids taken, one per step, in order."""
+
+
+@dataclass(frozen=True)
+class Replay:
+    """What re-simulating one episode produced."""
+
+    frames: np.ndarray
+    """uint8 RGB frames of shape (steps + 1, height, width, 3): the world before the first
+    action, then after each action."""
+    achievements: list[str]
+    """Achievement names first unlocked during the replay, in order (within a step, by id)."""
+    termination: str
+    """`success`, `death` or `timeout` when the replay ended on its last action, else `running`;
+    the first ending counts when the replay ended early."""
+    ended_at: int | None
+    """How many actions had been taken when the replay ended; None when it never did."""
+    episode_return: float
+    """Sum of rewards up to the end (or over every action when it never ended)."""
+
+
+class Replayer:
+    """Replays episodes of one `CrafTextEnv` (its variant and step cap) and renders their frames.
+
+    Create one per process and reuse it: its compiled functions are cached per instance.
+    """
+
+    def __init__(self, env: CrafTextEnv, *, batch_size: int = 8, chunk: int = 32):
+        self.env = env
+        self.batch_size = batch_size
+        self.chunk = chunk
+        render = _pixel_renderer(env)
+
+        def draw(game: Any) -> jax.Array:
+            return jnp.clip(jnp.round(render(game)), 0, 255).astype(jnp.uint8)
+
+        def reset(keys: jax.Array, task: Any) -> tuple[EpisodeState, jax.Array]:
+            state = jax.vmap(env.reset)(keys, task)
+            return state, jax.vmap(draw)(state.game)
+
+        def advance(state: EpisodeState, actions: jax.Array) -> tuple[EpisodeState, Any]:
+            def one_step(state: EpisodeState, action: jax.Array) -> tuple[EpisodeState, Any]:
+                state, info = jax.vmap(env.step_from_episode_key)(state, action)
+                return state, (
+                    jax.vmap(draw)(state.game),
+                    info.reward,
+                    info.done,
+                    info.termination,
+                    info.new_achievements,
+                )
+
+            # Scan over time with the batch inside: outputs come back time-major.
+            return jax.lax.scan(one_step, state, actions.T)
+
+        self._reset = jax.jit(reset)
+        self._advance = jax.jit(advance)
+
+    def replay(
+        self, episodes: Sequence[ReplayInput], *, on_batch: Callable[[int], None] | None = None
+    ) -> Iterator[Replay]:
+        """Replays of `episodes`, in order, computed a batch at a time (memory stays bounded).
+
+        The next batch is computed while the caller handles the current one (JAX dispatches
+        asynchronously), so encoding frames overlaps rendering them. `on_batch(n)` is called
+        after each batch with the number of episodes it held.
+        """
+        pending: tuple[list[ReplayInput], Any] | None = None
+        for start in range(0, len(episodes), self.batch_size):
+            batch = list(episodes[start : start + self.batch_size])
+            launched = (batch, self._launch(batch))
+            if pending is not None:
+                yield from self._collect(*pending)
+                if on_batch is not None:
+                    on_batch(len(pending[0]))
+            pending = launched
+        if pending is not None:
+            yield from self._collect(*pending)
+            if on_batch is not None:
+                on_batch(len(pending[0]))
+
+    def _launch(self, batch: list[ReplayInput]) -> tuple[jax.Array, list[Any]]:
+        """Start the batch's computation; returns its (not yet computed) outputs."""
+        # Padding slots repeat the last episode; their output is dropped.
+        padded = batch + [batch[-1]] * (self.batch_size - len(batch))
+        keys = jnp.asarray(np.stack([np.asarray(e.reset_key, np.uint32) for e in padded]))
+        task = make_task(
+            np.stack([e.required for e in padded]), np.stack([e.forbidden for e in padded])
+        )
+        longest = max(len(e.actions) for e in padded)
+        actions = np.zeros(
+            (self.batch_size, max(1, -(-longest // self.chunk)) * self.chunk), np.int32
+        )
+        for row, episode in enumerate(padded):
+            actions[row, : len(episode.actions)] = episode.actions
+        state, first = self._reset(keys, task)
+        chunks = []
+        # At least one chunk, so even a batch of empty episodes has step outputs to slice.
+        for offset in range(0, max(longest, 1), self.chunk):
+            state, outputs = self._advance(
+                state, jnp.asarray(actions[:, offset : offset + self.chunk])
+            )
+            chunks.append(outputs)
+        return first, chunks
+
+    def _collect(
+        self, batch: list[ReplayInput], launched: tuple[jax.Array, list[Any]]
+    ) -> list[Replay]:
+        first, chunks = jax.device_get(launched)
+        # Chunk outputs are time-major: (chunk, batch, ...). Frames, the bulk, are copied once,
+        # straight from the chunks into each episode's array.
+        reward, done, termination, unlocked = (
+            np.concatenate([chunk[field] for chunk in chunks]) for field in range(1, 5)
+        )
+        replays = []
+        for row, episode in enumerate(batch):
+            length = len(episode.actions)
+            frames = np.empty((length + 1, *first.shape[1:]), np.uint8)
+            frames[0] = first[row]
+            for number, chunk in enumerate(chunks):
+                start = number * self.chunk
+                if start >= length:
+                    break
+                frames[1 + start : 1 + min(length, start + self.chunk)] = chunk[0][
+                    : length - start, row
+                ]
+            replays.append(
+                _summarize(
+                    frames,
+                    reward[:length, row],
+                    done[:length, row],
+                    termination[:length, row],
+                    unlocked[:length, row],
+                )
+            )
+        return replays
+
+
+def _summarize(
+    frames: np.ndarray,
+    rewards: np.ndarray,
+    dones: np.ndarray,
+    terminations: np.ndarray,
+    unlocked: np.ndarray,
+) -> Replay:
+    ended = np.flatnonzero(dones)
+    last = int(ended[0]) + 1 if ended.size else len(dones)
+    achievements = [ACHIEVEMENTS[i] for step in unlocked[:last] for i in np.flatnonzero(step)]
+    termination = Termination(int(terminations[last - 1])).label if ended.size else "running"
+    return Replay(
+        frames=frames,
+        achievements=achievements,
+        termination=termination,
+        ended_at=last if ended.size else None,
+        episode_return=float(rewards[:last].sum()),
+    )
+
+
+def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
+    block_size = BLOCK_SIZES[env.variant]
+    # craftax announces its texture loading on stdout, which belongs to the command's output.
+    with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
+        if env.variant is Variant.FULL:
+            from craftax.craftax.renderer import make_craftax_pixel_renderer
+
+            # Night drawn as an even darkening instead of random static: the same scene, but
+            # a 64-episode report of 250-step episodes is 2.5x smaller (night frames compress).
+            return make_craftax_pixel_renderer(block_size, do_night_noise=False)
+        # Classic's renderer has no such option: its nights keep their static.
+        from craftax.craftax_classic.renderer import make_craftax_pixel_renderer as classic
+
+        return classic(block_size)

@@ -1,0 +1,182 @@
+"""Reading a run directory for the viewer: results, episodes, their steps and their goals."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from env.dataset import Goal, load_dataset
+from env.errors import UserError
+from llm_agents.records import EpisodeRecord, StepRecord
+from llm_agents.report import scheduled_episodes
+from llm_agents.run_store import (
+    EPISODES_FILE,
+    RESULTS_FILE,
+    STEPS_FILE,
+    RunResults,
+    read_results,
+)
+
+
+@dataclass
+class EpisodeView:
+    """One finished episode with its steps and what its replay needs."""
+
+    record: EpisodeRecord
+    steps: list[StepRecord]
+    errors: list[str]
+    """Backend error text of each step whose record carries one (empty when none do)."""
+    goal: Goal | None
+    """The episode's goal in the run's dataset; None when the dataset no longer has it."""
+    unreplayable: str | None = None
+    """Why the episode cannot be replayed; None when it can."""
+
+    @property
+    def page(self) -> str:
+        """File name of the episode's page, relative to the report's episodes/ folder."""
+        return f"episode-{self.record.episode_index:05d}.html"
+
+    @property
+    def sheet(self) -> str:
+        """File name of the episode's frame sheet, beside its page."""
+        return f"episode-{self.record.episode_index:05d}.png"
+
+    def reset_key(self) -> np.ndarray:
+        """The key the episode's world was reset with: recorded, or derived as the runner did."""
+        if self.record.reset_key is not None:
+            return np.asarray(self.record.reset_key, dtype=np.uint32)
+        from llm_agents.runner import world_key
+
+        # Records written before reset_key existed: the repeat is the id's last field
+        # (`ScheduledEpisode.episode_id`).
+        repeat = int(self.record.episode_id.rsplit("/", 1)[-1])
+        return world_key(
+            self.record.seed, self.record.goal_id, self.record.instruction_variant, repeat
+        )
+
+
+@dataclass
+class LoadedRun:
+    """A run directory as the viewer sees it."""
+
+    path: Path
+    results: RunResults
+    episodes: list[EpisodeView]
+    parse_stages: dict[str, int] = field(default_factory=dict)
+    latencies: list[float] = field(default_factory=list)
+    has_steps: bool = False
+
+    @property
+    def config(self) -> dict[str, Any]:
+        return self.results.config
+
+    def find(self, episode: str) -> EpisodeView:
+        """An episode by its id or by its schedule index."""
+        for view in self.episodes:
+            if view.record.episode_id == episode or str(view.record.episode_index) == episode:
+                return view
+        raise UserError(
+            f"{self.path} has no finished episode {episode!r} (give an episode id such as "
+            f"{self.episodes[0].record.episode_id!r}, or its index)"
+        )
+
+
+def load_run(run_dir: str | Path) -> LoadedRun:
+    """Read `run_dir`'s results, finished episodes and (when recorded) their steps."""
+    path = Path(run_dir)
+    if not path.is_dir():
+        raise UserError(f"run directory {path} does not exist")
+    for name in (RESULTS_FILE, EPISODES_FILE):
+        if not (path / name).is_file():
+            raise UserError(f"{path} has no {name}: not a run directory, or no episode finished")
+    results = read_results(path / RESULTS_FILE)
+    records = sorted(scheduled_episodes(path, results), key=lambda e: e.episode_index)
+    if not records:
+        raise UserError(f"{path / EPISODES_FILE} holds no finished episode")
+    finished = {record.episode_id for record in records}
+    steps, errors, stages, latencies = _read_steps(path / STEPS_FILE, finished)
+    try:
+        goals = _goals(results.config.get("dataset"))
+        no_dataset = None
+    except UserError as exc:
+        # The pages are still worth having; only the replays need the goals.
+        goals, no_dataset = {}, f"the run's dataset cannot be loaded ({exc})"
+    episodes = []
+    for record in records:
+        own = sorted(steps.get(record.episode_id, []), key=lambda s: s.step)
+        view = EpisodeView(
+            record=record,
+            steps=own,
+            errors=errors.get(record.episode_id, []),
+            goal=goals.get((record.category, record.goal_id)),
+        )
+        view.unreplayable = no_dataset or _why_unreplayable(
+            view, has_steps=(path / STEPS_FILE).is_file()
+        )
+        episodes.append(view)
+    return LoadedRun(
+        path=path,
+        results=results,
+        episodes=episodes,
+        parse_stages=dict(sorted(stages.items(), key=lambda item: -item[1])),
+        latencies=latencies,
+        has_steps=(path / STEPS_FILE).is_file(),
+    )
+
+
+def _read_steps(
+    path: Path, finished: set[str]
+) -> tuple[dict[str, list[StepRecord]], dict[str, list[str]], dict[str, int], list[float]]:
+    steps: dict[str, list[StepRecord]] = {}
+    errors: dict[str, list[str]] = {}
+    stages: dict[str, int] = {}
+    latencies: list[float] = []
+    if not path.is_file():
+        return steps, errors, stages, latencies
+    with path.open(encoding="utf-8") as handle:
+        for number, line in enumerate(handle, start=1):
+            if not line.strip():
+                continue
+            try:
+                raw = json.loads(line)
+            except json.JSONDecodeError:
+                # Only the line being written when a run was killed can be torn, and its
+                # episode had not finished.
+                continue
+            if not isinstance(raw, dict) or raw.get("episode_id") not in finished:
+                continue
+            try:
+                step = StepRecord.model_validate(raw)
+            except ValidationError as exc:
+                raise UserError(f"{path}, line {number}: not a step record: {exc}") from exc
+            steps.setdefault(step.episode_id, []).append(step)
+            # Backend errors are kept when the step records carry them (`error` text).
+            if raw.get("error"):
+                errors.setdefault(step.episode_id, []).append(str(raw["error"]))
+            stages[step.parse_stage] = stages.get(step.parse_stage, 0) + 1
+            latencies.append(step.latency_s)
+    return steps, errors, stages, latencies
+
+
+def _goals(dataset: Any) -> dict[tuple[str, str], Goal]:
+    data = load_dataset(dataset if isinstance(dataset, str) else None)
+    return {(goal.category, goal.id): goal for goal in data.goals}
+
+
+def _why_unreplayable(view: EpisodeView, *, has_steps: bool) -> str | None:
+    if not has_steps:
+        return "the run kept no step log (--no-step-log): nothing to replay"
+    if view.goal is None:
+        return f"goal {view.record.goal_id!r} is not in the run's dataset any more"
+    indices = [step.step for step in view.steps]
+    if indices != list(range(view.record.steps)):
+        return (
+            f"the step log holds {len(indices)} of the episode's {view.record.steps} steps "
+            "(or not in order)"
+        )
+    return None

@@ -1,0 +1,335 @@
+"""`craftext-llm view`: replays of a real (mock-backend) run reproduce its records, mismatches are
+flagged loudly, the GIF export, and the report in a real browser (Debian's Chromium, Playwright).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from env import CrafTextEnv, EnvConfig, Variant
+from llm_agents.backends import get_model
+from llm_agents.cli import EXIT_USER_ERROR, main
+from llm_agents.config import build_config
+from llm_agents.records import EpisodeRecord
+from llm_agents.run_store import read_episodes
+from llm_agents.runner import run_eval, world_key
+from llm_agents.viewer import build_view
+from llm_agents.viewer.frames import FRAMES_PER_SECOND, sprite_sheet
+from llm_agents.viewer.run import load_run
+
+MAX_STEPS = 30
+#: DO-heavy, so some episodes unlock achievements the replay must reproduce.
+SCRIPT = "mock:hash:ACTION: DO|ACTION: LEFT|I go RIGHT|<action>UP</action>|ACTION: DO|hmm|DOWN"
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("run")
+    config = build_config(
+        {
+            "model": SCRIPT,
+            "variant": "classic",
+            "splits": ["combo", "new_objects"],
+            "max_steps": MAX_STEPS,
+            "batch_size": 4,
+            "limit": 5,
+            "output_dir": str(out),
+        }
+    )
+    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model, env=env)
+    return out
+
+
+@pytest.fixture(scope="module")
+def viewed(run_dir: Path) -> Any:
+    return build_view(run_dir, progress=False)
+
+
+def _copy_run(run_dir: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns("report"))
+    return copy
+
+
+def _rewrite_episodes(run: Path, change: Any) -> list[EpisodeRecord]:
+    path = run / "episodes.jsonl"
+    records = [change(json.loads(line)) for line in path.read_text().splitlines()]
+    path.write_text("".join(json.dumps(record) + "\n" for record in records))
+    return read_episodes(path)
+
+
+def test_runner_records_the_reset_key_that_older_records_derive(run_dir: Path) -> None:
+    run = load_run(run_dir)
+    for view in run.episodes:
+        record = view.record
+        assert record.reset_key is not None
+        repeat = int(record.episode_id.rsplit("/", 1)[-1])
+        derived = world_key(record.seed, record.goal_id, record.instruction_variant, repeat)
+        assert record.reset_key == derived.tolist()
+        view.record = record.model_copy(update={"reset_key": None})
+        assert view.reset_key().tolist() == record.reset_key
+
+
+@pytest.mark.slow
+def test_replays_reproduce_every_recorded_episode(run_dir: Path, viewed: Any) -> None:
+    episodes = read_episodes(run_dir / "episodes.jsonl")
+    assert viewed.statuses.keys() == {e.episode_id for e in episodes}
+    assert {s.state for s in viewed.statuses.values()} == {"reproduced"}
+    # The check has teeth only if some episode unlocked something.
+    assert any(e.achievements for e in episodes)
+    assert viewed.frames == sum(e.steps + 1 for e in episodes)
+    pages = run_dir / "report" / "episodes"
+    for episode in episodes:
+        assert viewed.statuses[episode.episode_id].frames == episode.steps + 1
+        page = (pages / f"episode-{episode.episode_index:05d}.html").read_text()
+        assert episode.instruction in page
+        assert 'id="replay-mismatch"' not in page
+        data = json.loads(re.search(r'id="episode-data">(.*?)</script>', page, re.S).group(1))
+        sheet = data["sheet"]
+        assert len(sheet["index"]) == episode.steps + 1
+        assert [s["step"] for s in data["steps"]] == list(range(episode.steps))
+        image = Image.open(pages / f"episode-{episode.episode_index:05d}.png")
+        tiles = max(sheet["index"]) + 1
+        assert image.width == sheet["columns"] * sheet["width"]
+        assert image.height == -(-tiles // sheet["columns"]) * sheet["height"]
+    index = (run_dir / "report" / "index.html").read_text()
+    assert 'id="replay-mismatch"' not in index
+
+
+@pytest.mark.slow
+def test_report_needs_no_network(viewed: Any) -> None:
+    for page in viewed.index.parent.rglob("*.html"):
+        text = page.read_text()
+        assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text), page
+        assert not re.search(r"""url\(\s*["']?(https?:)?//""", text), page
+
+
+@pytest.mark.slow
+def test_a_replay_that_differs_from_its_record_is_flagged_loudly(
+    run_dir: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy_run(run_dir, tmp_path)
+
+    def tamper(record: dict[str, Any]) -> dict[str, Any]:
+        if record["episode_index"] == 0:
+            record["achievements"] = [*record["achievements"], "DEFEAT_ZOMBIE"]
+        # Records from before reset_key existed must still replay.
+        record.pop("reset_key")
+        return record
+
+    episodes = _rewrite_episodes(run, tamper)
+    tampered = next(e for e in episodes if e.episode_index == 0)
+
+    assert main(["view", str(run), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "WARNING: 1 replays do NOT reproduce" in err
+    assert tampered.episode_id in err and "DEFEAT_ZOMBIE" in err
+    page = (run / "report" / "episodes" / "episode-00000.html").read_text()
+    assert 'id="replay-mismatch"' in page and "DEFEAT_ZOMBIE" in page
+    assert 'id="replay-mismatch"' in (run / "report" / "index.html").read_text()
+    others = run / "report" / "episodes" / "episode-00001.html"
+    assert 'id="replay-mismatch"' not in others.read_text()
+
+
+def test_a_run_without_step_log_gets_pages_without_replays(
+    run_dir: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy_run(run_dir, tmp_path)
+    (run / "steps.jsonl").unlink()
+    outcome = build_view(run, progress=False)
+    assert {s.state for s in outcome.statuses.values()} == {"not replayed"}
+    assert outcome.frames == 0 and not list((run / "report" / "episodes").glob("*.png"))
+    page = (run / "report" / "episodes" / "episode-00000.html").read_text()
+    assert 'id="replay-missing"' in page and "--no-step-log" in page
+    assert 'id="frame"' not in page
+
+
+@pytest.mark.slow
+def test_gif_export_shows_every_state_for_the_same_time(run_dir: Path, tmp_path: Path) -> None:
+    episode = read_episodes(run_dir / "episodes.jsonl")[1]
+    out = tmp_path / "episode.gif"
+    assert main(["view", str(run_dir), "--episode", episode.episode_id, "--gif", str(out)]) == 0
+    gif = Image.open(out)
+    assert (gif.width, gif.height) == (2 * 144, 2 * 144)  # classic frames, enlarged twice
+    durations = []
+    for number in range(gif.n_frames):
+        gif.seek(number)
+        durations.append(gif.info["duration"])
+    # Pillow merges identical consecutive frames into one longer frame.
+    assert sum(durations) == (episode.steps + 1) * round(1000 / FRAMES_PER_SECOND)
+    gif.seek(0)
+    first = np.asarray(gif.convert("RGB"))
+    gif.seek(gif.n_frames - 1)
+    assert not np.array_equal(first, np.asarray(gif.convert("RGB")))
+
+
+def test_mp4_export_without_ffmpeg_is_a_user_error(
+    run_dir: Path, tmp_path: Path, capsys: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    if shutil.which("ffmpeg") is not None:
+        monkeypatch.setenv("PATH", str(tmp_path))
+    out = tmp_path / "episode.mp4"
+    assert main(["view", str(run_dir), "--episode", "0", "--gif", str(out)]) == EXIT_USER_ERROR
+    assert "ffmpeg is not installed" in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--episode", "0"], "--episode and --gif go together"),
+        (["--episode", "no/such/0/0", "--gif", "x.gif"], "no finished episode 'no/such/0/0'"),
+    ],
+)
+def test_view_flag_mistakes_are_one_line_errors(
+    run_dir: Path, capsys: Any, flags: list[str], message: str
+) -> None:
+    assert main(["view", str(run_dir), *flags]) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_view_of_a_directory_without_a_run_is_a_user_error(tmp_path: Path, capsys: Any) -> None:
+    assert main(["view", str(tmp_path)]) == EXIT_USER_ERROR
+    assert "has no results.json" in capsys.readouterr().err
+
+
+def test_sprite_sheet_stores_each_distinct_frame_once() -> None:
+    rng = np.random.default_rng(0)
+    # Flat colour blocks, like the pixel art: few colours, so the 256-colour sheet is exact.
+    blocks = rng.integers(0, 255, size=(3, 4, 5, 3), dtype=np.uint8)
+    distinct = blocks.repeat(8, axis=1).repeat(8, axis=2)
+    frames = distinct[[0, 0, 1, 2, 1, 0]]
+    sheet = sprite_sheet(frames)
+    assert sheet.index == [0, 0, 1, 2, 1, 0]
+    image = np.asarray(Image.open(io.BytesIO(sheet.png)).convert("RGB"))
+    height, width = frames.shape[1:3]
+    for tile in range(3):
+        row, column = divmod(tile, sheet.columns)
+        drawn = image[row * height : (row + 1) * height, column * width : (column + 1) * width]
+        assert np.array_equal(drawn, distinct[tile])
+
+
+# ---------------------------------------------------------------- in a real browser
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser"):
+        if found := shutil.which(name):
+            return found
+    return None
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    executable = _chromium()
+    if executable is None:
+        pytest.skip("Chromium is not installed (scripts/setup_chromium.sh installs Debian's)")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.fail("playwright is missing: pip install -e '.[dev]'")
+    with sync_playwright() as playwright:
+        # --no-sandbox: the test may run as root (containers, CI), where the sandbox refuses.
+        chromium = playwright.chromium.launch(executable_path=executable, args=["--no-sandbox"])
+        yield chromium
+        chromium.close()
+
+
+def _open(browser: Any, path: Path) -> tuple[Any, list[str]]:
+    page = browser.new_page(viewport={"width": 1280, "height": 1000})
+    problems: list[str] = []
+    page.on(
+        "console", lambda m: problems.append(m.text) if m.type in ("error", "warning") else None
+    )
+    page.on("pageerror", lambda error: problems.append(str(error)))
+    page.on("requestfailed", lambda request: problems.append(f"failed: {request.url}"))
+    page.goto(path.as_uri())
+    page.wait_for_load_state("load")
+    return page, problems
+
+
+def _cell(rate: dict[str, Any]) -> str:
+    return f"{rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] n={rate['episodes']}"
+
+
+@pytest.mark.slow
+def test_run_page_in_chromium_shows_the_results(run_dir: Path, viewed: Any, browser: Any) -> None:
+    summary = json.loads((run_dir / "results.json").read_text())["summary"]
+    page, problems = _open(browser, viewed.index)
+    header = page.locator("#results-table thead th").all_inner_texts()
+    ours = page.locator("#results-table tr.ours td").all_inner_texts()
+    shown = dict(zip(header[1:], ours[1:], strict=True))
+    assert shown["combo"] == _cell(summary["by_category"]["combo"])
+    assert shown["New objects"] == _cell(summary["by_category"]["new_objects"])
+    assert shown["overall"] == _cell(summary["overall"])
+    assert shown["one"] == "-"  # not run
+
+    episodes = read_episodes(run_dir / "episodes.jsonl")
+    rows = page.locator("#episodes tbody tr")
+    assert rows.count() == len(episodes)
+    page.select_option("#filter-category", "combo")
+    visible = page.locator("#episodes tbody tr:visible")
+    assert visible.count() == sum(e.category == "combo" for e in episodes)
+    assert set(visible.locator("td:nth-child(3)").all_inner_texts()) == {"combo"}
+    page.select_option("#filter-category", "")
+    page.click("#episodes th:has-text('steps')")
+    steps = [int(t) for t in page.locator("#episodes tbody td:nth-child(7)").all_inner_texts()]
+    assert steps == sorted(steps)
+    assert problems == []
+    page.close()
+
+
+def _frame_pixels(page: Any) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(page.locator("#frame").screenshot())).convert("RGB"))
+
+
+@pytest.mark.slow
+def test_episode_page_in_chromium_steps_through_nonblank_frames(
+    run_dir: Path, viewed: Any, browser: Any
+) -> None:
+    episode = max(read_episodes(run_dir / "episodes.jsonl"), key=lambda e: len(e.achievements))
+    page, problems = _open(browser, viewed.index)
+    page.click(f"#episodes a:text-is('{episode.episode_id}')")
+    page.wait_for_load_state("load")
+    assert page.locator("#instruction").inner_text() == episode.instruction
+
+    first = _frame_pixels(page)
+    # Craftax's grass, water, stone and the inventory bar: a blank or broken image has few colours.
+    assert len(np.unique(first.reshape(-1, 3), axis=0)) > 50 and first.std() > 20
+    assert page.locator("#counter").inner_text().startswith(f"frame 0 of {episode.steps}")
+
+    seen_change = False
+    for step in range(episode.steps):
+        page.keyboard.press("ArrowRight")
+        assert page.locator("#counter").inner_text().startswith(f"frame {step + 1} of")
+        seen_change = seen_change or not np.array_equal(_frame_pixels(page), first)
+        if seen_change and step >= 3:
+            break
+    assert seen_change
+    page.keyboard.press("ArrowLeft")
+    page.click("#next")
+    page.click("#last")
+    assert (
+        page.locator("#decision-title").inner_text() == f"End of the episode: {episode.termination}"
+    )
+    page.keyboard.press("Home")
+    assert np.array_equal(_frame_pixels(page), first)
+    steps = json.loads(page.locator("#episode-data").text_content())["steps"]
+    page.keyboard.press("ArrowRight")
+    assert page.locator("#d-raw").text_content() == steps[1]["raw"]
+    assert page.locator("#d-action").inner_text().startswith(steps[1]["action"])
+    assert problems == []
+    page.close()
