@@ -86,9 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--choice",
-        action="store_true",
-        default=None,
-        help="constrain answers to action names (needed by small models)",
+        choices=["loglik", "guided"],
+        help="answer with an action name picked by this rule (needed by small models)",
     )
     run.add_argument(
         "--variant", choices=["full", "classic"], help="Craftax variant (default full)"

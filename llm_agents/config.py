@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from env.dataset import parse_categories
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.backends.base import GenerateConfig
+from llm_agents.backends.base import ChoiceRule, GenerateConfig
 
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
@@ -34,8 +34,10 @@ class EvalConfig(BaseModel):
     backend_options: dict[str, Any] = Field(default_factory=dict)
     """Keyword options for the backend, e.g. `threads` or `device` (hf), `enforce_eager` or
     `max_model_len` (vllm), `api_key_env` (openai)."""
-    choice: bool = False
-    """Constrain each answer to one action name (the backend's choice mode) instead of free text."""
+    choice: ChoiceRule | None = None
+    """Answer with one action name, picked by this rule: `loglik` (the name the model finds
+    likeliest after the prompt; hf, vllm) or `guided` (constrained greedy decoding; vllm,
+    openai); unset: free text."""
     variant: Variant = Variant.FULL
     """Craftax variant: `full` (43 actions) or `classic` (17 actions)."""
     splits: tuple[str, ...] = DEFAULT_CATEGORIES

@@ -307,7 +307,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
         templates_dir=config.templates_dir,
         history_length=config.history_length,
         fallback_action=config.fallback_action,
-        choice_mode=config.choice,
+        choice_rule=config.choice,
     )
     first = sink.take(batch)
     if not first:

@@ -22,11 +22,13 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from env.errors import UserError
 from llm_agents.backends.base import (
     ChatMessage,
+    ChoiceRule,
+    ChoiceSet,
     Conversation,
     FinishReason,
     GenerateConfig,
@@ -77,6 +79,11 @@ class HFModel(ModelAPI):
     """
 
     backend_name = "hf"
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik"})
+    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {
+        "guided": "it ranks whole options by log-likelihood (loglik); guided decoding needs "
+        "the vllm or openai backend"
+    }
     # transformers' own annotations of its model classes do not type-check cleanly.
     model: Any
 
@@ -147,16 +154,18 @@ class HFModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
-        if choices:
-            candidates = [self._encode(choice) for choice in choices]
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
+            options = list(choices.options)
+            candidates = [self._encode(option) for option in options]
             if empty := [
-                choice for choice, ids in zip(choices, candidates, strict=True) if not ids
+                option for option, ids in zip(options, candidates, strict=True) if not ids
             ]:
                 raise UserError(f"choices {empty!r} encode to no tokens; every choice needs text")
             return self._in_batches(
-                conversations, lambda batch: self._choose(batch, list(choices), candidates)
+                conversations, lambda batch: self._choose(batch, options, candidates)
             )
         outputs = self._in_batches(conversations, self._generate_split)
         return resolve_truncated(
@@ -573,7 +582,12 @@ def _split_attention_forward(
     split_attention: _SharedPrefixAttention | None = None,
     **kwargs: Any,
 ) -> tuple[torch.Tensor, None]:
-    """Attention over a shared prefix and the tokens' own keys, merged exactly (fp rounding)."""
+    """Attention over a shared prefix and the tokens' own keys, merged exactly (fp rounding).
+
+    Everything between the projections runs in float32 and is rounded to the model's dtype
+    once, at the end: merging two half-precision softmax parts by their (rounded) log-sum-exp
+    is off by whole nats after a few dozen layers.
+    """
     plan = split_attention
     if plan is None:
         raise RuntimeError("split attention runs only inside the hf backend's choice mode")
@@ -595,7 +609,7 @@ def _split_attention_forward(
             out * (lse - total).exp()[..., None]
             + prefix_out * (prefix_lse - total).exp()[..., None]
         )
-    return out.transpose(1, 2).contiguous(), None
+    return out.to(query.dtype).transpose(1, 2).contiguous(), None
 
 
 def _attend(
@@ -610,10 +624,12 @@ def _attend(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Softmax attention and its log-sum-exp: (batch, heads, new, dim), (batch, heads, new).
 
-    `keys` may have fewer heads (grouped queries) and batch 1 (shared by the batch). `mask`
-    (batch, new, keys) marks visible keys; `causal`: the keys are the new tokens' own, in order.
-    `fused`: use the CPU flash kernel where it applies (default: on CPU).
+    Computed and returned in float32 whatever the inputs' dtype. `keys` may have fewer heads
+    (grouped queries) and batch 1 (shared by the batch). `mask` (batch, new, keys) marks
+    visible keys; `causal`: the keys are the new tokens' own, in order. `fused`: use the CPU
+    flash kernel where it applies (default: on CPU).
     """
+    query, keys, values = query.float(), keys.float(), values.float()
     batch, heads, length, dim = query.shape
     kv_batch, kv_heads, kv_length, _ = keys.shape
     groups = heads // kv_heads

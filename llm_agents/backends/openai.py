@@ -15,7 +15,7 @@ import json
 import os
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
@@ -24,6 +24,8 @@ from tenacity import RetryError
 
 from env.errors import UserError
 from llm_agents.backends.base import (
+    ChoiceRule,
+    ChoiceSet,
     Conversation,
     GenerateConfig,
     ModelAPI,
@@ -74,6 +76,11 @@ class OpenAIModel(ModelAPI):
     """Chat completions over HTTP, concurrent, with retries of transient failures."""
 
     backend_name = "openai"
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"guided"})
+    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {
+        "loglik": "chat completions return log-probabilities of generated tokens only, not of "
+        "a given answer after the prompt; use the vllm backend (offline engine) or hf for loglik"
+    }
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
@@ -117,9 +124,12 @@ class OpenAIModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
-        return generate_with_followup(conversations, choices, self._run)
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
+        options = list(choices.options) if choices is not None else None
+        return generate_with_followup(conversations, options, self._run)
 
     def _run(
         self, conversations: Sequence[Conversation], choices: list[str] | None
