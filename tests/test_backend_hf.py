@@ -16,7 +16,7 @@ import torch
 
 from env.errors import UserError
 from llm_agents.backends import embedded
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.hf import (
     CandidateTrie,
     HFModel,
@@ -46,15 +46,47 @@ def model() -> HFModel:
     return HFModel("smollm2-135m", GenerateConfig(max_tokens=12), threads=1)
 
 
-def naive_log_likelihood(model: HFModel, prompt: str, candidate: str) -> float:
-    """Score a candidate with one full forward pass over prompt + candidate, no cache."""
+def naive_log_likelihood(
+    model: HFModel, prompt: str, candidate: str, attention: str | None = None
+) -> float:
+    """Score a candidate with one full forward pass over prompt + candidate, no cache, in the
+    model's own dtype and (unless `attention` names another) attention implementation."""
     prompt_ids = model.tokenizer(prompt, add_special_tokens=False).input_ids
     candidate_ids = model.tokenizer(candidate, add_special_tokens=False).input_ids
-    ids = torch.tensor([prompt_ids + candidate_ids])
-    with torch.inference_mode():
-        log_probs = model.model(input_ids=ids).logits[0].float().log_softmax(-1)
+    ids = torch.tensor([prompt_ids + candidate_ids], device=model.device)
+    config = model.model.config
+    default = config._attn_implementation
+    config._attn_implementation = attention or default
+    try:
+        with torch.inference_mode():
+            log_probs = model.model(input_ids=ids).logits[0].float().log_softmax(-1)
+    finally:
+        config._attn_implementation = default
     positions = range(len(prompt_ids) - 1, len(prompt_ids) + len(candidate_ids) - 1)
     return sum(float(log_probs[p, t]) for p, t in zip(positions, candidate_ids, strict=True))
+
+
+#: Choice scores of a half-precision model may differ from its plain forward pass by this much
+#: at least (the issue's bound for bfloat16).
+HALF_TOLERANCE = 0.1
+
+
+def plain_forward_differences(
+    model: HFModel, conversations: list[list[ChatMessage]], choices: list[str]
+) -> tuple[float, float]:
+    """Largest difference between `model.choice_scores` and the plain forward pass, and the
+    largest difference between two plain forward passes that differ only in their attention
+    kernel (sdpa vs eager): how far the dtype's rounding alone moves a score."""
+    scores = model.choice_scores(conversations, choices)
+    worst = spread = 0.0
+    for conversation, row in zip(conversations, scores, strict=True):
+        prompt = model._render(conversation)
+        for choice, score in zip(choices, row, strict=True):
+            plain = naive_log_likelihood(model, prompt, choice)
+            other = naive_log_likelihood(model, prompt, choice, attention="eager")
+            worst = max(worst, abs(score - plain))
+            spread = max(spread, abs(other - plain))
+    return worst, spread
 
 
 @pytest.mark.slow
@@ -70,9 +102,16 @@ def test_chat_generation_returns_text(model: HFModel) -> None:
 
 @pytest.mark.slow
 def test_choice_mode_prefers_the_right_answer(model: HFModel) -> None:
-    outputs = model.generate([FRANCE, FRANCE], choices=["banana", "Paris"])
+    choices = ChoiceSet(options=("banana", "Paris"), rule="loglik")
+    outputs = model.generate([FRANCE, FRANCE], choices=choices)
     assert [o.text for o in outputs] == ["Paris", "Paris"]
     assert all(o.finish_reason == "choice" for o in outputs)
+
+
+def test_guided_choices_are_refused_with_the_alternatives(model: HFModel) -> None:
+    guided = ChoiceSet(options=("banana", "Paris"), rule="guided")
+    with pytest.raises(UserError, match=r"cannot choose by 'guided'.*loglik.*vllm"):
+        model.generate([FRANCE], choices=guided)
 
 
 @pytest.mark.slow
@@ -130,6 +169,48 @@ def test_both_choice_paths_give_the_same_scores(model: HFModel, split_attention:
         prompt = model._render(conversation)
         expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
         assert row == pytest.approx(expected, abs=2e-3)
+
+
+HALF_CHOICES = ["MAKE_WOOD_PICKAXE", "DO", " Lima", "MAKE", "banana split"]
+
+
+@pytest.fixture(scope="module", params=["bfloat16", "float16"])
+def half_model(request: pytest.FixtureRequest) -> HFModel:
+    return HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype=request.param)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("split_attention", [True, False], ids=["split", "padded"])
+def test_half_precision_choice_scores_match_a_plain_forward_pass(
+    half_model: HFModel, split_attention: bool
+) -> None:
+    half_model.split_attention = split_attention
+    try:
+        # A batch with a shared prefix and one without, then a call reusing the prefix.
+        worst, spread = 0.0, 0.0
+        for conversations in ([FRANCE, PERU, GREETINGS[1]], [PERU], [FRANCE, PERU]):
+            got = plain_forward_differences(half_model, conversations, HALF_CHOICES)
+            worst, spread = max(worst, got[0]), max(spread, got[1])
+    finally:
+        half_model.split_attention = True
+    print(f"{half_model.dtype}: choice vs plain {worst:.3f}, plain sdpa vs eager {spread:.3f}")
+    # The scorer adds no error beyond the model's own rounding (before the fix: a crash on
+    # CPU, whole nats off on a GPU).
+    assert worst <= max(HALF_TOLERANCE, 1.5 * spread)
+
+
+@pytest.mark.gpu
+@pytest.mark.slow
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("dtype", ["bfloat16", "float16", "float32"])
+def test_cuda_choice_scores_match_a_plain_forward_pass(dtype: str) -> None:
+    model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), device="cuda", dtype=dtype)
+    for split_attention in (True, False):
+        model.split_attention = split_attention
+        for conversations in ([FRANCE, PERU, GREETINGS[1]], [PERU]):
+            worst, spread = plain_forward_differences(model, conversations, HALF_CHOICES)
+            bound = 2e-3 if dtype == "float32" else max(HALF_TOLERANCE, 1.5 * spread)
+            assert worst <= bound, (dtype, split_attention, worst, spread)
 
 
 def test_generic_attention_matches_the_cpu_kernel() -> None:
