@@ -15,13 +15,15 @@ pytest.importorskip("transformers")
 import torch
 
 from env.errors import UserError
-from llm_agents.backends import embedded
+from llm_agents.backends import embedded, hf
 from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.hf import (
     CandidateTrie,
     HFModel,
     ThinkingBudget,
     _attend,
+    _SharedPrefixAttention,
+    _split_attention_forward,
     resolve_model_path,
 )
 
@@ -199,6 +201,15 @@ def test_half_precision_choice_scores_match_a_plain_forward_pass(
     assert worst <= max(HALF_TOLERANCE, 1.5 * spread)
 
 
+@pytest.mark.slow
+def test_the_off_cpu_attention_code_is_as_exact_in_bfloat16(monkeypatch: pytest.MonkeyPatch) -> None:
+    # What a GPU runs (no CPU flash kernel), checked here on CPU.
+    monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", False)
+    model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype="bfloat16")
+    worst, spread = plain_forward_differences(model, [FRANCE, PERU, GREETINGS[1]], HALF_CHOICES)
+    assert worst <= max(HALF_TOLERANCE, 1.5 * spread)
+
+
 @pytest.mark.gpu
 @pytest.mark.slow
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
@@ -211,6 +222,55 @@ def test_cuda_choice_scores_match_a_plain_forward_pass(dtype: str) -> None:
             worst, spread = plain_forward_differences(model, conversations, HALF_CHOICES)
             bound = 2e-3 if dtype == "float32" else max(HALF_TOLERANCE, 1.5 * spread)
             assert worst <= bound, (dtype, split_attention, worst, spread)
+
+
+class _Layer(torch.nn.Module):
+    layer_idx = 0
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+@pytest.mark.parametrize("cpu_kernel", [True, False], ids=["cpu-kernel", "generic"])
+def test_split_attention_rounds_once_in_half_precision(
+    monkeypatch: pytest.MonkeyPatch, dtype: torch.dtype, cpu_kernel: bool
+) -> None:
+    # Attention over a shared prefix plus own keys, merged, equals attention over both at
+    # once computed exactly, up to one rounding to the model's dtype. Scores of realistic size
+    # (tens) are where rounding them, or their log-sum-exp, to half precision costs nats.
+    monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", cpu_kernel)
+    torch.manual_seed(0)
+    batch, heads, kv_heads, new, prefix_length, past_length, dim = 2, 6, 2, 5, 40, 7, 16
+    query = (torch.randn(batch, heads, new, dim) * 2).to(dtype)
+    keys, values = (torch.randn(batch, kv_heads, new, dim) * 2).to(dtype), torch.randn(
+        batch, kv_heads, new, dim
+    ).to(dtype)
+    prefix = [tuple((torch.randn(1, kv_heads, prefix_length, dim) * 2).to(dtype) for _ in "kv")]
+    past = {0: tuple(torch.randn(batch, kv_heads, past_length, dim).to(dtype) for _ in "kv")}
+    own_mask = torch.rand(batch, new, past_length + new) > 0.3
+    own_mask[..., past_length:] |= torch.eye(new, dtype=torch.bool)
+    causal = torch.ones(new, new, dtype=torch.bool).tril().expand(batch, new, new)
+    cases = [
+        (_SharedPrefixAttention(prefix), keys, values, causal),
+        (
+            _SharedPrefixAttention(prefix, past=past, mask=own_mask),
+            torch.cat([past[0][0], keys], 2),
+            torch.cat([past[0][1], values], 2),
+            own_mask,
+        ),
+    ]
+    for plan, own_keys, own_values, mask in cases:
+        got, _ = _split_attention_forward(
+            _Layer(), query, keys, values, None, scaling=0.3, split_attention=plan
+        )
+        assert got.dtype == dtype
+        all_keys = torch.cat([prefix[0][0].expand(batch, -1, -1, -1), own_keys], 2).double()
+        all_values = torch.cat([prefix[0][1].expand(batch, -1, -1, -1), own_values], 2).double()
+        visible = torch.cat([torch.ones(batch, new, prefix_length, dtype=torch.bool), mask], -1)
+        groups = heads // kv_heads
+        scores = (query.double() @ all_keys.repeat_interleave(groups, 1).transpose(-1, -2)) * 0.3
+        scores = scores.masked_fill(~visible[:, None], float("-inf"))
+        want = (scores.softmax(-1) @ all_values.repeat_interleave(groups, 1)).transpose(1, 2)
+        error = (got.double() - want).abs()
+        assert (error <= want.abs() * torch.finfo(dtype).eps + 1e-6).all(), float(error.max())
 
 
 def test_generic_attention_matches_the_cpu_kernel() -> None:

@@ -537,6 +537,9 @@ class HFModel(ModelAPI):
 #: with every layer attending to all earlier tokens (no sliding window, no soft-capping).
 SPLIT_ATTENTION_MODELS = frozenset({"llama", "mistral", "qwen2", "qwen3"})
 SPLIT_ATTENTION = "craftext_split_prefix"
+#: Whether split attention on CPU uses torch's CPU flash kernel; off, it runs the matrix-product
+#: code that other devices run (tests use this to check that code's arithmetic on CPU).
+CPU_FLASH_KERNEL = True
 
 
 def _supports_split_attention(model: Any) -> bool:
@@ -633,7 +636,7 @@ def _attend(
     batch, heads, length, dim = query.shape
     kv_batch, kv_heads, kv_length, _ = keys.shape
     groups = heads // kv_heads
-    cpu = query.device.type == "cpu" if fused is None else fused
+    cpu = (query.device.type == "cpu" and CPU_FLASH_KERNEL) if fused is None else fused
     if mask is None and not causal:
         # Every query sees every key: fold the query groups (and a shared batch) into rows.
         rows = query.reshape(batch, kv_heads, groups * length, dim)
