@@ -61,9 +61,15 @@ def test_the_cache_survives_a_new_process_view(tmp_path: Path) -> None:
     [
         ((GenerateConfig(), None), (GenerateConfig(max_tokens=7), None)),
         ((GenerateConfig(), None), (GenerateConfig(), LOGLIK)),
-        ((GenerateConfig(), LOGLIK), (GenerateConfig(), ChoiceSet(options=("DO", "NOOP"), rule="loglik"))),
+        (
+            (GenerateConfig(), LOGLIK),
+            (GenerateConfig(), ChoiceSet(options=("DO", "NOOP"), rule="loglik")),
+        ),
         # The same options picked by another rule can give another answer.
-        ((GenerateConfig(), LOGLIK), (GenerateConfig(), ChoiceSet(options=("NOOP", "DO"), rule="guided"))),
+        (
+            (GenerateConfig(), LOGLIK),
+            (GenerateConfig(), ChoiceSet(options=("NOOP", "DO"), rule="guided")),
+        ),
     ],
 )
 def test_different_parameters_or_choices_are_different_requests(

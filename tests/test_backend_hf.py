@@ -202,7 +202,9 @@ def test_half_precision_choice_scores_match_a_plain_forward_pass(
 
 
 @pytest.mark.slow
-def test_the_off_cpu_attention_code_is_as_exact_in_bfloat16(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_off_cpu_attention_code_is_as_exact_in_bfloat16(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     # What a GPU runs (no CPU flash kernel), checked here on CPU.
     monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", False)
     model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype="bfloat16")
@@ -240,9 +242,10 @@ def test_split_attention_rounds_once_in_half_precision(
     torch.manual_seed(0)
     batch, heads, kv_heads, new, prefix_length, past_length, dim = 2, 6, 2, 5, 40, 7, 16
     query = (torch.randn(batch, heads, new, dim) * 2).to(dtype)
-    keys, values = (torch.randn(batch, kv_heads, new, dim) * 2).to(dtype), torch.randn(
-        batch, kv_heads, new, dim
-    ).to(dtype)
+    keys, values = (
+        (torch.randn(batch, kv_heads, new, dim) * 2).to(dtype),
+        torch.randn(batch, kv_heads, new, dim).to(dtype),
+    )
     prefix = [tuple((torch.randn(1, kv_heads, prefix_length, dim) * 2).to(dtype) for _ in "kv")]
     past = {0: tuple(torch.randn(batch, kv_heads, past_length, dim).to(dtype) for _ in "kv")}
     own_mask = torch.rand(batch, new, past_length + new) > 0.3

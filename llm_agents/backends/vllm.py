@@ -170,7 +170,9 @@ class VLLMModel(ModelAPI):
 
     # -- loglik choices -------------------------------------------------------------------------
 
-    def _choose(self, conversations: Sequence[Conversation], options: list[str]) -> list[ModelOutput]:
+    def _choose(
+        self, conversations: Sequence[Conversation], options: list[str]
+    ) -> list[ModelOutput]:
         candidates = self._candidate_ids(options)
         start = time.perf_counter()
         try:
@@ -252,7 +254,7 @@ class VLLMModel(ModelAPI):
         ]
         results = self.llm.generate(requests, sampling, use_tqdm=False)
         scores = []
-        for index, prompt in enumerate(prompts):
+        for index in range(len(prompts)):
             row = []
             for k, candidate in enumerate(candidates):
                 # Entry i of the (possibly cache-shortened) list scores token i counted from
