@@ -5,10 +5,14 @@ loads any local model folder; any other name is a hub id, loaded only from the l
 (the hub is never contacted, so nothing hangs offline).
 
 Free generation renders each conversation with the model's chat template and decodes a batch at
-once (left padding). Choice mode scores every candidate by its log-likelihood after the prompt,
-with one prompt pass per batch: all candidates then go through a single pass over the prompt's
-cached keys and values, side by side in one sequence, each seeing only the prompt and its own
-earlier tokens (a block-diagonal attention mask). The answer is always one of the choices.
+once (left padding). Choices follow the `loglik` rule only (`guided` is refused): every
+candidate is scored by its log-likelihood after the prompt, with one prompt pass per batch: all
+candidates then go through a single pass over the prompt's cached keys and values, side by side
+in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
+attention mask). The answer is always one of the choices. In bfloat16 and float16 the split
+path's attention runs in float32 and rounds once, so its scores differ from a plain forward
+pass in that dtype by no more than two plain passes with different attention kernels differ
+from each other (benchmarks/bench_choice_dtypes.py measures both).
 
 Reasoning models: the thinking is split from the answer (`reasoning.py`). With
 `reasoning_budget` set, a row that has thought for that many tokens has its closing tag forced,
