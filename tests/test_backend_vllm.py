@@ -138,8 +138,17 @@ def main():
                    max_model_len=4096, dtype="float32", max_num_seqs=32) as model:
         scores = model.choice_scores(conversations, options)
         outputs = model.generate(conversations, ChoiceSet(options=options, rule="loglik"))
+        # Prompts cut to end on a KV-cache block boundary, and two tokens before one: there
+        # the prefix cache reaches into the options, which must then be scored without it.
+        block = model.llm.llm_engine.vllm_config.cache_config.block_size
+        prompt = model._prompt_ids(conversations[0])
+        cut = block * (len(prompt) // block)
+        cut_prompts = [prompt[:cut], prompt[: cut - 2]]
+        candidates = model._candidate_ids(options)
+        cut_scores = model._log_likelihoods(cut_prompts, candidates)
     with open(out_path, "w") as f:
-        json.dump({"scores": scores, "outputs": [o.model_dump() for o in outputs]}, f)
+        json.dump({"scores": scores, "outputs": [o.model_dump() for o in outputs],
+                   "cut_prompts": cut_prompts, "cut_scores": cut_scores}, f)
 
 if __name__ == "__main__":
     main()
@@ -180,6 +189,7 @@ def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]],
 def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     model_dir: Path, tmp_path: Path, classic_env: Any
 ) -> None:
+    torch = pytest.importorskip("torch")
     pytest.importorskip("transformers")
     from llm_agents.backends.hf import HFModel
 
@@ -217,6 +227,16 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     )
     print(f"hf vs vllm loglik scores, float32: largest difference {worst:.2e} nats")
     assert worst < 0.01
+    with torch.inference_mode():
+        hf_cut = hf._candidate_log_likelihoods(
+            result["cut_prompts"], [hf._encode(option) for option in options]
+        )
+    cut_worst = max(
+        abs(a - b)
+        for hf_row, vllm_row in zip(hf_cut, result["cut_scores"], strict=True)
+        for a, b in zip(hf_row, vllm_row, strict=True)
+    )
+    assert cut_worst < 0.01
     vllm_outputs = result["outputs"]
     assert [o["text"] for o in vllm_outputs] == [o.text for o in hf_outputs]
     assert [o["prompt_tokens"] for o in vllm_outputs] == [o.prompt_tokens for o in hf_outputs]

@@ -3,7 +3,8 @@
 `CachedModel(model, path)` wraps any backend. A request's key is a digest of everything that
 decides the answer: the backend's identity (`model.info()`: backend, model, and the versions and
 settings it reports), the generation parameters that shape the output, the messages, and the
-choice options with the rule that picks among them. Hits come back with `cached=True` and `latency_s=0`.
+choice options with the rule that picks among them. Hits come back with `cached=True` and
+`latency_s=0`.
 
 What is cached: only deterministic requests, i.e. temperature 0 (greedy decoding, and choice
 mode, which is greedy by construction). A sampled answer is a draw, and replaying it would hide

@@ -13,8 +13,9 @@ Choices: `guided` decodes greedily under vLLM's structured outputs (the answer i
 options); `loglik` scores every option by its summed log-likelihood after the prompt, from
 vLLM's prompt log-probabilities over prompt + option (the prompt tokenised as the hf backend
 does: chat template, then the option's own tokens), and picks the best. Each conversation's
-prompt is computed once: the option requests read it from vLLM's prefix cache, so `loglik`
-costs one prompt pass plus one short pass per option (see benchmarks/bench_backends.py).
+prompt is computed once: the option requests read it from vLLM's prefix cache (an option whose
+first tokens the cache would cover is asked again without it), so `loglik` costs about one
+prompt pass plus one short pass per option (see benchmarks/bench_backends.py).
 """
 
 from __future__ import annotations
@@ -229,44 +230,71 @@ class VLLMModel(ModelAPI):
     def _log_likelihoods(
         self, prompts: list[list[int]], candidates: list[list[int]]
     ) -> list[list[float]]:
-        sampling = SamplingParams(
-            max_tokens=1,
-            temperature=0.0,
-            prompt_logprobs=0,
-            detokenize=False,
-            # Prompt log-probabilities are only computed for tokens not read from the prefix
-            # cache, so vLLM skips the cache for such requests unless told otherwise. Only the
-            # option's tokens are needed, always at the end, and never cached: each request
-            # ends in its own option.
-            skip_reading_prefix_cache=False,
-        )
-        # The prompts alone first, so that every option request below reads its prompt from
+        # The prompts alone first, so that the option requests below read their prompt from
         # the prefix cache instead of computing it once per option.
         self.llm.generate(
             [TokensPrompt(prompt_token_ids=prompt) for prompt in prompts],
             SamplingParams(max_tokens=1, detokenize=False),
             use_tqdm=False,
         )
-        requests = [
-            TokensPrompt(prompt_token_ids=prompt + candidate)
-            for prompt in prompts
-            for candidate in candidates
-        ]
-        results = self.llm.generate(requests, sampling, use_tqdm=False)
-        scores = []
-        for index in range(len(prompts)):
-            row = []
-            for k, candidate in enumerate(candidates):
-                # Entry i of the (possibly cache-shortened) list scores token i counted from
-                # the end alike: the last entries belong to the option.
-                logprobs = results[index * len(candidates) + k].prompt_logprobs or []
-                tail = logprobs[len(logprobs) - len(candidate) :]
-                if len(tail) != len(candidate) or any(entry is None for entry in tail):
-                    raise RuntimeError("vLLM returned fewer prompt log-probabilities than asked")
-                row.append(
-                    sum(entry[token].logprob for entry, token in zip(tail, candidate, strict=True))
-                )
-            scores.append(row)
+        requests = [prompt + candidate for prompt in prompts for candidate in candidates]
+        # Prompt log-probabilities come only for the tokens a request computes, so vLLM skips
+        # the prefix cache for such requests unless told otherwise. Only the option's tokens
+        # are needed; the few requests whose cache hit reaches into them (a prompt ending on
+        # a cache block boundary, or a block shared with a longer option) are asked again
+        # without the cache.
+        scores = self._tail_log_likelihoods(requests, candidates, use_cache=True)
+        missing = [index for index, score in enumerate(scores) if score is None]
+        if missing:
+            again = self._tail_log_likelihoods(
+                [requests[i] for i in missing],
+                [candidates[i % len(candidates)] for i in missing],
+                use_cache=False,
+            )
+            for index, score in zip(missing, again, strict=True):
+                scores[index] = score
+        width = len(candidates)
+        rows = []
+        for begin in range(0, len(scores), width):
+            row = scores[begin : begin + width]
+            if any(score is None for score in row):
+                raise RuntimeError("vLLM returned fewer prompt log-probabilities than asked")
+            rows.append([score for score in row if score is not None])
+        return rows
+
+    def _tail_log_likelihoods(
+        self, requests: list[list[int]], candidates: list[list[int]], *, use_cache: bool
+    ) -> list[float | None]:
+        """Summed log-probability of the last len(candidate) tokens of each request (requests
+        cycle through `candidates`), or None where the prefix cache left some uncomputed."""
+        sampling = SamplingParams(
+            max_tokens=1,
+            temperature=0.0,
+            prompt_logprobs=0,
+            detokenize=False,
+            skip_reading_prefix_cache=not use_cache,
+        )
+        results = self.llm.generate(
+            [TokensPrompt(prompt_token_ids=ids) for ids in requests], sampling, use_tqdm=False
+        )
+        scores: list[float | None] = []
+        for index, (ids, result) in enumerate(zip(requests, results, strict=True)):
+            candidate = candidates[index % len(candidates)]
+            start = len(ids) - len(candidate)
+            # Entry i scores token i from the logits at position i - 1; positions read from
+            # the prefix cache were not computed, and their entries are placeholders.
+            if (result.num_cached_tokens or 0) > start - 1:
+                scores.append(None)
+                continue
+            entries = (result.prompt_logprobs or [])[start:]
+            if len(entries) != len(candidate) or any(
+                entry is None or token not in entry
+                for entry, token in zip(entries, candidate, strict=True)
+            ):
+                raise RuntimeError("vLLM returned no log-probability for a prompt token")
+            scores.append(
+                sum(entry[token].logprob for entry, token in zip(entries, candidate, strict=True))
+            )
         return scores
 
     def _run(self, messages: list[list[dict[str, Any]]], sampling: SamplingParams) -> list[Any]:
