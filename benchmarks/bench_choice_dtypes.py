@@ -7,7 +7,8 @@ each first with a fresh prompt prefix (step 1's conversations) and then with the
 from that call (step 2's conversations). Every score is compared with one plain forward pass
 over prompt + action name in the same dtype (the model's default attention, sdpa). Two
 yardsticks of the dtype's own rounding come with it: the same plain pass with eager attention
-(another, equally valid kernel), and the plain pass in float32.
+(another, equally valid kernel), and the plain pass in float32, which the choice scores are
+also compared with.
 
     python benchmarks/bench_choice_dtypes.py [--device cpu] [--dtypes float32 bfloat16 float16]
         [--slots 1] [--options 6] [--threads 2]
@@ -113,6 +114,7 @@ def main() -> None:
                     largest_gap(reused, plain[args.slots :]),
                     largest_gap(eager, plain),
                     largest_gap(float32, plain),
+                    largest_gap(float32, fresh + reused),
                 )
             )
         print(f"{dtype}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
@@ -122,11 +124,12 @@ def main() -> None:
     )
     print(
         f"{'dtype':<10}{'path':<8}{'vs plain (fresh)':>18}{'vs plain (reused)':>19}"
-        f"{'plain: eager vs sdpa':>22}{'plain: vs float32':>19}"
+        f"{'plain: eager vs sdpa':>22}{'plain: vs float32':>19}{'choice: vs float32':>20}"
     )
-    for dtype, path, fresh_gap, reused_gap, spread, drift in rows:
+    for dtype, path, fresh_gap, reused_gap, spread, drift, choice_drift in rows:
         print(
-            f"{dtype:<10}{path:<8}{fresh_gap:>18.4f}{reused_gap:>19.4f}{spread:>22.4f}{drift:>19.4f}"
+            f"{dtype:<10}{path:<8}{fresh_gap:>18.4f}{reused_gap:>19.4f}{spread:>22.4f}"
+            f"{drift:>19.4f}{choice_drift:>20.4f}"
         )
 
 
