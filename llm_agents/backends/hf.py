@@ -11,8 +11,10 @@ candidates then go through a single pass over the prompt's cached keys and value
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
 attention mask). The answer is always one of the choices. In bfloat16 and float16 the split
 path's attention runs in float32 and rounds once, so its scores differ from a plain forward
-pass in that dtype by no more than two plain passes with different attention kernels differ
-from each other (benchmarks/bench_choice_dtypes.py measures both).
+pass in that dtype about as much as two plain passes with different attention kernels differ
+from each other (float16: hundredths of a nat; bfloat16: most of a nat on the embedded model,
+whose choice scores still lie nearer the float32 ones than its plain bfloat16 pass does;
+benchmarks/bench_choice_dtypes.py measures it).
 
 Reasoning models: the thinking is split from the answer (`reasoning.py`). With
 `reasoning_budget` set, a row that has thought for that many tokens has its closing tag forced,
