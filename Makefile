@@ -13,7 +13,7 @@ PIP_FLAGS := --progress-bar off
 endif
 
 # Classic Craftax and 20 steps keep the CPU demo to a few minutes; drop them for the paper's setting.
-DEMO_FLAGS := --model hf:smollm2-135m --choice --variant classic --limit 6 --max-steps 20 \
+DEMO_FLAGS := --model hf:smollm2-135m --choice loglik --variant classic --limit 6 --max-steps 20 \
 	--batch-size 6 --output-dir runs/demo
 
 .PHONY: help setup setup-dev demo test lint bench clean distclean

@@ -3,8 +3,9 @@ batch 1 vs batch 16, transformers side by side with vLLM-on-CPU when its environ
 
 A decision is one agent-style conversation (system prompt listing the actions, one observation)
 answered either by free generation (`--max-tokens` tokens at most) or by choice mode (the
-answer picked among the action names). Each cell is the best of `--repeats` timed runs; one
-batch-1 call per mode warms up first.
+answer picked among the action names) under a choice rule: `loglik` (every name scored by its
+log-likelihood; transformers and vLLM) or `guided` (constrained greedy decoding; vLLM only).
+Each cell is the best of `--repeats` timed runs; one batch-1 call per mode warms up first.
 
 The vLLM column runs this same script in a child process with the vLLM environment's Python
 (`--vllm-python`, default `.venv-vllm/bin/python` when it exists; `--vllm-python none` skips it),
@@ -12,7 +13,8 @@ on the same workload, passed to it as a JSON file.
 
 `--realistic classic|full` times choice mode on real CrafText prompts instead: the agent's
 system prompt and step messages over observations of real episodes (16 slots, random actions,
-so later steps carry a history), each call one agent step; `--compare-paths` adds the hf
+so later steps carry a history), each call one agent step, on transformers (`loglik`) and on
+vLLM (`guided` and `loglik`: what vLLM's `loglik` costs); `--compare-paths` adds the hf
 backend's generic cache path (the shared prefix copied per conversation) as a baseline.
 
     python benchmarks/bench_backends.py [--threads 2] [--batches 1 16] [--repeats 2]
@@ -38,7 +40,7 @@ DEFAULT_VLLM_PYTHON = REPO / ".venv-vllm" / "bin" / "python"
 sys.path.insert(0, str(REPO))
 
 from llm_agents.backends import GenerateConfig, get_model  # noqa: E402
-from llm_agents.backends.base import ChatMessage  # noqa: E402
+from llm_agents.backends.base import ChatMessage, ChoiceSet  # noqa: E402
 
 
 class Workload(BaseModel):
@@ -60,7 +62,7 @@ class Cell(BaseModel):
     backend: str
     """Registry name of the backend."""
     mode: str
-    """`free` or `choice`."""
+    """`free`, or the choice rule: `loglik` or `guided`."""
     batch: int
     """Conversations per `generate` call."""
     seconds: float
@@ -118,8 +120,8 @@ def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
     required[0] = True
     task = env.make_task(required, np.zeros(22, dtype=bool))
     reset, step = jax.jit(craftext.reset), jax.jit(craftext.step_from_episode_key)
-    agent = ZeroShotAgent(variant=variant, choice_mode=True)
-    names = list(agent.choices or [])
+    agent = ZeroShotAgent(variant=variant, choice_rule="loglik")
+    names = list(agent.choices.options if agent.choices else [])
     states = []
     for slot in range(slots):
         states.append(reset(jnp.asarray(env.episode_key(0, "g", 0, slot)), task))
@@ -145,7 +147,7 @@ def measure(
     workload: Workload,
     batches: list[int],
     repeats: int,
-    modes: tuple[str, ...] = ("free", "choice"),
+    modes: tuple[str, ...] = ("free", "loglik"),
     split_attention: bool = True,
     **options: Any,
 ) -> list[Cell]:
@@ -156,7 +158,11 @@ def measure(
     cells = []
     try:
         for mode in modes:
-            choices = workload.choices if mode == "choice" else None
+            choices = (
+                None
+                if mode == "free"
+                else ChoiceSet.model_validate({"options": workload.choices, "rule": mode})
+            )
             # One small warm-up per mode: first calls pay for lazy initialisation.
             model.generate(workload.conversations[:1], choices)
             for batch in batches:
@@ -191,7 +197,7 @@ def measure(
 
 
 def measure_vllm_in_child(
-    python: Path, workload: Workload, batches: list[int], repeats: int
+    python: Path, workload: Workload, batches: list[int], repeats: int, modes: tuple[str, ...]
 ) -> list[Cell]:
     with tempfile.TemporaryDirectory() as scratch:
         workload_path = Path(scratch) / "workload.json"
@@ -207,6 +213,8 @@ def measure_vllm_in_child(
             str(repeats),
             "--batches",
             *map(str, batches),
+            "--modes",
+            *modes,
         ]
         env = {**os.environ, "PYTHONPATH": str(REPO)}
         env.setdefault("VLLM_CPU_KVCACHE_SPACE", "2")
@@ -226,17 +234,20 @@ def print_table(cells: list[Cell]) -> None:
             f"{cell.backend:<14}{cell.mode:<8}{cell.batch:>6}{cell.decisions_per_s:>14.2f}"
             f"{cell.seconds:>10.3f}{cell.prompt_tokens:>12.0f}"
         )
-    by_key = {(c.backend, c.mode, c.batch): c.decisions_per_s for c in cells}
+    by_key = {(c.backend, c.mode, c.batch): c.seconds for c in cells}
     for backend in dict.fromkeys(c.backend for c in cells):
         for batch in dict.fromkeys(c.batch for c in cells):
-            free, choice = (
-                by_key.get((backend, "free", batch)),
-                by_key.get((backend, "choice", batch)),
+            free, loglik, guided = (
+                by_key.get((backend, mode, batch)) for mode in ("free", "loglik", "guided")
             )
-            if free and choice:
-                print(
-                    f"{backend} batch {batch}: choice mode is {choice / free:.1f}x free generation"
-                )
+            for rule, seconds in (("loglik", loglik), ("guided", guided)):
+                if free and seconds:
+                    print(
+                        f"{backend} batch {batch}: {rule} takes {seconds / free:.2f}x the time "
+                        "of free generation"
+                    )
+            if loglik and guided:
+                print(f"{backend} batch {batch}: loglik takes {loglik / guided:.1f}x guided's time")
 
 
 def main() -> None:
@@ -263,13 +274,20 @@ def main() -> None:
     parser.add_argument(
         "--child-vllm", nargs=2, metavar=("WORKLOAD", "RESULT"), help=argparse.SUPPRESS
     )
+    parser.add_argument("--modes", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args()
 
     if args.child_vllm:
         workload_path, result_path = map(Path, args.child_vllm)
         workload = Workload.model_validate_json(workload_path.read_text())
         cells = measure(
-            "vllm", "vllm:smollm2-135m", workload, args.batches, args.repeats, enforce_eager=True
+            "vllm",
+            "vllm:smollm2-135m",
+            workload,
+            args.batches,
+            args.repeats,
+            modes=tuple(args.modes),
+            enforce_eager=True,
         )
         result_path.write_text(json.dumps([cell.model_dump() for cell in cells]))
         return
@@ -287,7 +305,7 @@ def main() -> None:
                 workload,
                 args.batches,
                 args.repeats,
-                modes=("choice",),
+                modes=("loglik",),
                 split_attention=False,
                 **options,
             )
@@ -297,9 +315,14 @@ def main() -> None:
             workload,
             args.batches,
             args.repeats,
-            modes=("choice",),
+            modes=("loglik",),
             **options,
         )
+        vllm_python = Path(args.vllm_python)
+        if args.vllm_python != "none" and vllm_python.exists():
+            cells += measure_vllm_in_child(
+                vllm_python, workload, args.batches, args.repeats, ("guided", "loglik")
+            )
         import torch
 
         print(f"real CrafText prompts ({args.realistic}), torch threads: {torch.get_num_threads()}")
@@ -311,7 +334,9 @@ def main() -> None:
     )
     vllm_python = Path(args.vllm_python)
     if args.vllm_python != "none" and vllm_python.exists():
-        cells += measure_vllm_in_child(vllm_python, workload, args.batches, args.repeats)
+        cells += measure_vllm_in_child(
+            vllm_python, workload, args.batches, args.repeats, ("free", "guided", "loglik")
+        )
     else:
         print(f"vLLM skipped: no vLLM environment at {vllm_python} (build .venv-vllm to compare)")
     import torch

@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict
 from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
-from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
+from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelAPI, ModelOutput
 from llm_agents.parser import ParseResult, parse_action
 from prompts import render_template
 
@@ -165,12 +165,12 @@ class ZeroShotAgent:
         templates_dir: str | Path | None = None,
         history_length: int = 5,
         fallback_action: str = "NOOP",
-        choice_mode: bool = False,
+        choice_rule: ChoiceRule | None = None,
     ):
         """`renderer`: a textualizer style name or a function observation -> text.
 
-        `choice_mode` passes the action names as `choices` to the model, for backends that
-        pick an answer from a list instead of writing one.
+        `choice_rule` passes the action names as choices to the model, picked by that rule
+        (`loglik` or `guided`); None lets the model write free text.
         """
         self.variant = as_variant(variant)
         if history_length < 0:
@@ -178,12 +178,16 @@ class ZeroShotAgent:
         self.history_length = history_length
         self.fallback_name = action_names(self.variant)[action_id(fallback_action, self.variant)]
         self.fallback_id = action_id(self.fallback_name, self.variant)
-        self.choice_mode = choice_mode
+        self.choice_rule = choice_rule
         self.templates_dir = templates_dir
         self.render_observation = (
             _textualizer_renderer(renderer) if isinstance(renderer, str) else renderer
         )
-        self.choices = list(action_names(self.variant)) if choice_mode else None
+        self.choices = (
+            ChoiceSet(options=tuple(action_names(self.variant)), rule=choice_rule)
+            if choice_rule is not None
+            else None
+        )
         self.system_message = ChatMessage(
             role="system",
             content=render_template(SYSTEM_TEMPLATE, self.system_context(), templates_dir),
@@ -211,7 +215,7 @@ class ZeroShotAgent:
             "instruction": instruction,
             "plan": plan,
             "history": [entry.model_dump() for entry in history],
-            "choice_mode": self.choice_mode,
+            "choice_mode": self.choice_rule is not None,
         }
 
     def check_templates(self, instruction: str, plan: str | None = None) -> None:

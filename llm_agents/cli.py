@@ -135,6 +135,9 @@ def _open_model(settings: ModelSettings) -> Any:
     from llm_agents.backends import get_model
 
     model = get_model(settings.model, settings.generation, **settings.backend_options)
+    choice = getattr(settings, "choice", None)
+    if choice is not None:
+        model.check_choice_rule(choice)
     if settings.cache:
         from llm_agents.backends.cache import CachedModel
 

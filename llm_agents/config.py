@@ -21,7 +21,7 @@ from env.dataset import parse_categories
 from env.errors import UserError
 from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
-from llm_agents.backends.base import GenerateConfig
+from llm_agents.backends.base import ChoiceRule, GenerateConfig
 from llm_agents.protocol import ProtocolName, apply_protocol
 
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
@@ -91,8 +91,10 @@ class ModelSettings(BaseModel):
 class EvalConfig(ModelSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
-    choice: bool = False
-    """Constrain each answer to one action name (the backend's choice mode) instead of free text."""
+    choice: ChoiceRule | None = None
+    """Answer with one action name, picked by this rule: loglik (the name the model finds
+    likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
+    unset: free text."""
     splits: tuple[str, ...] = DEFAULT_CATEGORIES
     """Instruction categories to run: one, combo, paraphrased, new_objects."""
     paraphrases: bool = True

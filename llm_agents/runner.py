@@ -184,7 +184,7 @@ def _make_agent(config: EvalConfig) -> ZeroShotAgent:
         templates_dir=config.templates_dir,
         history_length=config.history_length,
         fallback_action=config.fallback_action,
-        choice_mode=config.choice,
+        choice_rule=config.choice,
     )
 
 

@@ -11,7 +11,7 @@ from env.errors import UserError
 from env.variant import Variant
 from llm_agents.agent import Decision, ZeroShotAgent, describe_outcome
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, ModelOutput
+from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel
 
 
@@ -100,7 +100,7 @@ def test_calls_generate_once_per_act() -> None:
         def generate(
             self,
             conversations: Sequence[Sequence[ChatMessage]],
-            choices: Sequence[str] | None = None,
+            choices: ChoiceSet | None = None,
         ) -> list[ModelOutput]:
             calls.append(len(conversations))
             return super().generate(conversations, choices)
@@ -200,13 +200,15 @@ def test_new_episode_in_a_slot_starts_a_fresh_history_and_plan() -> None:
     assert "1. find water" in prompt and "step 0" not in prompt
 
 
-def test_choice_mode_passes_the_variant_action_names() -> None:
+@pytest.mark.parametrize("rule", ["loglik", "guided"])
+def test_choice_mode_passes_the_variant_action_names_and_the_rule(rule: ChoiceRule) -> None:
     model = MockModel(outputs=["not a name"])
-    agent = ZeroShotAgent(Variant.FULL, renderer=render_fake, choice_mode=True)
+    agent = ZeroShotAgent(Variant.FULL, renderer=render_fake, choice_rule=rule)
     agent.start_episode(0, "descend")
     decision = agent.act(model, [0], [FakeObservation()])[0]
     choices = model.requests[0][1]
-    assert choices is not None and len(choices) == 43 and choices[18] == "DESCEND"
+    assert choices is not None and choices.rule == rule
+    assert len(choices.options) == 43 and choices.options[18] == "DESCEND"
     assert decision.name == "NOOP" and decision.parse.stage == "exact"  # mock picks choices[0]
     assert "ACTION:" not in user_text(model.requests[0][0])
 

@@ -8,9 +8,11 @@ from pathlib import Path
 import pytest
 
 from env.errors import UserError
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.cache import CachedModel
 from llm_agents.backends.mock import MockModel
+
+LOGLIK = ChoiceSet(options=("NOOP", "DO"), rule="loglik")
 
 
 def ask(text: str) -> list[ChatMessage]:
@@ -58,14 +60,22 @@ def test_the_cache_survives_a_new_process_view(tmp_path: Path) -> None:
     ("first", "second"),
     [
         ((GenerateConfig(), None), (GenerateConfig(max_tokens=7), None)),
-        ((GenerateConfig(), None), (GenerateConfig(), ["NOOP", "DO"])),
-        ((GenerateConfig(), ["NOOP", "DO"]), (GenerateConfig(), ["DO", "NOOP"])),
+        ((GenerateConfig(), None), (GenerateConfig(), LOGLIK)),
+        (
+            (GenerateConfig(), LOGLIK),
+            (GenerateConfig(), ChoiceSet(options=("DO", "NOOP"), rule="loglik")),
+        ),
+        # The same options picked by another rule can give another answer.
+        (
+            (GenerateConfig(), LOGLIK),
+            (GenerateConfig(), ChoiceSet(options=("NOOP", "DO"), rule="guided")),
+        ),
     ],
 )
 def test_different_parameters_or_choices_are_different_requests(
     tmp_path: Path,
-    first: tuple[GenerateConfig, list[str] | None],
-    second: tuple[GenerateConfig, list[str] | None],
+    first: tuple[GenerateConfig, ChoiceSet | None],
+    second: tuple[GenerateConfig, ChoiceSet | None],
 ) -> None:
     path = tmp_path / "cache.sqlite"
     config_a, choices_a = first

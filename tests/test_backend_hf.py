@@ -15,13 +15,15 @@ pytest.importorskip("transformers")
 import torch
 
 from env.errors import UserError
-from llm_agents.backends import embedded
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends import embedded, hf
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.hf import (
     CandidateTrie,
     HFModel,
     ThinkingBudget,
     _attend,
+    _SharedPrefixAttention,
+    _split_attention_forward,
     resolve_model_path,
 )
 
@@ -46,15 +48,47 @@ def model() -> HFModel:
     return HFModel("smollm2-135m", GenerateConfig(max_tokens=12), threads=1)
 
 
-def naive_log_likelihood(model: HFModel, prompt: str, candidate: str) -> float:
-    """Score a candidate with one full forward pass over prompt + candidate, no cache."""
+def naive_log_likelihood(
+    model: HFModel, prompt: str, candidate: str, attention: str | None = None
+) -> float:
+    """Score a candidate with one full forward pass over prompt + candidate, no cache, in the
+    model's own dtype and (unless `attention` names another) attention implementation."""
     prompt_ids = model.tokenizer(prompt, add_special_tokens=False).input_ids
     candidate_ids = model.tokenizer(candidate, add_special_tokens=False).input_ids
-    ids = torch.tensor([prompt_ids + candidate_ids])
-    with torch.inference_mode():
-        log_probs = model.model(input_ids=ids).logits[0].float().log_softmax(-1)
+    ids = torch.tensor([prompt_ids + candidate_ids], device=model.device)
+    config = model.model.config
+    default = config._attn_implementation
+    config._attn_implementation = attention or default
+    try:
+        with torch.inference_mode():
+            log_probs = model.model(input_ids=ids).logits[0].float().log_softmax(-1)
+    finally:
+        config._attn_implementation = default
     positions = range(len(prompt_ids) - 1, len(prompt_ids) + len(candidate_ids) - 1)
     return sum(float(log_probs[p, t]) for p, t in zip(positions, candidate_ids, strict=True))
+
+
+#: Choice scores of a half-precision model may differ from its plain forward pass by this much
+#: at least (the issue's bound for bfloat16).
+HALF_TOLERANCE = 0.1
+
+
+def plain_forward_differences(
+    model: HFModel, conversations: list[list[ChatMessage]], choices: list[str]
+) -> tuple[float, float]:
+    """Largest difference between `model.choice_scores` and the plain forward pass, and the
+    largest difference between two plain forward passes that differ only in their attention
+    kernel (sdpa vs eager): how far the dtype's rounding alone moves a score."""
+    scores = model.choice_scores(conversations, choices)
+    worst = spread = 0.0
+    for conversation, row in zip(conversations, scores, strict=True):
+        prompt = model._render(conversation)
+        for choice, score in zip(choices, row, strict=True):
+            plain = naive_log_likelihood(model, prompt, choice)
+            other = naive_log_likelihood(model, prompt, choice, attention="eager")
+            worst = max(worst, abs(score - plain))
+            spread = max(spread, abs(other - plain))
+    return worst, spread
 
 
 @pytest.mark.slow
@@ -70,9 +104,16 @@ def test_chat_generation_returns_text(model: HFModel) -> None:
 
 @pytest.mark.slow
 def test_choice_mode_prefers_the_right_answer(model: HFModel) -> None:
-    outputs = model.generate([FRANCE, FRANCE], choices=["banana", "Paris"])
+    choices = ChoiceSet(options=("banana", "Paris"), rule="loglik")
+    outputs = model.generate([FRANCE, FRANCE], choices=choices)
     assert [o.text for o in outputs] == ["Paris", "Paris"]
     assert all(o.finish_reason == "choice" for o in outputs)
+
+
+def test_guided_choices_are_refused_with_the_alternatives(model: HFModel) -> None:
+    guided = ChoiceSet(options=("banana", "Paris"), rule="guided")
+    with pytest.raises(UserError, match=r"cannot choose by 'guided'.*loglik.*vllm"):
+        model.generate([FRANCE], choices=guided)
 
 
 @pytest.mark.slow
@@ -130,6 +171,109 @@ def test_both_choice_paths_give_the_same_scores(model: HFModel, split_attention:
         prompt = model._render(conversation)
         expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
         assert row == pytest.approx(expected, abs=2e-3)
+
+
+HALF_CHOICES = ["MAKE_WOOD_PICKAXE", "DO", " Lima", "MAKE", "banana split"]
+
+
+@pytest.fixture(scope="module", params=["bfloat16", "float16"])
+def half_model(request: pytest.FixtureRequest) -> HFModel:
+    return HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype=request.param)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("split_attention", [True, False], ids=["split", "padded"])
+def test_half_precision_choice_scores_match_a_plain_forward_pass(
+    half_model: HFModel, split_attention: bool
+) -> None:
+    half_model.split_attention = split_attention
+    try:
+        # A batch with a shared prefix and one without, then a call reusing the prefix.
+        worst, spread = 0.0, 0.0
+        for conversations in ([FRANCE, PERU, GREETINGS[1]], [PERU], [FRANCE, PERU]):
+            got = plain_forward_differences(half_model, conversations, HALF_CHOICES)
+            worst, spread = max(worst, got[0]), max(spread, got[1])
+    finally:
+        half_model.split_attention = True
+    print(f"{half_model.dtype}: choice vs plain {worst:.3f}, plain sdpa vs eager {spread:.3f}")
+    # The scorer adds no error beyond the model's own rounding (before the fix: a crash on
+    # CPU, whole nats off on a GPU).
+    assert worst <= max(HALF_TOLERANCE, 1.5 * spread)
+
+
+@pytest.mark.slow
+def test_the_off_cpu_attention_code_is_as_exact_in_bfloat16(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # What a GPU runs (no CPU flash kernel), checked here on CPU.
+    monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", False)
+    model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype="bfloat16")
+    worst, spread = plain_forward_differences(model, [FRANCE, PERU, GREETINGS[1]], HALF_CHOICES)
+    assert worst <= max(HALF_TOLERANCE, 1.5 * spread)
+
+
+@pytest.mark.gpu
+@pytest.mark.slow
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("dtype", ["bfloat16", "float16", "float32"])
+def test_cuda_choice_scores_match_a_plain_forward_pass(dtype: str) -> None:
+    model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), device="cuda", dtype=dtype)
+    for split_attention in (True, False):
+        model.split_attention = split_attention
+        for conversations in ([FRANCE, PERU, GREETINGS[1]], [PERU]):
+            worst, spread = plain_forward_differences(model, conversations, HALF_CHOICES)
+            bound = 2e-3 if dtype == "float32" else max(HALF_TOLERANCE, 1.5 * spread)
+            assert worst <= bound, (dtype, split_attention, worst, spread)
+
+
+class _Layer(torch.nn.Module):
+    layer_idx = 0
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+@pytest.mark.parametrize("cpu_kernel", [True, False], ids=["cpu-kernel", "generic"])
+def test_split_attention_rounds_once_in_half_precision(
+    monkeypatch: pytest.MonkeyPatch, dtype: torch.dtype, cpu_kernel: bool
+) -> None:
+    # Attention over a shared prefix plus own keys, merged, equals attention over both at
+    # once computed exactly, up to one rounding to the model's dtype. Scores of realistic size
+    # (tens) are where rounding them, or their log-sum-exp, to half precision costs nats.
+    monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", cpu_kernel)
+    torch.manual_seed(0)
+    batch, heads, kv_heads, new, prefix_length, past_length, dim = 2, 6, 2, 5, 40, 7, 16
+    query = (torch.randn(batch, heads, new, dim) * 2).to(dtype)
+    keys, values = (
+        (torch.randn(batch, kv_heads, new, dim) * 2).to(dtype),
+        torch.randn(batch, kv_heads, new, dim).to(dtype),
+    )
+    prefix = [tuple((torch.randn(1, kv_heads, prefix_length, dim) * 2).to(dtype) for _ in "kv")]
+    past = {0: tuple(torch.randn(batch, kv_heads, past_length, dim).to(dtype) for _ in "kv")}
+    own_mask = torch.rand(batch, new, past_length + new) > 0.3
+    own_mask[..., past_length:] |= torch.eye(new, dtype=torch.bool)
+    causal = torch.ones(new, new, dtype=torch.bool).tril().expand(batch, new, new)
+    cases = [
+        (_SharedPrefixAttention(prefix), keys, values, causal),
+        (
+            _SharedPrefixAttention(prefix, past=past, mask=own_mask),
+            torch.cat([past[0][0], keys], 2),
+            torch.cat([past[0][1], values], 2),
+            own_mask,
+        ),
+    ]
+    for plan, own_keys, own_values, mask in cases:
+        got, _ = _split_attention_forward(
+            _Layer(), query, keys, values, None, scaling=0.3, split_attention=plan
+        )
+        assert got.dtype == dtype
+        all_keys = torch.cat([prefix[0][0].expand(batch, -1, -1, -1), own_keys], 2).double()
+        all_values = torch.cat([prefix[0][1].expand(batch, -1, -1, -1), own_values], 2).double()
+        visible = torch.cat([torch.ones(batch, new, prefix_length, dtype=torch.bool), mask], -1)
+        groups = heads // kv_heads
+        scores = (query.double() @ all_keys.repeat_interleave(groups, 1).transpose(-1, -2)) * 0.3
+        scores = scores.masked_fill(~visible[:, None], float("-inf"))
+        want = (scores.softmax(-1) @ all_values.repeat_interleave(groups, 1)).transpose(1, 2)
+        error = (got.double() - want).abs()
+        assert (error <= want.abs() * torch.finfo(dtype).eps + 1e-6).all(), float(error.max())
 
 
 def test_generic_attention_matches_the_cpu_kernel() -> None:

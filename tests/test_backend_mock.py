@@ -9,7 +9,7 @@ import pytest
 
 from env.errors import UserError
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ERROR_CHARS, ChatMessage, ModelOutput
+from llm_agents.backends.base import ERROR_CHARS, ChatMessage, ChoiceRule, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel
 
 
@@ -67,11 +67,14 @@ def test_bad_scripts_are_user_errors(script: str, message: str) -> None:
         get_model(f"mock:{script}")
 
 
-def test_choice_mode_always_returns_one_of_the_choices() -> None:
+@pytest.mark.parametrize("rule", ["loglik", "guided"])
+def test_choice_mode_always_returns_one_of_the_choices(rule: ChoiceRule) -> None:
     model = MockModel("cycle:DO|JUMP")
-    outputs = model.generate([ask("a"), ask("b")], choices=["NOOP", "DO"])
+    choices = ChoiceSet(options=("NOOP", "DO"), rule=rule)
+    outputs = model.generate([ask("a"), ask("b")], choices=choices)
     assert [o.text for o in outputs] == ["DO", "NOOP"]
     assert all(o.finish_reason == "choice" for o in outputs)
+    assert model.requests[0][1] == choices
 
 
 def test_a_responder_sees_the_conversation_and_requests_are_recorded() -> None:

@@ -16,13 +16,14 @@ from fault_server import Fault, FaultServer
 
 from env.errors import UserError
 from llm_agents.backends import CachedModel, get_model
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.openai import OpenAIModel
 from llm_agents.backends.retry import RetryPolicy, backoff_wait, parse_retry_after
 
 #: Retries fast enough for tests; the timeout is short so "slow" faults stay cheap.
 FAST = {"backoff_initial_s": 0.01, "backoff_max_s": 0.05, "jitter_s": 0.0}
 SECRET = "sk-test-0123456789-very-secret"
+GUIDED = ChoiceSet(options=("NOOP", "MOVE_LEFT"), rule="guided")
 
 
 @pytest.fixture
@@ -154,7 +155,9 @@ def test_api_key_is_sent_but_never_leaks(
 
 def test_choice_mode_uses_structured_outputs(server: FaultServer) -> None:
     choices = ["NOOP", "MOVE_LEFT", "DO"]
-    outputs = model(server).generate([conv("a"), conv("b")], choices=choices)
+    outputs = model(server).generate(
+        [conv("a"), conv("b")], choices=ChoiceSet(options=tuple(choices), rule="guided")
+    )
     assert [o.text for o in outputs] == ["DO", "DO"]
     assert all(o.finish_reason == "choice" for o in outputs)
     assert server.requests[0].body["structured_outputs"] == {"choice": choices}
@@ -166,11 +169,11 @@ def test_choice_mode_falls_back_to_free_text_when_the_server_rejects_it(
     server.reject_structured_outputs = True
     server.answer = lambda body: {"role": "assistant", "content": " MOVE_LEFT\n"}
     backend = model(server)
-    [first] = backend.generate([conv("a")], choices=["NOOP", "MOVE_LEFT"])
+    [first] = backend.generate([conv("a")], choices=GUIDED)
     assert first.text == "MOVE_LEFT" and first.finish_reason == "choice"
     assert server.count("a") == 2  # the rejected constrained request, then free text
     server.answer = lambda body: {"role": "assistant", "content": "I would go left"}
-    [second] = backend.generate([conv("b")], choices=["NOOP", "MOVE_LEFT"])
+    [second] = backend.generate([conv("b")], choices=GUIDED)
     assert server.count("b") == 1  # no constrained request any more
     assert "structured_outputs" not in server.requests[-1].body
     assert second.text == "I would go left" and second.finish_reason == "stop"
@@ -353,3 +356,9 @@ def test_a_password_in_the_url_is_a_secret_too(
     visible = [failed.model_dump_json(), caplog.text, repr(backend), str(backend.info())]
     assert backend.info()["base_url"] == f"http://127.0.0.1:{port}/v1"
     assert not any(secret in text for text in visible for secret in ("pa%40ss", "pa@ss"))
+
+
+def test_loglik_choices_are_refused_with_the_reason(server: FaultServer) -> None:
+    with pytest.raises(UserError, match=r"cannot choose by 'loglik'.*log-probabilities"):
+        model(server).generate([conv("a")], choices=ChoiceSet(options=("DO",), rule="loglik"))
+    assert server.requests == []

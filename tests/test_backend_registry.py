@@ -4,22 +4,23 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import pytest
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 
 from env.errors import UserError
 from llm_agents import backends
 from llm_agents.backends import (
     BackendNotInstalled,
+    CachedModel,
     GenerateConfig,
     ModelAPI,
     ModelOutput,
     get_model,
     parse_model_spec,
 )
-from llm_agents.backends.base import ChatMessage
+from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet
 from llm_agents.backends.mock import MockModel
 
 
@@ -126,3 +127,26 @@ def test_a_missing_project_module_is_a_bug_not_a_user_error(
     with pytest.raises(ModuleNotFoundError) as caught:
         get_model("hf:x")
     assert not isinstance(caught.value, UserError)
+
+
+class GuidedOnly(Recorder):
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"guided"})
+    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {"loglik": "no prompt scores here"}
+
+
+def test_a_choice_rule_the_backend_lacks_is_refused_with_the_rules_it_has(tmp_path: Path) -> None:
+    model = GuidedOnly("m")
+    model.check_choice_rule("guided")
+    refusal = r"openai backend cannot choose by 'loglik' \(it supports: guided\): no prompt scores"
+    with pytest.raises(UserError, match=refusal):
+        model.check_choice_rule("loglik")
+    # A response cache answers for the backend it wraps.
+    with pytest.raises(UserError, match="cannot choose by 'loglik'"):
+        CachedModel(model, tmp_path / "cache.sqlite").check_choice_rule("loglik")
+
+
+def test_a_choice_set_needs_options_and_a_known_rule() -> None:
+    with pytest.raises(ValidationError):
+        ChoiceSet(options=(), rule="loglik")
+    with pytest.raises(ValidationError):
+        ChoiceSet(options=("DO",), rule="best")  # type: ignore[arg-type]

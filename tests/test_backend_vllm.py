@@ -21,7 +21,7 @@ import pytest
 
 from env.errors import UserError
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.embedded import embedded_model_dir
 from llm_agents.backends.openai import OpenAIModel
 
@@ -50,7 +50,7 @@ import json, sys
 from llm_agents.backends import get_model
 from env.errors import UserError
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 
 def conv(text):
     return [ChatMessage(role="system", content="You play a survival game."),
@@ -68,7 +68,8 @@ def main():
             conv("Write a very long story about a tree. " * 3),
         ])
         choice = model.generate([conv("A tree is to your left. Which action?"),
-                                 conv("Nothing is around. Which action?")], choices=actions)
+                                 conv("Nothing is around. Which action?")],
+                                choices=ChoiceSet(options=tuple(actions), rule="guided"))
         too_long = model.generate([conv("Say hi."), conv("wood " * 2000)])
         info = model.info()
     with open(out_path, "w") as f:
@@ -125,6 +126,128 @@ def test_offline_engine_generates_free_text_and_constrained_choices(
     assert fine["finish_reason"] in ("stop", "length") and fine["text"].strip()
     assert bad["finish_reason"] == "error" and "vLLM failed" in bad["error"]
     assert result["info"]["backend"] == "vllm" and result["info"]["vllm"]
+
+
+# Scores real agent conversations by loglik; runs inside .venv-vllm (see ENGINE_SCRIPT).
+LOGLIK_SCRIPT = """
+import json, sys
+from llm_agents.backends import get_model
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
+
+def main():
+    model_dir, in_path, out_path = sys.argv[1:4]
+    request = json.load(open(in_path))
+    conversations = [[ChatMessage(**m) for m in c] for c in request["conversations"]]
+    options = tuple(request["options"])
+    with get_model("vllm:" + model_dir, GenerateConfig(max_tokens=4), enforce_eager=True,
+                   max_model_len=4096, dtype="float32", max_num_seqs=32) as model:
+        scores = model.choice_scores(conversations, options)
+        outputs = model.generate(conversations, ChoiceSet(options=options, rule="loglik"))
+        # Prompts cut to end on a KV-cache block boundary, and two tokens before one: there
+        # the prefix cache reaches into the options, which must then be scored without it.
+        block = model.llm.llm_engine.vllm_config.cache_config.block_size
+        prompt = model._prompt_ids(conversations[0])
+        cut = block * (len(prompt) // block)
+        cut_prompts = [prompt[:cut], prompt[: cut - 2]]
+        candidates = model._candidate_ids(options)
+        cut_scores = model._log_likelihoods(cut_prompts, candidates)
+    with open(out_path, "w") as f:
+        json.dump({"scores": scores, "outputs": [o.model_dump() for o in outputs],
+                   "cut_prompts": cut_prompts, "cut_scores": cut_scores}, f)
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]], list[str]]:
+    """The agent's messages over real classic episodes: first steps, and steps with history."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from env import ACHIEVEMENT_IDS, NUM_ACHIEVEMENTS, episode_key, make_task
+    from llm_agents.agent import ZeroShotAgent
+    from textualizer import observe
+
+    agent = ZeroShotAgent("classic", choice_rule="loglik")
+    assert agent.choices is not None
+    required = np.zeros(NUM_ACHIEVEMENTS, dtype=bool)
+    required[ACHIEVEMENT_IDS["COLLECT_WOOD"]] = True
+    task = make_task(required, np.zeros_like(required))
+    conversations = []
+    for slot, actions in enumerate([[], [5, 2, 2], [1, 3]]):
+        state = classic_env.reset(jnp.asarray(episode_key(0, "loglik", 0, slot)), task)
+        agent.start_episode(slot, "Collect some wood.")
+        for action in [*actions, None]:
+            observation = observe(jax.tree.map(np.asarray, state.game), "classic")
+            messages, _ = agent.build_messages(slot, observation)
+            if action is None:
+                break
+            agent._episodes[slot].pending = (agent.choices.options[action], observation)
+            agent._episodes[slot].step += 1
+            state, _ = classic_env.step(state, jnp.int32(action))
+        conversations.append(messages)
+    return conversations, list(agent.choices.options)
+
+
+def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
+    model_dir: Path, tmp_path: Path, classic_env: Any
+) -> None:
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("transformers")
+    from llm_agents.backends.hf import HFModel
+
+    conversations, options = real_agent_conversations(classic_env)
+    request = tmp_path / "request.json"
+    request.write_text(
+        json.dumps(
+            {
+                "conversations": [[m.model_dump() for m in c] for c in conversations],
+                "options": options,
+            }
+        )
+    )
+    script = tmp_path / "loglik.py"
+    script.write_text(LOGLIK_SCRIPT)
+    out = tmp_path / "scores.json"
+    run = subprocess.run(
+        [str(VLLM_PYTHON), str(script), str(model_dir), str(request), str(out)],
+        cwd=tmp_path,
+        env=vllm_env(),
+        capture_output=True,
+        text=True,
+        timeout=START_TIMEOUT_S + 300,
+    )
+    assert run.returncode == 0, run.stderr[-4000:]
+    result: dict[str, Any] = json.loads(out.read_text())
+
+    hf = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), dtype="float32")
+    hf_scores = hf.choice_scores(conversations, options)
+    hf_outputs = hf.generate(conversations, ChoiceSet(options=tuple(options), rule="loglik"))
+    worst = max(
+        abs(a - b)
+        for hf_row, vllm_row in zip(hf_scores, result["scores"], strict=True)
+        for a, b in zip(hf_row, vllm_row, strict=True)
+    )
+    print(f"hf vs vllm loglik scores, float32: largest difference {worst:.2e} nats")
+    assert worst < 0.01
+    with torch.inference_mode():
+        hf_cut = hf._candidate_log_likelihoods(
+            result["cut_prompts"], [hf._encode(option) for option in options]
+        )
+    cut_worst = max(
+        abs(a - b)
+        for hf_row, vllm_row in zip(hf_cut, result["cut_scores"], strict=True)
+        for a, b in zip(hf_row, vllm_row, strict=True)
+    )
+    assert cut_worst < 0.01
+    vllm_outputs = result["outputs"]
+    assert [o["text"] for o in vllm_outputs] == [o.text for o in hf_outputs]
+    assert [o["prompt_tokens"] for o in vllm_outputs] == [o.prompt_tokens for o in hf_outputs]
+    assert all(o["finish_reason"] == "choice" for o in vllm_outputs)
+    # Real prompts of different situations: the models do not pick one answer everywhere.
+    assert len({max(range(len(options)), key=row.__getitem__) for row in hf_scores}) > 1
 
 
 def free_port() -> int:
@@ -196,7 +319,7 @@ def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
     model.probe()
     choice = model.generate(
         [conv("A tree is to your left. Which action?"), conv("Nothing around. Which action?")],
-        choices=ACTIONS,
+        choices=ChoiceSet(options=tuple(ACTIONS), rule="guided"),
     )
     assert all(o.finish_reason == "choice" and o.text in ACTIONS for o in choice), choice
     assert model.structured_choice  # the server accepted structured outputs

@@ -12,7 +12,7 @@ import pytest
 from env.dataset import Category, Dataset, DatasetSource, Goal, Split
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.backends.base import ChatMessage, Conversation, ModelOutput
+from llm_agents.backends.base import ChatMessage, ChoiceSet, Conversation, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.planner import (
     PlanLimits,
@@ -56,7 +56,7 @@ class CountingModel(MockModel):
         self.fail = set(fail)
 
     def generate(
-        self, conversations: Sequence[Conversation], choices: Sequence[str] | None = None
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None = None
     ) -> list[ModelOutput]:
         self.calls.append(len(conversations))
         outputs = super().generate(conversations, choices)

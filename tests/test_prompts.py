@@ -96,7 +96,7 @@ SNAPSHOT_OBSERVATION = "You face grass.\nA tree is 2 north, 1 west.\nInventory: 
 
 
 def agent_prompt(variant: Variant, *, choice_mode: bool, with_plan: bool) -> str:
-    agent = ZeroShotAgent(variant, renderer=str, choice_mode=choice_mode)
+    agent = ZeroShotAgent(variant, renderer=str, choice_rule="loglik" if choice_mode else None)
     history = [
         HistoryEntry(step=3, action="LEFT", outcome="moved west"),
         HistoryEntry(step=4, action="DO", outcome="gained 1 wood"),

@@ -68,6 +68,10 @@ MISTAKES: dict[str, Mistake] = {
     "report under an unknown success rule": Mistake(
         ["report", "{tmp}/nope", "--success-rule", "lenient"], "lenient"
     ),
+    "choice rule the backend lacks": Mistake(
+        [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", "--choice", "loglik"], "loglik"
+    ),
+    "unknown choice rule": Mistake([*EVAL, "--choice", "best"], "invalid choice"),
     # numbers out of range
     "lanes 0": Mistake([*EVAL, "--lanes", "0"], "lanes"),
     "negative lanes": Mistake([*EVAL, "--lanes", "-3"], "lanes"),

@@ -20,8 +20,13 @@ from env.errors import UserError
 
 logger = logging.getLogger(__name__)
 
+
 Role = Literal["system", "user", "assistant"]
 FinishReason = Literal["stop", "length", "choice", "error"]
+#: How an answer is picked from a `ChoiceSet`: `loglik` ranks every option by its full
+#: log-likelihood after the prompt; `guided` decodes greedily, constrained to the options.
+#: The two can pick different options from the same prompt, so runs compare only under one rule.
+ChoiceRule = Literal["loglik", "guided"]
 
 
 class ChatMessage(BaseModel):
@@ -36,6 +41,17 @@ class ChatMessage(BaseModel):
 
 
 Conversation = Sequence[ChatMessage]
+
+
+class ChoiceSet(BaseModel):
+    """The options an answer must be one of, and the rule that picks it."""
+
+    model_config = ConfigDict(frozen=True)
+
+    options: tuple[str, ...] = Field(min_length=1)
+    """The candidate answers, e.g. the action names."""
+    rule: ChoiceRule
+    """`loglik`: the option with the highest log-likelihood; `guided`: constrained greedy decoding."""
 
 
 class GenerateConfig(BaseModel):
@@ -131,6 +147,10 @@ class ModelAPI(abc.ABC):
     options_model: ClassVar[type[BaseModel] | None] = None
     #: The `GenerateConfig` fields this backend reads; any other must stay at its default.
     honoured_config: ClassVar[frozenset[str]] = ANSWER_FIELDS - {"reasoning_budget"}
+    #: The choice rules `generate` accepts; set by each subclass.
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset()
+    #: Why a rule outside `choice_rules` is missing, told to the user who asks for it.
+    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {}
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         self.model_name = model_name
@@ -141,9 +161,21 @@ class ModelAPI(abc.ABC):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
-        """Answer every conversation; with `choices`, each answer is exactly one of them."""
+        """Answer every conversation; with `choices`, each answer is exactly one of its options,
+        picked by its rule (a rule the backend lacks raises `UserError`)."""
+
+    def check_choice_rule(self, rule: ChoiceRule) -> None:
+        """Raise `UserError` unless this backend can pick answers by `rule`."""
+        if rule in self.choice_rules:
+            return
+        supported = ", ".join(sorted(self.choice_rules)) or "none"
+        why = self.choice_rule_gaps.get(rule)
+        raise UserError(
+            f"the {self.backend_name} backend cannot choose by {rule!r} (it supports: {supported})"
+            + (f": {why}" if why else "")
+        )
 
     @classmethod
     def accepted_options(cls) -> list[str]:

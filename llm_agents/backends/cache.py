@@ -2,8 +2,9 @@
 
 `CachedModel(model, path)` wraps any backend. A request's key is a digest of everything that
 decides the answer: the backend's identity (`model.info()`: backend, model, and the versions and
-settings it reports), the generation parameters that shape the output, the messages and the
-choices. Hits come back with `cached=True` and `latency_s=0`.
+settings it reports), the generation parameters that shape the output, the messages, and the
+choice options with the rule that picks among them. Hits come back with `cached=True` and
+`latency_s=0`.
 
 What is cached: only deterministic requests, i.e. temperature 0 (greedy decoding, and choice
 mode, which is greedy by construction). A sampled answer is a draw, and replaying it would hide
@@ -26,7 +27,14 @@ from pathlib import Path
 from typing import Any
 
 from env.errors import UserError
-from llm_agents.backends.base import TRANSPORT_FIELDS, Conversation, ModelAPI, ModelOutput
+from llm_agents.backends.base import (
+    TRANSPORT_FIELDS,
+    ChoiceRule,
+    ChoiceSet,
+    Conversation,
+    ModelAPI,
+    ModelOutput,
+)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS responses (
@@ -74,8 +82,10 @@ class CachedModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
         if not self.caching:
             return self.model.generate(conversations, choices)
         keys = [self.request_key(conversation, choices) for conversation in conversations]
@@ -101,13 +111,16 @@ class CachedModel(ModelAPI):
         self.misses += len(missing)
         return outputs
 
-    def request_key(self, conversation: Conversation, choices: Sequence[str] | None) -> str:
+    def check_choice_rule(self, rule: ChoiceRule) -> None:
+        self.model.check_choice_rule(rule)
+
+    def request_key(self, conversation: Conversation, choices: ChoiceSet | None) -> str:
         """The digest that identifies one request (stable across processes and runs)."""
         payload: dict[str, Any] = {
             "model": self.model.info(),
             "config": self.model.config.model_dump(exclude=set(TRANSPORT_FIELDS)),
             "messages": [message.model_dump() for message in conversation],
-            "choices": list(choices) if choices else None,
+            "choices": choices.model_dump(mode="json") if choices else None,
         }
         encoded = json.dumps(payload, sort_keys=True, ensure_ascii=False).encode()
         return hashlib.sha256(encoded).hexdigest()

