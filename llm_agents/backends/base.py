@@ -84,6 +84,11 @@ class ModelAPI(abc.ABC):
 
     #: The registry name, e.g. "hf"; set by each subclass.
     backend_name: str = ""
+    #: How the runner should feed the backend. True: many concurrent one-conversation
+    #: `generate` calls (up to `max_concurrency`, from threads), for servers that batch requests
+    #: themselves. False: one call at a time with every conversation that is ready, for
+    #: in-process engines that batch what they are given.
+    concurrent_requests: bool = False
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         self.model_name = model_name

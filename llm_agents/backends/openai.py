@@ -74,6 +74,9 @@ class OpenAIModel(ModelAPI):
     """Chat completions over HTTP, concurrent, with retries of transient failures."""
 
     backend_name = "openai"
+    # Each `generate` call runs its own event loop and client, so calls from threads are
+    # independent; the server batches the requests.
+    concurrent_requests = True
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
