@@ -326,6 +326,9 @@ def execute_run(
         if pending:
             _play(config, env, model, sink)
     except KeyboardInterrupt:
+        # The interrupt may land between an episode's line and its count in memory: the
+        # summary is rebuilt from the file, so the two always agree.
+        sink.episodes = _finished_episodes(out)
         sink.save()
         raise
     finally:
