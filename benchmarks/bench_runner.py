@@ -71,7 +71,8 @@ def timed_run(
         "batch_size": in_flight,
         "probe": False,
     }
-    warm = settings | {"output_dir": str(workdir / f"warm{in_flight}"), "limit": in_flight}
+    # One episode more than the slots, so the warm-up also refills one (that compiles too).
+    warm = settings | {"output_dir": str(workdir / f"warm{in_flight}"), "limit": in_flight + 1}
     run_eval(build_config(warm), MockModel(outputs=ANSWERS), env=env)
     config = build_config(
         settings | {"output_dir": str(workdir / f"run{in_flight}"), "limit": episodes}
