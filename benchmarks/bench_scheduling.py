@@ -81,8 +81,13 @@ def serve(seed: int) -> None:
             self.end_headers()
             self.wfile.write(data)
 
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    httpd.daemon_threads = True
+    class Server(ThreadingHTTPServer):
+        # A burst of new connections (each backend call opens its own) must not overflow the
+        # default backlog of 5, which a real server's is far above.
+        request_queue_size = 1024
+        daemon_threads = True
+
+    httpd = Server(("127.0.0.1", 0), Handler)
     print(httpd.server_address[1], flush=True)
     httpd.serve_forever()
 
@@ -94,12 +99,14 @@ def efficiency(answers: list[list[Any]], in_flight: int) -> dict[str, float]:
     steady_end = max(a[0] for a in answers if a[2])
     busy = sum(a[1] - a[0] for a in answers)
     steady_busy = sum(max(0.0, min(a[1], steady_end) - a[0]) for a in answers)
+    steady = steady_end - begin
     return {
         "answers": len(answers),
         "span_s": end - begin,
         "efficiency": busy / (in_flight * (end - begin)),
-        "steady_s": steady_end - begin,
-        "steady_efficiency": steady_busy / (in_flight * (steady_end - begin)),
+        "steady_s": steady,
+        # Undefined when every episode started at once (one round of lockstep).
+        "steady_efficiency": steady_busy / (in_flight * steady) if steady > 1.0 else math.nan,
     }
 
 
