@@ -115,10 +115,11 @@ class CrafTextEnv:
         # Compiled once per env and shared by every VectorEnv over it: a fresh jax.jit wrapper
         # would trace and lower the whole game again (seconds) even with a warm compile cache.
         self.batched_reset = jax.jit(jax.vmap(self.reset))
-        # Both donate the batch state they are given (VectorEnv never reads it again), so XLA
-        # updates it in place instead of copying every slot's world for each step or refill.
-        self.batched_step = jax.jit(self.masked_batch_step, donate_argnums=0)
+        self.batched_step = jax.jit(self.masked_batch_step)
         self.jitted_reset = jax.jit(self.reset)
+        # Donates the batch state (VectorEnv never reads it again), so XLA writes the new world
+        # in place instead of copying every slot's (5x faster on CPU). The masked step is not
+        # donated: measured, it then ran slower (10.6 ms vs 6.0 ms for 32 full-Craftax slots).
         self.place_episode = jax.jit(_place_episode, donate_argnums=0)
 
     @property
