@@ -192,7 +192,6 @@ class CrafTextEnv:
         """`step` with the key derived from the episode key and step index (deterministic replay)."""
         return self.step(jax.random.fold_in(state.episode_key, state.steps), state, action)
 
-
     def masked_batch_step(
         self, state: EpisodeState, actions: jax.Array, active: jax.Array
     ) -> tuple[EpisodeState, StepInfo]:

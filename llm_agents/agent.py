@@ -170,7 +170,8 @@ def messages_hash(messages: Sequence[ChatMessage]) -> str:
 
 
 class ZeroShotAgent:
-    """Plays many episodes at once with one LLM call per step for the whole batch."""
+    """Plays many episodes (slots) at once: `act` for a batch in one call, or `prepare` and
+    `decide` per slot."""
 
     def __init__(
         self,
