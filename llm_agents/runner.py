@@ -389,7 +389,9 @@ class _Sink:
         aborted: list[str],
     ) -> None:
         if steps:
-            append_records(self.out / STEPS_FILE, steps)
+            # Steps of unfinished episodes are dropped on resume, so only an episode's end needs
+            # its steps on disk (before its line): an fsync per round would stall every round.
+            append_records(self.out / STEPS_FILE, steps, durable=bool(ended))
         if ended:
             append_records(self.out / EPISODES_FILE, ended)
             self.episodes.extend(ended)
