@@ -50,7 +50,7 @@ def per_step_us(
             record(step).model_dump_json(exclude=exclude)
             for step in range(first, min(first + batch, steps))
         ]
-        append_lines(path, lines, sync=sync)
+        append_lines(path, lines, durable=sync)
     return (time.perf_counter() - started) / steps * 1e6
 
 

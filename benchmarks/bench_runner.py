@@ -1,49 +1,84 @@
-"""Batching speed-up of the evaluation runner, and the framework's own cost per agent-step.
+"""The framework's own cost per agent-step: everything but the model, with episodes in flight.
 
-1. Wall time of the same episodes at batch 1, 8 and 32 with a mock backend that takes a fixed
-   latency per request, requests of a batch served concurrently (like a vLLM server): the
-   speed-up over batch 1 against the ideal linear one.
-   Two lanes at batch 32 overlap one half's model call with the other half's env and text work.
-2. At batch 32 with a zero-latency mock: seconds per agent-step spent in everything but the
-   LLM (env step, pull to numpy, textualization, prompt rendering, parsing, logging).
+A zero-latency mock backend answers at once, so the run's wall time is the framework's: env
+steps (masked, batched), pulling states to numpy, textualization, prompt rendering, parsing,
+records and JSON lines. Printed per agent-step for each number of episodes in flight, with
+where the time went (wall time inside each part; the rest is scheduling and bookkeeping).
 
-    python benchmarks/bench_runner.py [--latency 0.1] [--episodes 32] [--max-steps 20]
+    python benchmarks/bench_runner.py [--in-flight 32 128] [--max-steps 20] [--variant full]
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import tempfile
 import time
+from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
-
-from env import CrafTextEnv, EnvConfig, Variant
-from llm_agents.backends.mock import MockModel
-from llm_agents.config import build_config
-from llm_agents.runner import run_eval
+from typing import Any
 
 ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION: DOWN"]
 
+#: part name -> (object, attribute) whose calls are timed.
+PARTS = {
+    "env step": ("env:VectorEnv", "step"),
+    "env refill": ("env:VectorEnv", "refill"),
+    "observe": ("textualizer", "observe_batch"),
+    "prompt (render text, template)": ("llm_agents.agent:ZeroShotAgent", "prepare"),
+    "decide (parse, hash)": ("llm_agents.agent:ZeroShotAgent", "decide"),
+    "records + JSON lines": ("llm_agents.runner:_Sink", "record"),
+}
+
+
+def _timed(spent: dict[str, float], name: str, function: Callable[..., Any]) -> Any:
+    @functools.wraps(function)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            spent[name] += time.perf_counter() - start
+
+    return wrapper
+
+
+def instrument(spent: dict[str, float]) -> None:
+    import importlib
+
+    for name, (target, attribute) in PARTS.items():
+        module_name, _, class_name = target.partition(":")
+        owner: Any = importlib.import_module(module_name)
+        if class_name:
+            owner = getattr(owner, class_name)
+        setattr(owner, attribute, _timed(spent, name, getattr(owner, attribute)))
+
 
 def timed_run(
-    env: CrafTextEnv, batch: int, episodes: int, latency: float, workdir: Path, lanes: int = 1
+    env: Any, in_flight: int, episodes: int, workdir: Path, spent: dict[str, float]
 ) -> tuple[float, int]:
-    """Seconds for the run, and agent-steps taken (after a warm-up run compiling this batch size)."""
+    """Seconds for the run and agent-steps taken, after a warm-up run of the same shape."""
+    from llm_agents.backends.mock import MockModel
+    from llm_agents.config import build_config
+    from llm_agents.runner import run_eval
+
     settings = {
         "model": "mock:cycle:LEFT",
         "variant": env.variant.value,
-        "splits": ["combo", "paraphrased", "new_objects"],
+        "splits": ["one", "combo", "paraphrased", "new_objects"],
         "max_steps": env.config.max_steps,
-        "batch_size": batch,
-        "lanes": lanes,
-        "limit": episodes,
+        "batch_size": in_flight,
+        "probe": False,
     }
-    warm = build_config(
-        settings | {"output_dir": str(workdir / f"warm{batch}-{lanes}"), "limit": batch}
+    # One episode more than the slots, so the warm-up also refills one (that compiles too).
+    warm = settings | {"output_dir": str(workdir / f"warm{in_flight}"), "limit": in_flight + 1}
+    run_eval(build_config(warm), MockModel(outputs=ANSWERS), env=env)
+    config = build_config(
+        settings | {"output_dir": str(workdir / f"run{in_flight}"), "limit": episodes}
     )
-    run_eval(warm, MockModel(outputs=ANSWERS), env=env)
-    config = build_config(settings | {"output_dir": str(workdir / f"b{batch}-{lanes}-{latency}")})
-    model = MockModel(outputs=ANSWERS, latency_s=latency)
+    model = MockModel(outputs=ANSWERS)
+    spent.clear()
     start = time.perf_counter()
     outcome = run_eval(config, model, env=env)
     elapsed = time.perf_counter() - start
@@ -53,38 +88,34 @@ def timed_run(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--latency", type=float, default=0.1, help="seconds per request")
-    parser.add_argument("--episodes", type=int, default=32)
+    parser.add_argument("--in-flight", type=int, nargs="+", default=[32, 128])
+    parser.add_argument(
+        "--episodes-per-slot", type=int, default=2, help="episodes = this x in flight"
+    )
     parser.add_argument("--max-steps", type=int, default=20)
     parser.add_argument("--variant", default="full", choices=["full", "classic"])
     args = parser.parse_args()
 
-    env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
-    with tempfile.TemporaryDirectory() as tmp:
-        workdir = Path(tmp)
-        print(
-            f"{args.episodes} episodes x {args.max_steps} steps, {args.variant} Craftax, "
-            f"mock latency {args.latency * 1000:.0f} ms per request (a batch's requests concurrent)"
-        )
-        print(
-            f"{'batch':>5} {'lanes':>5} {'wall s':>8} {'speed-up':>9} {'ideal':>6} {'efficiency':>11}"
-        )
-        baseline = None
-        for batch, lanes in ((1, 1), (8, 1), (32, 1), (32, 2)):
-            elapsed, _ = timed_run(env, batch, args.episodes, args.latency, workdir, lanes)
-            baseline = baseline or elapsed
-            speedup = baseline / elapsed
-            print(
-                f"{batch:>5} {lanes:>5} {elapsed:>8.1f} {speedup:>8.1f}x {batch:>5}x "
-                f"{speedup / batch:>10.2f}"
-            )
-        print("target: efficiency (speed-up / ideal) >= 0.8")
+    from env import CrafTextEnv, EnvConfig, Variant
 
-        elapsed, steps = timed_run(env, 32, args.episodes, 0.0, workdir)
-        print(
-            f"framework cost at batch 32 (zero-latency mock): {elapsed / steps * 1000:.2f} ms "
-            f"per agent-step ({steps} agent-steps in {elapsed:.1f} s)"
-        )
+    env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
+    spent: dict[str, float] = defaultdict(float)
+    instrument(spent)
+    print(
+        f"{args.variant} Craftax, {args.max_steps} steps per episode, "
+        f"{args.episodes_per_slot} episodes per slot, zero-latency mock (one batch per call)"
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        for in_flight in args.in_flight:
+            episodes = in_flight * args.episodes_per_slot
+            elapsed, steps = timed_run(env, in_flight, episodes, Path(tmp), spent)
+            print(
+                f"{in_flight:>4} in flight: {elapsed / steps * 1000:.2f} ms per agent-step "
+                f"({steps} agent-steps in {elapsed:.1f} s)"
+            )
+            for name in PARTS:
+                print(f"       {name:<32} {spent[name] / steps * 1000:6.3f} ms")
+    print("target: <= 1 ms per agent-step at 32 in flight")
 
 
 if __name__ == "__main__":

@@ -2,8 +2,8 @@
 
 `CrafTextEnv` is functional and JAX-pure (`reset`, `step`), so it can be jitted and vmapped like a
 gymnax env. `VectorEnv` drives a fixed-size batch of episodes from the host: one compiled step
-for all slots, finished slots refilled in place, and everything the caller needs pulled to numpy
-once per step.
+for all slots (or only the slots a mask names, the others left exactly as they were), finished
+slots refilled in place, and everything the caller needs pulled to numpy once per step.
 
 Determinism: an episode's randomness comes only from its episode key (see `episode_key`); step t
 uses `fold_in(episode_key, t)`, so a trajectory does not depend on the batch size or on which slot
@@ -124,9 +124,12 @@ class CrafTextEnv:
         # Compiled once per env and shared by every VectorEnv over it: a fresh jax.jit wrapper
         # would trace and lower the whole game again (seconds) even with a warm compile cache.
         self.batched_reset = jax.jit(jax.vmap(self.reset))
-        self.batched_step = jax.jit(jax.vmap(self.step_from_episode_key))
+        self.batched_step = jax.jit(self.masked_batch_step)
         self.jitted_reset = jax.jit(self.reset)
-        self.place_episode = jax.jit(_place_episode)
+        # Donates the batch state (VectorEnv never reads it again), so XLA writes the new world
+        # in place instead of copying every slot's (5x faster on CPU). The masked step is not
+        # donated: measured, it then ran slower (10.6 ms vs 6.0 ms for 32 full-Craftax slots).
+        self.place_episode = jax.jit(_place_episode, donate_argnums=0)
 
     @property
     def variant(self) -> Variant:
@@ -211,6 +214,31 @@ class CrafTextEnv:
         """`step` with the key derived from the episode key and step index (deterministic replay)."""
         return self.step(jax.random.fold_in(state.episode_key, state.steps), state, action)
 
+    def masked_batch_step(
+        self, state: EpisodeState, actions: jax.Array, active: jax.Array
+    ) -> tuple[EpisodeState, StepInfo]:
+        """Step the slots where `active` is true; the others keep their state bit for bit.
+
+        Frozen slots also keep their step index, so their next step draws the same key it would
+        have drawn now: a trajectory does not depend on when its slot was stepped.
+        """
+        stepped, info = jax.vmap(self.step_from_episode_key)(state, actions)
+
+        def keep_inactive(new: jax.Array, old: jax.Array) -> jax.Array:
+            mask = active.reshape(active.shape + (1,) * (new.ndim - 1))
+            return jnp.where(mask, new, old)
+
+        next_state: EpisodeState = jax.tree.map(keep_inactive, stepped, state)
+        info = StepInfo(
+            reward=jnp.where(active, info.reward, 0.0),
+            done=next_state.done,
+            termination=next_state.termination,
+            craftax_reward=jnp.where(active, info.craftax_reward, 0.0),
+            new_achievements=active[:, None] & info.new_achievements,
+            goal_at_game_over=active & info.goal_at_game_over,
+        )
+        return next_state, info
+
 
 def episode_key(seed: int, goal_id: str, instruction_index: int, episode_index: int) -> np.ndarray:
     """The raw PRNG key (two uint32 words) of one episode.
@@ -238,7 +266,8 @@ class HostBatch(struct.PyTreeNode):
 
 
 class VectorEnv:
-    """A fixed batch of episodes stepped in lockstep with one compiled function.
+    """A fixed batch of episodes stepped with one compiled function, all of them or a masked
+    subset.
 
     Shapes never change (finished slots are masked until refilled), so nothing recompiles
     after the first step.
@@ -288,11 +317,15 @@ class VectorEnv:
         no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
         return self._to_host(self._state, zeros, no_new, jnp.zeros(self.batch_size, jnp.bool_))
 
-    def step(self, actions: np.ndarray) -> HostBatch:
-        """Step every slot; finished slots earn nothing and keep their termination."""
+    def step(self, actions: np.ndarray, active: np.ndarray | None = None) -> HostBatch:
+        """Step every slot, or only those where `active` is true (the others stay exactly as
+        they were, earning nothing); finished slots earn nothing and keep their termination."""
         state = self._require_state()
         actions_device = jnp.asarray(np.asarray(actions, dtype=np.int32).reshape(self.batch_size))
-        self._state, info = self._step(state, actions_device)
+        if active is None:
+            active = np.ones(self.batch_size, dtype=bool)
+        active_device = jnp.asarray(np.asarray(active, dtype=bool).reshape(self.batch_size))
+        self._state, info = self._step(state, actions_device, active_device)
         return self._to_host(
             self._state, info.reward, info.new_achievements, info.goal_at_game_over
         )

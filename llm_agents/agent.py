@@ -1,8 +1,9 @@
-"""The zero-shot LLM agent: one object plays a batch of episodes (slots) in lockstep.
+"""The zero-shot LLM agent: one object plays many episodes (slots) at once.
 
-Each step it renders every slot's observation, builds [system, user] messages from the
-templates, makes one batched `model.generate` call, parses each answer and falls back to a
-fixed action on an unparseable one. It remembers, per slot, the last actions and what they
+For each slot's observation it builds [system, user] messages from the templates (`prepare`),
+and turns the model's answer into a decision (`decide`): parse, or fall back to a fixed action
+on an unparseable answer. `act` does both for a batch with one `model.generate` call; the runner
+calls the halves itself, so each episode moves on as soon as its own answer arrives. It remembers, per slot, the last actions and what they
 visibly did (moved or blocked, items gained or spent, achievements, health lost), read off
 consecutive observations.
 """
@@ -13,6 +14,7 @@ import hashlib
 import importlib
 import json
 from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -102,6 +104,18 @@ class Decision(BaseModel):
     """True when the answer was unparseable and the fallback action was taken."""
 
 
+@dataclass(frozen=True)
+class StepPrompt:
+    """One slot's prompt for one step, waiting for the model's answer."""
+
+    slot: int
+    observation: Any
+    """The observation the prompt shows (the next step's outcome is read against it)."""
+    messages: list[ChatMessage]
+    text: str
+    """The rendered observation."""
+
+
 class _Episode:
     def __init__(self, instruction: str, plan: str | None):
         self.instruction = instruction
@@ -156,7 +170,8 @@ def messages_hash(messages: Sequence[ChatMessage]) -> str:
 
 
 class ZeroShotAgent:
-    """Plays many episodes at once with one LLM call per step for the whole batch."""
+    """Plays many episodes (slots) at once: `act` for a batch in one call, or `prepare` and
+    `decide` per slot."""
 
     def __init__(
         self,
@@ -263,6 +278,37 @@ class ZeroShotAgent:
         )
         return [self.system_message, user], text
 
+    def prepare(self, slot: int, observation: Any) -> StepPrompt:
+        """The slot's prompt for this observation (first half of `act`)."""
+        messages, text = self.build_messages(slot, observation)
+        return StepPrompt(slot=slot, observation=observation, messages=messages, text=text)
+
+    def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
+        """Turn the model's answer to `prompt` into the slot's decision (second half of `act`)."""
+        slot, observation, messages, text = (
+            prompt.slot,
+            prompt.observation,
+            prompt.messages,
+            prompt.text,
+        )
+        parsed = parse_action(output.text, self.variant, prompt=[m.content for m in messages])
+        fallback = parsed.action is None
+        action = self.fallback_id if parsed.action is None else parsed.action
+        name = self.fallback_name if parsed.name is None else parsed.name
+        episode = self._episodes[slot]
+        episode.pending = (name, observation)
+        episode.step += 1
+        return Decision(
+            slot=slot,
+            action=action,
+            name=name,
+            parse=parsed,
+            output=output,
+            observation_text=text,
+            prompt_hash=messages_hash(messages),
+            fallback_used=fallback,
+        )
+
     def act(
         self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
     ) -> list[Decision]:
@@ -271,37 +317,12 @@ class ZeroShotAgent:
             raise ValueError(f"{len(slots)} slots but {len(observations)} observations")
         if len(set(slots)) != len(slots):
             raise ValueError(f"slots repeat: {list(slots)}")
-        built = [
-            self.build_messages(slot, obs) for slot, obs in zip(slots, observations, strict=True)
-        ]
-        conversations = [messages for messages, _ in built]
+        built = [self.prepare(slot, obs) for slot, obs in zip(slots, observations, strict=True)]
+        conversations = [prompt.messages for prompt in built]
         outputs = model.generate(conversations, choices=self.choices)
         if len(outputs) != len(conversations):
             raise RuntimeError(
                 f"backend {model.backend_name} returned {len(outputs)} outputs "
                 f"for {len(conversations)} conversations"
             )
-        decisions = []
-        for slot, observation, (messages, text), output in zip(
-            slots, observations, built, outputs, strict=True
-        ):
-            parsed = parse_action(output.text, self.variant, prompt=[m.content for m in messages])
-            fallback = parsed.action is None
-            action = self.fallback_id if parsed.action is None else parsed.action
-            name = self.fallback_name if parsed.name is None else parsed.name
-            episode = self._episodes[slot]
-            episode.pending = (name, observation)
-            episode.step += 1
-            decisions.append(
-                Decision(
-                    slot=slot,
-                    action=action,
-                    name=name,
-                    parse=parsed,
-                    output=output,
-                    observation_text=text,
-                    prompt_hash=messages_hash(messages),
-                    fallback_used=fallback,
-                )
-            )
-        return decisions
+        return [self.decide(prompt, output) for prompt, output in zip(built, outputs, strict=True)]

@@ -106,10 +106,8 @@ class EvalConfig(ModelSettings):
     seed: int = 0
     """Run seed; each episode's world derives from (seed, goal, instruction variant, episode)."""
     batch_size: int = Field(8, ge=1)
-    """Episodes played at once, one batched model call per step."""
-    lanes: int = Field(1, ge=1)
-    """Split the batch into this many lanes whose model calls overlap the other lanes' env and
-    text work: worth 2 with a server backend (openai, large batches), not with a local model."""
+    """Episodes in flight at once: each steps as soon as its own answer arrives, and a finished
+    one's slot is refilled at once. With a server backend, match --max-concurrency to it."""
     renderer: str = "objects"
     """Observation text format: objects, grid or table (the official baseline's)."""
     history_length: int = Field(5, ge=0)
@@ -189,7 +187,6 @@ class EvalConfig(ModelSettings):
                 "output_dir",
                 "limit",
                 "batch_size",
-                "lanes",
                 "cache",
                 "generation",
                 "backend_options",

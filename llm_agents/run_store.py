@@ -66,22 +66,19 @@ def atomic_write_json(path: Path, data: Any) -> None:
     atomic_write_text(path, json.dumps(data, indent=2, ensure_ascii=False) + "\n")
 
 
-def append_lines(path: Path, lines: Iterable[str], *, sync: bool = True) -> None:
-    """Append lines to a JSON-lines file.
-
-    The lines are handed to the OS before returning, so they survive the process being killed;
-    with `sync` they are also on disk (fsync), so they survive the machine going down.
-    """
+def append_lines(path: Path, lines: Iterable[str], *, durable: bool = True) -> None:
+    """Append lines to a JSON-lines file; with `durable`, on disk (fsynced) before returning,
+    together with every earlier append to the file."""
     with path.open("a", encoding="utf-8") as file:
         file.writelines(line + "\n" for line in lines)
         file.flush()
-        if sync:
+        if durable:
             os.fsync(file.fileno())
 
 
-def append_records(path: Path, records: Iterable[BaseModel], *, sync: bool = True) -> None:
-    """Append pydantic records to a JSON-lines file, one per line."""
-    append_lines(path, (record.model_dump_json() for record in records), sync=sync)
+def append_records(path: Path, records: Iterable[BaseModel], *, durable: bool = True) -> None:
+    """Append pydantic records to a JSON-lines file, one per line (`append_lines`)."""
+    append_lines(path, (record.model_dump_json() for record in records), durable=durable)
 
 
 def complete_lines(path: Path, *, repair: bool = True) -> list[str]:

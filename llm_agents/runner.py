@@ -1,10 +1,14 @@
-"""The evaluation runner: N episodes in lockstep, resumable, written as it goes.
+"""The evaluation runner: up to N episodes in flight, resumable, written as it goes.
 
 A run has two phases. `prepare_run` does every cheap check (settings, dataset, plans, templates,
 fallback action, output directory, the identity of a run already in that directory) and writes
-nothing; only then is the model loaded and probed, and `execute_run` plays. Each loop iteration
-makes one batched env step, one batched textualization and one batched model call for all live
-episodes; a finished episode's slot is refilled from the schedule so the batch stays full.
+nothing; only then is the model loaded and probed, and `execute_run` plays. Scheduling is
+continuous: each episode takes its next step as soon as its own answer arrives, never waiting
+for slower ones, and a finished episode's slot is refilled from the schedule at once. Model
+requests go through one `Dispatcher` (many concurrent requests to a server, whatever is ready
+in one batch to an in-process engine); the env work of the episodes whose answers arrived
+together is one masked, batched env step. Results never depend on timing: an episode's world
+and randomness derive from its own key and step index.
 
 A model answer that failed (after the backend's retries) is data, not an answer: the step is
 recorded with its error, its episode is cut short and not counted, and a rerun plays it again.
@@ -19,11 +23,11 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import logging
+import queue
 import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -34,8 +38,8 @@ import numpy as np
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
 from env.rules import OFFICIAL_WORLD_KEY
-from llm_agents.agent import Decision, ZeroShotAgent
-from llm_agents.backends.base import ModelAPI
+from llm_agents.agent import Decision, StepPrompt, ZeroShotAgent
+from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 from llm_agents.config import EvalConfig
 from llm_agents.metrics import Summary, summarize
 from llm_agents.records import EpisodeRecord, StepRecord
@@ -330,8 +334,11 @@ def execute_run(
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None
     try:
         if pending:
-            _play_lanes(config, env, model, sink)
+            _play(config, env, model, sink)
     except KeyboardInterrupt:
+        # The interrupt may land between an episode's line and its count in memory: the
+        # summary is rebuilt from the file, so the two always agree.
+        sink.episodes = _finished_episodes(out)
         sink.save()
         raise
     finally:
@@ -349,8 +356,8 @@ def execute_run(
 
 
 class _Sink:
-    """What the lanes share: the schedule queue, the output files, failure accounting and the
-    progress bar. Every method takes the lock, so lanes running in threads never interleave."""
+    """Where finished work goes: the schedule queue, the output files, failure accounting and
+    the progress bar."""
 
     def __init__(
         self,
@@ -368,10 +375,9 @@ class _Sink:
         self.queue = queue
         self.max_failures = config.max_consecutive_failures
         self.bar: Any = None
-        self.stop = threading.Event()
+        self.stopped = False
         self.failure: str | None = None
         self._failures_in_a_row = 0
-        self._lock = threading.Lock()
         self._started = time.perf_counter()
         self._agent_steps = 0
         self._tokens = 0
@@ -381,10 +387,9 @@ class _Sink:
         return sum(e.episode_id in self.scheduled_ids for e in self.episodes)
 
     def take(self, count: int) -> list[ScheduledEpisode]:
-        with self._lock:
-            if self.stop.is_set():
-                return []
-            return [self.queue.pop() for _ in range(min(count, len(self.queue)))]
+        if self.stopped:
+            return []
+        return [self.queue.pop() for _ in range(min(count, len(self.queue)))]
 
     def record(
         self,
@@ -393,31 +398,28 @@ class _Sink:
         ended: list[EpisodeRecord],
         aborted: list[str],
     ) -> None:
-        with self._lock:
-            if steps:
-                # Steps of an unfinished episode are dropped on resume, so they need to reach
-                # the disk only before the line that declares their episode finished.
-                append_records(self.out / STEPS_FILE, steps, sync=bool(ended))
-            if ended:
-                append_records(self.out / EPISODES_FILE, ended)
-                self.episodes.extend(ended)
-            self._count_failures(decisions, aborted)
-            if ended or aborted:
-                self._save_locked(None)
-            self._agent_steps += len(decisions)
-            self._tokens += sum(
-                d.output.prompt_tokens + d.output.completion_tokens for d in decisions
+        if steps:
+            # Steps of unfinished episodes are dropped on resume, so only an episode's end needs
+            # its steps on disk (before its line): an fsync per round would stall every round.
+            append_records(self.out / STEPS_FILE, steps, durable=bool(ended))
+        if ended:
+            append_records(self.out / EPISODES_FILE, ended)
+            self.episodes.extend(ended)
+        self._count_failures(decisions, aborted)
+        if ended or aborted:
+            self.save()
+        self._agent_steps += len(decisions)
+        self._tokens += sum(d.output.prompt_tokens + d.output.completion_tokens for d in decisions)
+        if self.bar is not None:
+            elapsed = max(time.perf_counter() - self._started, 1e-9)
+            self.bar.update(len(ended))
+            self.bar.set_postfix(
+                success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
+                steps_s=f"{self._agent_steps / elapsed:.1f}",
+                tok_s=f"{self._tokens / elapsed:.0f}",
+                errors=self.results.backend_errors.failed_calls,
+                refresh=False,
             )
-            if self.bar is not None:
-                elapsed = max(time.perf_counter() - self._started, 1e-9)
-                self.bar.update(len(ended))
-                self.bar.set_postfix(
-                    success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
-                    steps_s=f"{self._agent_steps / elapsed:.1f}",
-                    tok_s=f"{self._tokens / elapsed:.0f}",
-                    errors=self.results.backend_errors.failed_calls,
-                    refresh=False,
-                )
 
     def _count_failures(self, decisions: list[Decision], aborted: list[str]) -> None:
         errors = self.results.backend_errors
@@ -431,13 +433,9 @@ class _Sink:
             self._failures_in_a_row += 1
             if self._failures_in_a_row >= self.max_failures and self.failure is None:
                 self.failure = errors.last_error
-                self.stop.set()
+                self.stopped = True
 
     def save(self, failure: str | None = None) -> None:
-        with self._lock:
-            self._save_locked(failure)
-
-    def _save_locked(self, failure: str | None) -> None:
         results = self.results
         counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
         results.finished = len(counted)
@@ -452,22 +450,93 @@ class _Sink:
         write_results(self.out / RESULTS_FILE, results)
 
 
-def _play_lanes(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
-    """Split the batch into `config.lanes` lanes; with more than one, each lane's model call
-    overlaps the other lanes' env steps and text work (threads: the waits release the GIL)."""
-    lanes = min(config.lanes, len(sink.queue))
-    lane_batch = min(-(-config.batch_size // lanes), -(-len(sink.queue) // lanes))
-    if lanes == 1:
-        _play(config, env, model, lane_batch, sink)
-        return
-    with ThreadPoolExecutor(max_workers=lanes, thread_name_prefix="lane") as pool:
-        futures = [pool.submit(_play, config, env, model, lane_batch, sink) for _ in range(lanes)]
+_Answer = tuple[StepPrompt, ModelOutput]
+
+
+class Dispatcher:
+    """Every model request of a run goes through here; answers come back as they arrive.
+
+    A backend with `concurrent_requests` (an HTTP server) gets up to `max_concurrency`
+    one-conversation calls in flight, from as many threads; any other (an in-process engine)
+    gets one call at a time holding every prompt that is ready, so its own batching does the
+    rest. Worker threads are daemons: an interrupted run does not wait for a slow answer.
+    """
+
+    def __init__(self, model: ModelAPI, choices: ChoiceSet | None):
+        self.model = model
+        self.choices = choices
+        self._requests: queue.SimpleQueue[list[StepPrompt] | None] = queue.SimpleQueue()
+        self._answers: queue.SimpleQueue[list[_Answer] | BaseException] = queue.SimpleQueue()
+        self.in_flight = 0
+        self._workers = model.config.max_concurrency if model.concurrent_requests else 1
+        serve = self._serve_one_by_one if model.concurrent_requests else self._serve_batches
+        for index in range(self._workers):
+            threading.Thread(target=serve, name=f"dispatch-{index}", daemon=True).start()
+
+    def submit(self, prompts: list[StepPrompt]) -> None:
+        """Queue prompts; an engine gets them in one call (with whatever else is waiting)."""
+        if not prompts:
+            return
+        self.in_flight += len(prompts)
+        if self.model.concurrent_requests:
+            for prompt in prompts:
+                self._requests.put([prompt])
+        else:
+            self._requests.put(prompts)
+
+    def wait(self) -> list[_Answer]:
+        """Block until at least one answer arrives; return every answer that has."""
+        got = [self._answers.get()]
+        while True:
+            try:
+                got.append(self._answers.get_nowait())
+            except queue.Empty:
+                break
+        answers: list[_Answer] = []
+        for item in got:
+            if isinstance(item, BaseException):
+                raise item
+            answers.extend(item)
+        self.in_flight -= len(answers)
+        return answers
+
+    def close(self) -> None:
+        for _ in range(self._workers):
+            self._requests.put(None)
+
+    def _serve_one_by_one(self) -> None:
+        while (item := self._requests.get()) is not None:
+            self._answer(item)
+
+    def _serve_batches(self) -> None:
+        while (item := self._requests.get()) is not None:
+            batch = list(item)
+            closing = False
+            while True:
+                try:
+                    more = self._requests.get_nowait()
+                except queue.Empty:
+                    break
+                if more is None:
+                    closing = True
+                    break
+                batch.extend(more)
+            self._answer(batch)
+            if closing:
+                return
+
+    def _answer(self, prompts: list[StepPrompt]) -> None:
         try:
-            for future in futures:
-                future.result()
-        except BaseException:
-            sink.stop.set()
-            raise
+            outputs = self.model.generate([p.messages for p in prompts], choices=self.choices)
+            if len(outputs) != len(prompts):
+                raise RuntimeError(
+                    f"backend {self.model.backend_name} returned {len(outputs)} outputs "
+                    f"for {len(prompts)} conversations"
+                )
+        except BaseException as err:  # handed to the scheduler thread, which raises it
+            self._answers.put(err)
+            return
+        self._answers.put(list(zip(prompts, outputs, strict=True)))
 
 
 def world_key(seed: int, goal_id: str, instruction_variant: int, repeat: int) -> np.ndarray:
@@ -478,18 +547,23 @@ def world_key(seed: int, goal_id: str, instruction_variant: int, repeat: int) ->
     return episode_key(seed, goal_id, instruction_variant, repeat)
 
 
-def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink) -> None:
+def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
+    """Continuous scheduling: up to `batch_size` episodes in flight, each stepping as soon as
+    its own answer arrives, a finished one's slot refilled at once.
+
+    Each round takes every answer that has arrived, steps those episodes together (one masked
+    env step over the slots; the waiting ones are left untouched, so timing never changes a
+    trajectory), writes their records, refills finished slots and sends the next prompts.
+    """
     from env import VectorEnv, goal_masks
     from textualizer import observe_batch
 
     agent = _make_agent(config)
-    first = sink.take(batch)
+    first = sink.take(config.batch_size)
     if not first:
         return
-    # A lane that starts with fewer episodes than its batch pads the batch with copies of its
-    # first one; the copies are never observed or recorded.
-    padding = [first[0]] * (batch - len(first))
-    vector = VectorEnv(env, batch)
+    slots = len(first)
+    vector = VectorEnv(env, slots)
 
     def task_rows(specs: Sequence[ScheduledEpisode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         keys = np.stack(
@@ -501,64 +575,79 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
         required, forbidden = goal_masks([s.instruction.goal for s in specs])
         return keys, required, forbidden
 
-    host = vector.reset(*task_rows(first + padding))
+    host = vector.reset(*task_rows(first))
     live: dict[int, _Live] = {}
     for slot, spec in enumerate(first):
         live[slot] = _Live(spec)
         agent.start_episode(slot, spec.instruction.text, spec.plan)
+    to_prompt = list(range(slots))
 
+    dispatcher = Dispatcher(model, agent.choices)
     fallback = agent.fallback_id
-    while live and not sink.stop.is_set():
-        slots = sorted(live)
-        observations = observe_batch(host.game, config.variant, indices=slots)
-        decisions = agent.act(model, slots, observations)
-        actions = np.full(batch, fallback, dtype=np.int32)
-        for decision in decisions:
-            actions[decision.slot] = decision.action
-        host = vector.step(actions)
-
-        step_records = []
-        ended: list[EpisodeRecord] = []
-        aborted: list[str] = []
-        for decision in decisions:
-            slot = decision.slot
-            state = live[slot]
-            new = _names(host.new_achievements[slot])
-            reward = float(host.reward[slot])
-            _account(state, decision, reward, new)
-            if config.record_steps:
-                step_records.append(_step_record(state, decision, host, slot, reward, new))
-            if decision.output.finish_reason == "error":
-                # The backend failed, not the agent: this episode is not scored; a rerun plays it.
-                aborted.append(state.spec.episode_id)
-            elif host.done[slot]:
-                game_over: GameOver = None
-                if host.goal_at_game_over[slot]:
-                    game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
-                ended.append(
-                    _episode_record(
-                        state,
-                        int(host.steps[slot]),
-                        int(host.termination[slot]),
-                        config.seed,
-                        game_over,
-                    )
+    try:
+        while not sink.stopped:
+            if to_prompt:
+                observations = observe_batch(host.game, config.variant, indices=to_prompt)
+                dispatcher.submit(
+                    [agent.prepare(s, o) for s, o in zip(to_prompt, observations, strict=True)]
                 )
-            else:
-                continue
-            agent.end_episode(slot)
-            del live[slot]
-        sink.record(decisions, step_records, ended, aborted)
+            if dispatcher.in_flight == 0:
+                return
+            decisions = [agent.decide(prompt, output) for prompt, output in dispatcher.wait()]
+            actions = np.full(slots, fallback, dtype=np.int32)
+            active = np.zeros(slots, dtype=bool)
+            for decision in decisions:
+                actions[decision.slot] = decision.action
+                active[decision.slot] = True
+            host = vector.step(actions, active)
 
-        if ended or aborted:
-            free = [s for s in range(batch) if s not in live]
-            specs = sink.take(len(free))
+            step_records = []
+            ended: list[EpisodeRecord] = []
+            aborted: list[str] = []
+            to_prompt = []
+            for decision in decisions:
+                slot = decision.slot
+                state = live[slot]
+                new = _names(host.new_achievements[slot])
+                reward = float(host.reward[slot])
+                _account(state, decision, reward, new)
+                if config.record_steps:
+                    step_records.append(_step_record(state, decision, host, slot, reward, new))
+                if decision.output.finish_reason == "error":
+                    # The backend failed, not the agent: not scored; a rerun plays it again.
+                    aborted.append(state.spec.episode_id)
+                elif host.done[slot]:
+                    game_over: GameOver = None
+                    if host.goal_at_game_over[slot]:
+                        game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
+                    ended.append(
+                        _episode_record(
+                            state,
+                            int(host.steps[slot]),
+                            int(host.termination[slot]),
+                            config.seed,
+                            game_over,
+                        )
+                    )
+                else:
+                    to_prompt.append(slot)
+                    continue
+                agent.end_episode(slot)
+                del live[slot]
+            sink.record(decisions, step_records, ended, aborted)
+
+            free = [s for s in range(slots) if s not in live]
+            specs = sink.take(len(free)) if free else []
             if specs:
                 refill_slots = free[: len(specs)]
                 host = vector.refill(refill_slots, *task_rows(specs))
                 for slot, spec in zip(refill_slots, specs, strict=True):
                     live[slot] = _Live(spec)
                     agent.start_episode(slot, spec.instruction.text, spec.plan)
+                to_prompt.extend(refill_slots)
+            to_prompt.sort()
+    finally:
+        dispatcher.close()
 
 
 def _names(mask: np.ndarray) -> list[str]:

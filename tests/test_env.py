@@ -312,3 +312,44 @@ def test_official_world_seeding_gives_every_episode_the_world_of_prng_key_1(
     assert np.array_equal(np.asarray(second.game.map), np.asarray(expected.map))
     # The episode key still drives the steps.
     assert not np.array_equal(np.asarray(first.episode_key), np.asarray(second.episode_key))
+
+
+def test_masked_step_freezes_inactive_slots_and_timing_never_changes_a_trajectory(
+    classic_env: Any,
+) -> None:
+    batch = 3
+    keys = np.stack([episode_key(4, "goal", 0, i) for i in range(batch)])
+    req = np.zeros((batch, NUM_ACHIEVEMENTS), bool)
+    req[:, ACHIEVEMENT_IDS["COLLECT_DIAMOND"]] = True
+    forb = np.zeros_like(req)
+    actions = np.random.default_rng(7).integers(0, classic_env.env.num_actions, (6, batch))
+
+    lockstep = VectorEnv(classic_env.env, batch)
+    lockstep.reset(keys, req, forb)
+    for t in range(6):
+        expected = lockstep.step(actions[t])
+
+    # The same actions per slot, but each slot stepped on its own schedule.
+    staggered = VectorEnv(classic_env.env, batch)
+    staggered.reset(keys, req, forb)
+    taken = [0] * batch
+    schedule = [[0], [0, 1], [2], [0, 2], [1], [0, 1, 2], [1, 2], [1, 2], [2], [0, 1], [0]]
+    for ready in schedule:
+        before = jax.device_get(staggered._require_state())
+        active = np.zeros(batch, bool)
+        step_actions = np.zeros(batch, np.int32)
+        for slot in ready:
+            active[slot] = True
+            step_actions[slot] = actions[taken[slot], slot]
+            taken[slot] += 1
+        host = staggered.step(step_actions, active)
+        after = jax.device_get(staggered._require_state())
+        for slot in set(range(batch)) - set(ready):
+            assert _leaves_equal(
+                jax.tree.map(lambda x, s=slot: x[s], before),
+                jax.tree.map(lambda x, s=slot: x[s], after),
+            )
+            assert host.reward[slot] == 0 and not host.new_achievements[slot].any()
+    assert taken == [6, 6, 6]
+    assert _leaves_equal(expected.game, host.game)
+    assert host.steps.tolist() == expected.steps.tolist() == [6, 6, 6]

@@ -1,12 +1,14 @@
 """The evaluation runner and CLI on the mock backend: outputs, refills, invalid answers,
-batch independence, resume after SIGKILL, Ctrl-C, and clear errors for bad input."""
+independence from the episodes in flight and answer timing, resume after SIGKILL, Ctrl-C, and clear errors for bad input."""
 
 from __future__ import annotations
 
 import json
+import random
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,8 @@ import pytest
 
 from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends import get_model
+from llm_agents.backends.base import GenerateConfig
+from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.config import build_config
 from llm_agents.run_store import read_episodes, read_results
@@ -202,8 +206,6 @@ def test_report_command_rebuilds_table_and_chart(
 def test_prompts_carry_real_observations_and_action_outcomes(
     tmp_path: Path, short_env: CrafTextEnv
 ) -> None:
-    from llm_agents.backends.mock import MockModel
-
     model = MockModel(outputs=["ACTION: LEFT"])
     run_eval(config(tmp_path, limit=1, batch_size=1), model, env=short_env)
     users = [messages[-1].content for messages, _ in model.requests]
@@ -215,12 +217,65 @@ def test_prompts_carry_real_observations_and_action_outcomes(
         assert "LEFT: moved west" in user or "LEFT: blocked" in user
 
 
-def test_lanes_give_the_same_episodes(tmp_path: Path, short_env: CrafTextEnv) -> None:
-    run(config(tmp_path / "one", limit=5, batch_size=2), short_env)
-    run(config(tmp_path / "two", limit=5, batch_size=4, lanes=2), short_env)
-    assert canonical(tmp_path / "one") == canonical(tmp_path / "two")
-    steps = (tmp_path / "two" / "steps.jsonl").read_text().splitlines()
-    assert len(steps) == sum(e["steps"] for e in canonical(tmp_path / "two"))
+class JitteryModel(MockModel):
+    """The hash mock answering each call after a random delay, either as a server would
+    (concurrent one-conversation calls) or as an engine would (one batch at a time)."""
+
+    def __init__(self, concurrent: bool, seed: int, max_concurrency: int = 8):
+        super().__init__(
+            SCRIPT.removeprefix("mock:"), GenerateConfig(max_concurrency=max_concurrency)
+        )
+        self.concurrent_requests = concurrent
+        self.batch_sizes: list[int] = []
+        self.most_in_flight = 0
+        self._rng = random.Random(seed)
+        self._lock = threading.Lock()
+        self._in_flight = 0
+
+    def generate(self, conversations: Any, choices: Any = None) -> Any:
+        with self._lock:
+            delay = self._rng.lognormvariate(-5.0, 1.0)
+            self._in_flight += 1
+            self.most_in_flight = max(self.most_in_flight, self._in_flight)
+            self.batch_sizes.append(len(conversations))
+        time.sleep(delay)
+        try:
+            return super().generate(conversations, choices)
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+
+
+@pytest.mark.parametrize(
+    ("batch_size", "concurrent", "max_concurrency"),
+    [(3, True, 8), (7, True, 2), (4, False, 8), (7, False, 8)],
+)
+def test_episodes_do_not_depend_on_episodes_in_flight_or_answer_timing(
+    tmp_path: Path,
+    short_env: CrafTextEnv,
+    batch_size: int,
+    concurrent: bool,
+    max_concurrency: int,
+) -> None:
+    reference = tmp_path / "reference"
+    run_eval(
+        config(reference, batch_size=1), MockModel(SCRIPT.removeprefix("mock:")), env=short_env
+    )
+    model = JitteryModel(concurrent, seed=batch_size, max_concurrency=max_concurrency)
+    out = tmp_path / "jittery"
+    run_eval(config(out, batch_size=batch_size), model, env=short_env)
+
+    assert canonical(out) == canonical(reference)
+    if concurrent:
+        assert set(model.batch_sizes) == {1}
+        assert 1 < model.most_in_flight <= max_concurrency
+    else:
+        assert model.most_in_flight == 1 and max(model.batch_sizes) > 1
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    for episode in canonical(out):
+        own = [s["step"] for s in steps if s["episode_id"] == episode["episode_id"]]
+        assert own == list(range(episode["steps"]))
+    assert len(steps) == sum(e["steps"] for e in canonical(out))
 
 
 def test_backend_options_reach_the_backend_and_the_saved_config(tmp_path: Path) -> None:

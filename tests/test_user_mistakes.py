@@ -73,8 +73,6 @@ MISTAKES: dict[str, Mistake] = {
     ),
     "unknown choice rule": Mistake([*EVAL, "--choice", "best"], "invalid choice"),
     # numbers out of range
-    "lanes 0": Mistake([*EVAL, "--lanes", "0"], "lanes"),
-    "negative lanes": Mistake([*EVAL, "--lanes", "-3"], "lanes"),
     "batch size 0": Mistake([*EVAL, "--batch-size", "0"], "batch_size"),
     "max steps 0": Mistake([*EVAL, "--max-steps", "0"], "max_steps"),
     "limit 0": Mistake([*EVAL, "--limit", "0"], "limit"),

@@ -151,6 +151,11 @@ class ModelAPI(abc.ABC):
     choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset()
     #: Why a rule outside `choice_rules` is missing, told to the user who asks for it.
     choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {}
+    #: How the runner should feed the backend. True: many concurrent one-conversation
+    #: `generate` calls (up to `max_concurrency`, from threads), for servers that batch requests
+    #: themselves. False: one call at a time with every conversation that is ready, for
+    #: in-process engines that batch what they are given.
+    concurrent_requests: bool = False
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         self.model_name = model_name

@@ -59,6 +59,7 @@ class CachedModel(ModelAPI):
         super().__init__(model.model_name, model.config)
         self.model = model
         self.backend_name = model.backend_name
+        self.concurrent_requests = model.concurrent_requests
         self.path = Path(path).expanduser()
         self.cache_sampled = cache_sampled
         self.hits = 0

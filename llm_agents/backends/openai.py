@@ -94,6 +94,9 @@ class OpenAIModel(ModelAPI):
         "loglik": "chat completions return log-probabilities of generated tokens only, not of "
         "a given answer after the prompt; use the vllm backend (offline engine) or hf for loglik"
     }
+    # Each `generate` call runs its own event loop and client, so calls from threads are
+    # independent; the server batches the requests.
+    concurrent_requests = True
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
@@ -132,6 +135,9 @@ class OpenAIModel(ModelAPI):
         # Flipped for good once the server rejects structured outputs, so later batches do not
         # pay a failed request each.
         self.structured_choice = self.settings.structured_choice
+        # Built once: loading the CA bundle costs ~30 ms of CPU, and every `generate` call
+        # opens a client (the runner makes one call per request, many at a time).
+        self._ssl_context = httpx.create_ssl_context()
 
     @property
     def retry_policy(self) -> RetryPolicy:
@@ -186,6 +192,7 @@ class OpenAIModel(ModelAPI):
             limits=limits,
             headers=self._headers(),
             auth=self._auth,
+            verify=self._ssl_context,
         ) as client:
 
             async def one(conversation: Conversation) -> ModelOutput:

@@ -1,0 +1,244 @@
+"""Scheduling efficiency against a heavy-tailed server: lockstep vs continuous, side by side.
+
+A loopback OpenAI-compatible server (its own process) answers each request after a lognormal
+time (median 0.2 s, sigma 1: reasoning models' answer lengths are heavy-tailed) and records
+when each answer started and ended. Efficiency = sum of answer times / (in flight x busy span),
+measured at the server: 1.0 means every one of the `in flight` request slots was busy all the
+time. Two spans are reported: the whole run (which ends with the last episodes draining, as any
+finite run does), and the steady part, up to the first request of the last episode started.
+
+- lockstep: the scheduling before continuous scheduling, reimplemented minimally here: every
+  step sends all live episodes' prompts as one batch and waits for the slowest answer;
+- continuous: `run_eval` as shipped (each episode steps when its own answer arrives).
+
+    python benchmarks/bench_scheduling.py [--episodes 128] [--lockstep-episodes 32]
+        [--max-steps 20] [--in-flight 32] [--variant full]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import random
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+MEDIAN_S = 0.2
+SIGMA = 1.0
+ANSWERS = ["ACTION: LEFT", "ACTION: RIGHT", "ACTION: UP", "ACTION: DOWN", "ACTION: DO"]
+#: Text of the step template when the episode has no history yet: marks an episode's start.
+FIRST_STEP_MARK = "first step"
+
+
+def serve(seed: int) -> None:
+    """The server process: prints its port, answers chat completions, reports on GET /stats."""
+    rng = random.Random(seed)
+    lock = threading.Lock()
+    answers: list[tuple[float, float, bool]] = []
+
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def log_message(self, format: str, *args: Any) -> None:
+            return None
+
+        def do_POST(self) -> None:
+            start = time.monotonic()
+            body = json.loads(self.rfile.read(int(self.headers.get("Content-Length") or 0)))
+            first = FIRST_STEP_MARK in body["messages"][-1]["content"]
+            with lock:
+                delay = rng.lognormvariate(math.log(MEDIAN_S), SIGMA)
+                text = rng.choice(ANSWERS)
+            time.sleep(delay)
+            self._send(
+                {
+                    "choices": [
+                        {"message": {"role": "assistant", "content": text}, "finish_reason": "stop"}
+                    ],
+                    "usage": {"prompt_tokens": 1, "completion_tokens": 2},
+                }
+            )
+            with lock:
+                answers.append((start, time.monotonic(), first))
+
+        def do_GET(self) -> None:
+            with lock:
+                taken = list(answers)
+                answers.clear()
+            self._send(taken)
+
+        def _send(self, payload: Any) -> None:
+            data = json.dumps(payload).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+    class Server(ThreadingHTTPServer):
+        # A burst of new connections (each backend call opens its own) must not overflow the
+        # default backlog of 5, which a real server's is far above.
+        request_queue_size = 1024
+        daemon_threads = True
+
+    httpd = Server(("127.0.0.1", 0), Handler)
+    print(httpd.server_address[1], flush=True)
+    httpd.serve_forever()
+
+
+def efficiency(answers: list[list[Any]], in_flight: int) -> dict[str, float]:
+    """Whole-run and steady-state efficiency from the server's (start, end, first) records."""
+    begin = min(a[0] for a in answers)
+    end = max(a[1] for a in answers)
+    steady_end = max(a[0] for a in answers if a[2])
+    busy = sum(a[1] - a[0] for a in answers)
+    steady_busy = sum(max(0.0, min(a[1], steady_end) - a[0]) for a in answers)
+    steady = steady_end - begin
+    return {
+        "answers": len(answers),
+        "span_s": end - begin,
+        "efficiency": busy / (in_flight * (end - begin)),
+        "steady_s": steady,
+        # Undefined when every episode started at once (one round of lockstep).
+        "steady_efficiency": steady_busy / (in_flight * steady) if steady > 1.0 else math.nan,
+    }
+
+
+def lockstep(config: Any, env: Any, model: Any) -> None:
+    """The old runner loop, minus its records: one batched model call per step for all."""
+    import numpy as np
+
+    from env import VectorEnv, episode_key, goal_masks
+    from env.dataset import load_dataset
+    from llm_agents.agent import ZeroShotAgent
+    from llm_agents.runner import build_schedule
+    from textualizer import observe_batch
+
+    instructions = load_dataset(config.dataset).instructions(config.splits)
+    queue = list(reversed(build_schedule(config, instructions, None)))
+    agent = ZeroShotAgent(config.variant, renderer=config.renderer, choice_rule=config.choice)
+    batch = min(config.batch_size, len(queue))
+    vector = VectorEnv(env, batch)
+
+    def rows(specs: list[Any]) -> tuple[Any, Any, Any]:
+        keys = np.stack(
+            [episode_key(0, s.instruction.goal.id, s.instruction.variant, s.repeat) for s in specs]
+        )
+        return (keys, *goal_masks([s.instruction.goal for s in specs]))
+
+    first = [queue.pop() for _ in range(batch)]
+    host = vector.reset(*rows(first))
+    live = set(range(batch))
+    for slot, spec in enumerate(first):
+        agent.start_episode(slot, spec.instruction.text)
+    while live:
+        slots = sorted(live)
+        decisions = agent.act(model, slots, observe_batch(host.game, config.variant, slots))
+        actions = np.full(batch, agent.fallback_id, dtype=np.int32)
+        for decision in decisions:
+            actions[decision.slot] = decision.action
+        host = vector.step(actions)
+        ended = [slot for slot in slots if host.done[slot]]
+        live -= set(ended)
+        refill = [(slot, queue.pop()) for slot in ended if queue]
+        if refill:
+            host = vector.refill([s for s, _ in refill], *rows([spec for _, spec in refill]))
+            for slot, spec in refill:
+                agent.start_episode(slot, spec.instruction.text)
+                live.add(slot)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=128, help="continuous run's episodes")
+    parser.add_argument("--lockstep-episodes", type=int, default=32)
+    parser.add_argument("--max-steps", type=int, default=20)
+    parser.add_argument(
+        "--in-flight", type=int, default=32, help="--batch-size and --max-concurrency"
+    )
+    parser.add_argument("--variant", default="full", choices=["full", "classic"])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve:
+        serve(args.seed)
+        return
+
+    import httpx
+
+    from env import CrafTextEnv, EnvConfig, Variant
+    from llm_agents.backends import get_model
+    from llm_agents.config import build_config
+    from llm_agents.runner import run_eval
+
+    server = subprocess.Popen(
+        [sys.executable, __file__, "--serve", "--seed", str(args.seed)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert server.stdout is not None
+        url = f"http://127.0.0.1:{server.stdout.readline().strip()}/v1"
+        env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
+
+        def settings(episodes: int, out: str) -> Any:
+            return build_config(
+                {
+                    "model": f"openai:bench@{url}",
+                    "variant": args.variant,
+                    "splits": ["one", "combo", "paraphrased", "new_objects"],
+                    "max_steps": args.max_steps,
+                    "batch_size": args.in_flight,
+                    "limit": episodes,
+                    "probe": False,
+                    "generation": {"max_concurrency": args.in_flight},
+                    "output_dir": out,
+                }
+            )
+
+        def stats() -> dict[str, float]:
+            answers = httpx.get(f"{url}/stats", timeout=30).json()
+            return efficiency(answers, args.in_flight)
+
+        with tempfile.TemporaryDirectory() as tmp:
+            config = settings(args.lockstep_episodes, f"{tmp}/lockstep")
+            model = get_model(config.model, config.generation)
+            # Compiles (or loads from the cache) the env's functions before anything is timed.
+            lockstep(settings(args.in_flight, f"{tmp}/warmup"), env, model)
+            stats()
+            lockstep(config, env, model)
+            results = {"lockstep": (args.lockstep_episodes, stats())}
+            config = settings(args.episodes, f"{tmp}/continuous")
+            run_eval(config, model, env=env)
+            results["continuous"] = (args.episodes, stats())
+    finally:
+        server.terminate()
+        server.wait()
+
+    print(
+        f"server: lognormal answer time (median {MEDIAN_S} s, sigma {SIGMA}); "
+        f"{args.in_flight} episodes and {args.in_flight} requests in flight; "
+        f"{args.variant} Craftax, {args.max_steps} steps per episode"
+    )
+    print(
+        f"{'scheduler':<11} {'episodes':>8} {'answers':>7} {'span s':>7} {'efficiency':>10} "
+        f"{'steady s':>8} {'steady eff.':>11}"
+    )
+    for name, (episodes, figures) in results.items():
+        print(
+            f"{name:<11} {episodes:>8} {figures['answers']:>7.0f} {figures['span_s']:>7.1f} "
+            f"{figures['efficiency']:>10.2f} {figures['steady_s']:>8.1f} "
+            f"{figures['steady_efficiency']:>11.2f}"
+        )
+    ratio = results["continuous"][1]["efficiency"] / results["lockstep"][1]["efficiency"]
+    print(f"continuous / lockstep efficiency: {ratio:.1f}x; target: continuous >= 0.85")
+
+
+if __name__ == "__main__":
+    main()
