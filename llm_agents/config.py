@@ -74,6 +74,27 @@ class EvalConfig(BaseModel):
     """SQLite file caching model responses, so a repeated run does not pay twice."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
+    agent: str = "zero-shot"
+    """Agent strategy: `zero-shot`, `cot` (keeps its recent reasoning), `few-shot` (expert
+    demonstrations first) or `expert` (scripted, no model)."""
+    cot_steps: int = Field(3, ge=1)
+    """cot: how many of the model's last replies stay in the conversation."""
+    cot_max_tokens: int = Field(384, ge=1)
+    """cot: the kept replies' total size cap, in tokens (estimated as 4 characters each)."""
+    few_shot_steps: int = Field(8, ge=1)
+    """few-shot: demonstration steps shown before each episode."""
+    demos: str | None = None
+    """few-shot: a run directory of the `expert` agent on training goals (`one`, `combo`) with
+    the same renderer, whose successful episodes give the demonstrations."""
+
+    @field_validator("agent")
+    @classmethod
+    def _known_agent(cls, value: str) -> str:
+        from llm_agents.agents import AGENTS
+
+        if value not in AGENTS:
+            raise ValueError(f"unknown agent {value!r}; choose from {', '.join(AGENTS)}")
+        return value
 
     @field_validator("splits", mode="before")
     @classmethod

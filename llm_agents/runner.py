@@ -31,7 +31,8 @@ import numpy as np
 
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
-from llm_agents.agent import Decision, ZeroShotAgent
+from llm_agents.agents import Agent, build_agent
+from llm_agents.agents.zero_shot import Decision
 from llm_agents.backends.base import ModelAPI
 from llm_agents.config import EvalConfig
 from llm_agents.metrics import Summary, summarize
@@ -301,14 +302,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
     from env import VectorEnv, episode_key, goal_masks
     from textualizer import observe_batch
 
-    agent = ZeroShotAgent(
-        config.variant,
-        renderer=config.renderer,
-        templates_dir=config.templates_dir,
-        history_length=config.history_length,
-        fallback_action=config.fallback_action,
-        choice_mode=config.choice,
-    )
+    agent: Agent = build_agent(config)
     first = sink.take(batch)
     if not first:
         return
@@ -331,7 +325,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
     live: dict[int, _Live] = {}
     for slot, spec in enumerate(first):
         live[slot] = _Live(spec)
-        agent.start_episode(slot, spec.instruction.text, spec.plan)
+        agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
 
     fallback = agent.fallback_id
     while live and not sink.stop.is_set():
@@ -371,7 +365,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
                 host = vector.refill(refill_slots, *task_rows(specs))
                 for slot, spec in zip(refill_slots, specs, strict=True):
                     live[slot] = _Live(spec)
-                    agent.start_episode(slot, spec.instruction.text, spec.plan)
+                    agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
 
 
 def _names(mask: np.ndarray) -> list[str]:

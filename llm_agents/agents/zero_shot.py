@@ -1,4 +1,4 @@
-"""The zero-shot LLM agent: one object plays a batch of episodes (slots) in lockstep.
+"""The zero-shot LLM agent (`zero-shot`): one object plays a batch of episodes (slots) in lockstep.
 
 Each step it renders every slot's observation, builds [system, user] messages from the
 templates, makes one batched `model.generate` call, parses each answer and falls back to a
@@ -14,7 +14,7 @@ import importlib
 import json
 from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from pydantic import BaseModel, ConfigDict
 
@@ -24,6 +24,10 @@ from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, actio
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
 from llm_agents.parser import ParseResult, parse_action
 from prompts import render_template
+
+if TYPE_CHECKING:
+    from env.dataset import Goal
+    from llm_agents.config import EvalConfig
 
 SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"
@@ -103,9 +107,10 @@ class Decision(BaseModel):
 
 
 class _Episode:
-    def __init__(self, instruction: str, plan: str | None):
+    def __init__(self, instruction: str, plan: str | None, goal: Goal | None = None):
         self.instruction = instruction
         self.plan = plan
+        self.goal = goal
         self.step = 0
         self.history: list[HistoryEntry] = []
         self.pending: tuple[str, Any] | None = None
@@ -158,6 +163,8 @@ def messages_hash(messages: Sequence[ChatMessage]) -> str:
 class ZeroShotAgent:
     """Plays many episodes at once with one LLM call per step for the whole batch."""
 
+    needs_model: ClassVar[bool] = True
+
     def __init__(
         self,
         variant: Variant | str = Variant.FULL,
@@ -190,6 +197,18 @@ class ZeroShotAgent:
         )
         self._episodes: dict[int, _Episode] = {}
 
+    @classmethod
+    def from_config(cls, config: EvalConfig) -> ZeroShotAgent:
+        """The agent an evaluation config describes."""
+        return cls(
+            config.variant,
+            renderer=config.renderer,
+            templates_dir=config.templates_dir,
+            history_length=config.history_length,
+            fallback_action=config.fallback_action,
+            choice_mode=config.choice,
+        )
+
     def system_context(self) -> dict[str, Any]:
         """The variables `system.j2` is rendered with."""
         return {
@@ -214,9 +233,15 @@ class ZeroShotAgent:
             "choice_mode": self.choice_mode,
         }
 
-    def start_episode(self, slot: int, instruction: str, plan: str | None = None) -> None:
-        """Begin a new episode in a slot, forgetting the slot's previous one."""
-        self._episodes[slot] = _Episode(instruction, plan)
+    def start_episode(
+        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Begin a new episode in a slot, forgetting the slot's previous one.
+
+        `goal` is the dataset record the instruction describes; strategies that must know which
+        goal is played (few-shot leaves it out of its demonstrations) read it.
+        """
+        self._episodes[slot] = _Episode(instruction, plan, goal)
 
     def end_episode(self, slot: int) -> None:
         """Forget a slot's episode."""
