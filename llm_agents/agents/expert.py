@@ -304,15 +304,20 @@ class _Step:
 
     def _survive(self) -> tuple[str, Task] | None:
         """Fight or flee an adjacent zombie; drink or eat when low."""
-        for cell, kind in self.mobs.items():
-            if kind not in _HOSTILE or abs(cell[0] - self.pos[0]) + abs(cell[1] - self.pos[1]) > 1:
+        health = self.obs.vitals.health
+        for cell, kind in sorted(self.mobs.items(), key=lambda item: self._steps_to(item[0])):
+            distance = self._steps_to(cell)
+            if kind not in _HOSTILE or distance > 2:
                 continue
-            if not self.forbidden(KILL_ACHIEVEMENT[kind]):
+            # Fleeing rarely shakes a zombie off: fight it unless killing it is forbidden.
+            if not self.forbidden(KILL_ACHIEVEMENT[kind]) and (distance == 1 or health > 4):
                 fight = Task("hunt", kind, note="zombie next to the player")
                 return (self.interact({cell}) or "DO"), fight
+            if distance > 1:
+                continue
             away = self._flee(cell)
             if away is not None:
-                return away, Task("hunt", kind, note="fleeing: killing it is forbidden")
+                return away, Task("hunt", kind, note="keeping away from a zombie")
         vitals = self.obs.vitals
         if vitals.drink <= _DRINK_LOW and not self.forbidden("COLLECT_DRINK"):
             water = set(self.world.cells(["water"]))
@@ -323,6 +328,12 @@ class _Step:
             if cows and (action := self.interact(cows)):
                 return action, Task("hunt", "cow", note="hungry")
         return None
+
+    def _steps_to(self, cell: Cell) -> int:
+        return abs(cell[0] - self.pos[0]) + abs(cell[1] - self.pos[1])
+
+    def _damage(self) -> int:
+        return {0: 1, 1: 2, 2: 3, 3: 5, 4: 8}[self._tier("sword")]
 
     def _flee(self, threat: Cell) -> str | None:
         options = [

@@ -271,6 +271,8 @@ def _budget(ctx: PlanContext, material: str) -> int:
             total += TABLE_WOOD
         if any(name != "MAKE_WOOD_PICKAXE" and name != "MAKE_WOOD_SWORD" for name in makes):
             total += TABLE_WOOD  # the first table may be far from the stone by then
+        if makes and ctx.tier("sword") < 1 and ctx.allowed("MAKE_WOOD_SWORD"):
+            total += 1  # a wood sword while at the table
     if material == "stone":
         if "PLACE_STONE" in todo:
             total += 1
@@ -325,7 +327,21 @@ def _craft(ctx: PlanContext, action: str, achievement: str | None) -> Task:
         return task
     if recipe.furnace and (task := _furnace(ctx, achievement)):
         return task
-    return Task("craft", action, achievement, needs_furnace=recipe.furnace)
+    return Task("craft", _with_sword(ctx, action), achievement, needs_furnace=recipe.furnace)
+
+
+def _with_sword(ctx: PlanContext, action: str) -> str:
+    """A sword first when the materials allow it on top of the plan (zombie fights cost far
+    less health with one); otherwise `action` itself."""
+    wood, stone = ctx.count("wood"), ctx.count("stone")
+    wood_budget, stone_budget = _budget(ctx, "wood"), _budget(ctx, "stone")
+    tier = ctx.tier("sword")
+    if tier < 2 and wood > wood_budget and stone > stone_budget and ctx.allowed("MAKE_STONE_SWORD"):
+        return "MAKE_STONE_SWORD"
+    # The wood budget holds one wood for this sword.
+    if tier < 1 and wood >= max(wood_budget, 2) and ctx.allowed("MAKE_WOOD_SWORD"):
+        return "MAKE_WOOD_SWORD"
+    return action
 
 
 def _furnace(ctx: PlanContext, achievement: str | None) -> Task | None:
