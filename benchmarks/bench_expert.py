@@ -124,12 +124,16 @@ def main() -> None:
     for category in args.splits:
         results = by_category.get(category, [])
         if results:
-            print(f"  {category:12s} {sum(results) / len(results):.2f} ({sum(results)}/{len(results)})")
+            print(
+                f"  {category:12s} {sum(results) / len(results):.2f} ({sum(results)}/{len(results)})"
+            )
     pooled = by_category.get("combo", []) + by_category.get("new_objects", [])
     if pooled:
         print(f"  combo+new_objects {sum(pooled) / len(pooled):.2f} ({sum(pooled)}/{len(pooled)})")
     print("\nper goal (worst first):")
-    for (category, goal), results in sorted(by_goal.items(), key=lambda kv: sum(kv[1]) / len(kv[1])):
+    for (category, goal), results in sorted(
+        by_goal.items(), key=lambda kv: sum(kv[1]) / len(kv[1])
+    ):
         print(f"  {sum(results)}/{len(results)} {category:11s} {goal}")
     print("\nfailed episodes: termination, last task")
     reasons: Counter[str] = Counter()
@@ -139,8 +143,10 @@ def main() -> None:
             reasons[f"{episode.termination}: {note}"] += 1
             required = goals[episode.goal_id].required if episode.goal_id in goals else ()
             missing = sorted(set(required) - set(episode.achievements))
-            print(f"  {episode.goal_id} ({episode.termination} at {episode.steps}): {note}; "
-                  f"missing {', '.join(missing)}")
+            print(
+                f"  {episode.goal_id} ({episode.termination} at {episode.steps}): {note}; "
+                f"missing {', '.join(missing)}"
+            )
     print("\nfailure reasons:")
     for reason, count in reasons.most_common():
         print(f"  {count:3d} {reason}")

@@ -137,6 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
         "report", help="print the table and redraw the chart of a finished or partial run"
     )
     report.add_argument("run_dir", help="a run's output directory")
+    report.add_argument(
+        "--compare", metavar="OTHER_RUN", help="another run (e.g. the expert's) shown beside it"
+    )
 
     plan = commands.add_parser(
         "plan",
@@ -228,9 +231,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         f" -> {config.output_dir}",
         file=sys.stderr,
     )
-    with _open_model(
-        config.model, config.generation, config.cache, config.backend_options
-    ) as model:
+    from llm_agents.agents import NoModel, agent_class
+
+    opened = (
+        _open_model(config.model, config.generation, config.cache, config.backend_options)
+        if agent_class(config.agent).needs_model
+        else NoModel()
+    )
+    with opened as model:
         try:
             outcome = run_eval(config, model, progress=_progress_bar(not args.no_progress))
         except KeyboardInterrupt:
@@ -260,6 +268,11 @@ def _print_report(run_dir: str | Path) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     from llm_agents.report import report_run
 
+    if args.compare:
+        from llm_agents.report import compare_runs
+
+        print(compare_runs(args.run_dir, args.compare))
+        return 0
     print(report_run(args.run_dir))
     return 0
 

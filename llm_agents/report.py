@@ -15,7 +15,14 @@ from env.errors import UserError
 from llm_agents.metrics import SuccessRate, Summary, summarize
 from llm_agents.records import RunResults, read_episodes, read_results
 
-__all__ = ["PUBLISHED", "PublishedResult", "format_table", "plot_success", "report_run"]
+__all__ = [
+    "PUBLISHED",
+    "PublishedResult",
+    "compare_runs",
+    "format_table",
+    "plot_success",
+    "report_run",
+]
 
 EPISODES_FILE = "episodes.jsonl"
 RESULTS_FILE = "results.json"
@@ -196,6 +203,8 @@ def plot_success(summary: Summary, model_name: str, path: Path) -> None:
 
 
 def _model_name(results: RunResults | None) -> str:
+    if results is not None and results.config.get("agent") == "expert":
+        return "expert (scripted, no model)"
     model = results.config.get("model") if results is not None else None
     return model if isinstance(model, str) and model else "this model"
 
@@ -217,3 +226,45 @@ def report_run(run_dir: str | Path) -> str:
     model_name = _model_name(results)
     plot_success(summary, model_name, run_dir / CHART_FILE)
     return format_table(summary, model_name, partial=results is None or not results.complete)
+
+
+def _run_row(run_dir: Path) -> tuple[str, Summary, RunResults | None]:
+    if not (run_dir / EPISODES_FILE).is_file():
+        raise UserError(f"{run_dir} has no {EPISODES_FILE}: no episode has finished there")
+    episodes = read_episodes(run_dir / EPISODES_FILE)
+    if not episodes:
+        raise UserError(f"{run_dir / EPISODES_FILE} holds no finished episode")
+    results_path = run_dir / RESULTS_FILE
+    results = read_results(results_path) if results_path.is_file() else None
+    agent = results.config.get("agent", "zero-shot") if results is not None else "zero-shot"
+    label = _model_name(results) if agent == "expert" else f"{_model_name(results)} ({agent})"
+    partial = results is None or not results.complete
+    return f"{label}{', partial' if partial else ''}", summarize(episodes), results
+
+
+def compare_runs(run_dir: str | Path, other_dir: str | Path) -> str:
+    """A run's table with another run's row beside it (e.g. the expert's on the same dataset),
+    and the published rows; says so when the two runs read different datasets."""
+    rows_data = [_run_row(Path(run_dir)), _run_row(Path(other_dir))]
+    categories = {c for _, summary, _ in rows_data for c in summary.by_category}
+    columns = [
+        c for c in (*_PAPER_CATEGORIES, "paraphrased") if c in categories or c in _PAPER_CATEGORIES
+    ]
+    columns.append("overall")
+    rows = [["Run", *(_LABELS[c] for c in columns)]]
+    rows += [[label, *(_our_cell(_ours(s, c)) for c in columns)] for label, s, _ in rows_data]
+    rows += [
+        [f"{result.model} (published)", *(_published_cell(result, c) for c in columns)]
+        for result in PUBLISHED
+    ]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(columns) + 1)]
+    lines = [
+        " | ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
+        for row in rows
+    ]
+    lines.insert(1, "-+-".join("-" * w for w in widths))
+    notes = ["", "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split."]
+    datasets = [r.dataset.get("sha256") if r is not None else None for _, _, r in rows_data]
+    if datasets[0] != datasets[1]:
+        notes.append("Note: the two runs read different datasets (or one is unknown).")
+    return "\n".join(lines + notes)

@@ -365,7 +365,9 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, batch: int, sink: _Sink
                 host = vector.refill(refill_slots, *task_rows(specs))
                 for slot, spec in zip(refill_slots, specs, strict=True):
                     live[slot] = _Live(spec)
-                    agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
+                    agent.start_episode(
+                        slot, spec.instruction.text, spec.plan, spec.instruction.goal
+                    )
 
 
 def _names(mask: np.ndarray) -> list[str]:

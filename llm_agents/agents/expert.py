@@ -379,9 +379,7 @@ class _Step:
         """Walkable cells with a table (and a furnace, when asked) among their 8 neighbours."""
         wanted = [{"crafting_table"}, {"furnace"}] if needs_furnace else [{"crafting_table"}]
         tables = self.world.cells(["crafting_table"])
-        cells = {
-            (tx + dx, ty + dy) for tx, ty in tables for dx in (-1, 0, 1) for dy in (-1, 0, 1)
-        }
+        cells = {(tx + dx, ty + dy) for tx, ty in tables for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
         return {
             c
             for c in cells

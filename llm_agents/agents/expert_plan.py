@@ -18,9 +18,7 @@ from typing import Literal
 from textualizer.observation import Observation
 
 Cell = tuple[int, int]
-TaskKind = Literal[
-    "gather", "craft", "place", "hunt", "forage", "sleep", "explore", "wait", "idle"
-]
+TaskKind = Literal["gather", "craft", "place", "hunt", "forage", "sleep", "explore", "wait", "idle"]
 
 #: Blocks the player can stand on (lava too, but it kills: never planned).
 WALKABLE = frozenset({"grass", "sand", "path", "fire_grass", "ice_grass"})
@@ -242,7 +240,10 @@ class PlanContext:
         # A block itself is not walkable: its distance is the best of its walkable neighbours.
         x, y = cell
         best = min(
-            (self.distances.get(n, 10**6) for n in ((x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1))),
+            (
+                self.distances.get(n, 10**6)
+                for n in ((x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1))
+            ),
             default=10**6,
         )
         return best + 1
@@ -376,7 +377,9 @@ def task_for(ctx: PlanContext, achievement: str) -> Task:
         if ctx.world.cells(["ripe_plant"]):
             return Task("gather", "ripe_plant", a)
         if ctx.world.cells(["plant"]):
-            return Task("wait", "plant", a, note=f"plants ripen {PLANT_RIPENS_AFTER} steps after planting")
+            return Task(
+                "wait", "plant", a, note=f"plants ripen {PLANT_RIPENS_AFTER} steps after planting"
+            )
         if ctx.count("sapling") < 1:
             return Task("forage", "grass", a)
         return Task("place", "PLACE_PLANT", a)

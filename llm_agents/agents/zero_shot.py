@@ -164,6 +164,8 @@ class ZeroShotAgent:
     """Plays many episodes at once with one LLM call per step for the whole batch."""
 
     needs_model: ClassVar[bool] = True
+    step_template: ClassVar[str] = STEP_TEMPLATE
+    """The template of the per-step user message (strategies built on this one swap it)."""
 
     def __init__(
         self,
@@ -273,7 +275,7 @@ class ZeroShotAgent:
         recent = episode.history[-self.history_length :] if self.history_length else []
         context = self.step_context(text, episode.instruction, episode.plan, recent)
         user = ChatMessage(
-            role="user", content=render_template(STEP_TEMPLATE, context, self.templates_dir)
+            role="user", content=render_template(self.step_template, context, self.templates_dir)
         )
         return [self.system_message, user], text
 
