@@ -337,7 +337,7 @@ class _Step:
 
     def _flee(self, threat: Cell) -> str | None:
         options = [
-            (abs(n[0] - threat[0]) + abs(n[1] - threat[1]), name)
+            ((n[0] - threat[0]) ** 2 + (n[1] - threat[1]) ** 2, name)
             for name, step in MOVES.items()
             if (n := _add(self.pos, step)) and self.world.get(n) in WALKABLE and n not in self.mobs
         ]
