@@ -54,6 +54,8 @@ MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN"
 _FACING: dict[str, Cell] = {"left": (-1, 0), "right": (1, 0), "up": (0, 1), "down": (0, -1)}
 _HOSTILE = frozenset({"zombie"})
 _DRINK_LOW, _FOOD_LOW = 4, 3
+_DEEP = frozenset({"iron", "diamond"})
+_MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
 
 
@@ -83,6 +85,8 @@ class _Episode:
         self.last_task: Task | None = None
         self.stuck = 0
         self.last_position: Cell | None = None
+        self.patrol_target: Cell | None = None
+        self.mined: set[Cell] = set()
 
 
 class ExpertAgent:
@@ -166,6 +170,8 @@ class ExpertAgent:
         name, task = step.decide()
         if not step.safe(name):
             name = "NOOP"
+        if name == "DO" and obs.facing_block in ("stone", "coal", "iron", "diamond"):
+            episode.mined.add(step.facing_cell)
         episode.last_task = task
         return name, task
 
@@ -319,7 +325,9 @@ class _Step:
             if away is not None:
                 return away, Task("hunt", kind, note="keeping away from a zombie")
         vitals = self.obs.vitals
-        if vitals.drink <= _DRINK_LOW and not self.forbidden("COLLECT_DRINK"):
+        facing_water = self.obs.facing_block == "water"
+        topping_up = facing_water and vitals.drink < vitals.max_food
+        if (vitals.drink <= _DRINK_LOW or topping_up) and not self.forbidden("COLLECT_DRINK"):
             water = set(self.world.cells(["water"]))
             if water and (action := self.interact(water)):
                 return action, Task("gather", "water", note="thirsty")
@@ -351,7 +359,9 @@ class _Step:
             return self.interact(set(self.world.cells([target])))
         if kind == "hunt" and target is not None:
             prey = {cell for cell, mob in self.mobs.items() if mob == target}
-            return self.interact(prey) if prey else None
+            if prey:
+                return self.interact(prey)
+            return self._patrol() if target == "skeleton" else None
         if kind == "craft" and target is not None:
             return self._craft(target, task.needs_furnace)
         if kind == "place" and target is not None:
@@ -423,6 +433,25 @@ class _Step:
             return min(options)[1]
         return None
 
+    def _patrol(self) -> str | None:
+        """Walk the known tunnels: skeletons appear only on tunnel floor 10-13 steps away and
+        mostly wander, so covering the tunnels finds them. None: no tunnel known (explore)."""
+        tunnels = [
+            c for c in self.world.cells(["path"]) if c in self.dist and c not in self.episode.mined
+        ]
+        if not tunnels:
+            return None
+        frontier = [c for c in self._frontier() if self.world.get(c) == "path"]
+        if frontier:
+            return self.explore("skeleton")
+        goal = self.episode.patrol_target
+        if goal is None or goal == self.pos or goal not in self.dist:
+            far = [c for c in tunnels if 6 <= self._steps_to(c) <= 16] or tunnels
+            # Deterministic but varied: the episode step picks among the far tunnel cells.
+            goal = sorted(far)[self.obs.step * 7 % len(far)]
+            self.episode.patrol_target = goal
+        return self.step_towards({goal})
+
     # --- exploration
 
     def explore(self, target: str | None) -> str | None:
@@ -471,9 +500,21 @@ class _Step:
             norm = math.hypot(dx, dy) or 1.0
             align = (dx * hx + dy * hy) / norm
             bonus = 4.0 if prefer and self._near(cell, prefer) else 0.0
+            if target in _DEEP:
+                bonus += 8.0 * self._stoniness(cell)
             return self.dist[cell] - 3.0 * align - bonus
 
         return min(frontier, key=lambda cell: (score(cell), cell))
+
+    def _stoniness(self, cell: Cell) -> float:
+        """The share of known cells around `cell` that are mountain (diamonds lie deep in it)."""
+        around = [
+            self.world.get((cell[0] + dx, cell[1] + dy))
+            for dx in range(-3, 4)
+            for dy in range(-3, 4)
+        ]
+        known = [block for block in around if block is not None]
+        return sum(block in _MOUNTAIN for block in known) / len(known) if known else 0.0
 
     def _wander(self) -> str | None:
         for name, step in MOVES.items():
