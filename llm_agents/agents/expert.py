@@ -54,6 +54,7 @@ MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN"
 _FACING: dict[str, Cell] = {"left": (-1, 0), "right": (1, 0), "up": (0, 1), "down": (0, -1)}
 _HOSTILE = frozenset({"zombie"})
 _DRINK_LOW, _FOOD_LOW = 4, 3
+_PREY_MEMORY = 12
 _DEEP = frozenset({"iron", "diamond"})
 _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
@@ -86,6 +87,7 @@ class _Episode:
         self.stuck = 0
         self.last_position: Cell | None = None
         self.patrol_target: Cell | None = None
+        self.last_prey: tuple[Cell, int] | None = None
         self.mined: set[Cell] = set()
 
 
@@ -360,7 +362,13 @@ class _Step:
         if kind == "hunt" and target is not None:
             prey = {cell for cell, mob in self.mobs.items() if mob == target}
             if prey:
-                return self.interact(prey)
+                self.episode.last_prey = (min(prey, key=self._steps_to), self.obs.step)
+                return self.interact(prey) or self._closest_to(prey)
+            last = self.episode.last_prey
+            # A creature that just left the view is still about where it was seen.
+            if last is not None and self.obs.step - last[1] <= _PREY_MEMORY:
+                if self._steps_to(last[0]) > 1 and (action := self._closest_to({last[0]})):
+                    return action
             return self._patrol() if target == "skeleton" else None
         if kind == "craft" and target is not None:
             return self._craft(target, task.needs_furnace)
@@ -432,6 +440,16 @@ class _Step:
         if options:
             return min(options)[1]
         return None
+
+    def _closest_to(self, cells: set[Cell]) -> str | None:
+        """A step towards the reachable cell nearest (as the crow flies) to any of `cells`."""
+        if not self.dist:
+            return None
+        best = min(
+            self.dist,
+            key=lambda c: (min(abs(c[0] - t[0]) + abs(c[1] - t[1]) for t in cells), self.dist[c]),
+        )
+        return self.step_towards({best})
 
     def _patrol(self) -> str | None:
         """Walk the known tunnels: skeletons appear only on tunnel floor 10-13 steps away and

@@ -249,9 +249,27 @@ class PlanContext:
         return best + 1
 
 
+#: Tools that make a hunt much easier (skeletons hide in tunnels behind stone), made first
+#: when allowed.
+AIDS: dict[str, tuple[str, ...]] = {"DEFEAT_SKELETON": ("MAKE_WOOD_PICKAXE",)}
+
+
+def aids(ctx: PlanContext) -> list[str]:
+    """The helpful tools for the unfinished required achievements that may be made."""
+    wanted = []
+    for name in ctx.required:
+        if name in ctx.achieved:
+            continue
+        for tool in AIDS.get(name, ()):
+            if not (closure([tool]) & set(ctx.forbidden)) and tool not in wanted:
+                wanted.append(tool)
+    return wanted
+
+
 def _tools_to_make(ctx: PlanContext) -> list[str]:
     """The crafting actions the rest of the plan needs, in order."""
     todo = [name for name in plan_order(ctx.required, ctx.forbidden) if name not in ctx.achieved]
+    todo += [name for name in aids(ctx) if name not in todo]
     makes = []
     for name in todo:
         if name in RECIPES:
@@ -383,6 +401,11 @@ def task_for(ctx: PlanContext, achievement: str) -> Task:
         if ctx.count("sapling") < 1:
             return Task("forage", "grass", a)
         return Task("place", "PLACE_PLANT", a)
+    if a in AIDS:
+        for tool in aids(ctx):
+            kind_name, tool_name = tool.removeprefix("MAKE_").lower().split("_")
+            if ctx.tier(tool_name) < TIER_OF_TOOL[kind_name]:
+                return _craft(ctx, tool, a)
     if a in ("EAT_COW", "DEFEAT_ZOMBIE", "DEFEAT_SKELETON"):
         kind = {"EAT_COW": "cow", "DEFEAT_ZOMBIE": "zombie", "DEFEAT_SKELETON": "skeleton"}[a]
         return Task("hunt", kind, a)
