@@ -55,6 +55,8 @@ _FACING: dict[str, Cell] = {"left": (-1, 0), "right": (1, 0), "up": (0, 1), "dow
 _HOSTILE = frozenset({"zombie"})
 _DRINK_LOW, _FOOD_LOW = 4, 3
 _PREY_MEMORY = 12
+_GATHER_DETOUR = 8
+_MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
 _DEEP = frozenset({"iron", "diamond"})
 _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
@@ -302,13 +304,28 @@ class _Step:
         urgent = self._survive()
         if urgent is not None:
             return urgent
-        task = next_task(self.context())
+        task = self._keep_gathering() or next_task(self.context())
         action = self.perform(task)
         if action is None:
             action = self.explore(task.target if task.kind in ("explore", "hunt") else None)
             if action is None:
                 action = "NOOP"
         return action, task
+
+    def _keep_gathering(self) -> Task | None:
+        """The last gathering task while its amount is not reached and its block is close:
+        the planner asks only for what the next craft needs, the amount is what the whole
+        plan will use, and collecting it in one visit saves coming back."""
+        last = self.episode.last_task
+        if last is None or last.kind != "gather" or last.target not in _MATERIALS:
+            return None
+        material = _MATERIALS[last.target]
+        if self.obs.inventory.materials.get(material, 0) >= last.amount:
+            return None
+        blocks = self.world.cells([last.target])
+        stands = {n for b in blocks for n in _neighbours(b)}
+        near = [self.dist[c] for c in stands if c in self.dist]
+        return last if near and min(near) <= _GATHER_DETOUR else None
 
     def _survive(self) -> tuple[str, Task] | None:
         """Fight or flee an adjacent zombie; drink or eat when low."""
@@ -356,8 +373,6 @@ class _Step:
     def perform(self, task: Task) -> str | None:
         kind, target = task.kind, task.target
         if kind == "gather" and target is not None:
-            if target == "tree" and self.obs.inventory.materials.get("wood", 0) >= task.amount > 1:
-                return None
             return self.interact(set(self.world.cells([target])))
         if kind == "hunt" and target is not None:
             prey = {cell for cell, mob in self.mobs.items() if mob == target}
