@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 #: Move action -> (dx, dy) in the observation's axes (+x east, +y north).
 MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN": (0, -1)}
 _FACING: dict[str, Cell] = {"left": (-1, 0), "right": (1, 0), "up": (0, 1), "down": (0, -1)}
-_HOSTILE = frozenset({"zombie"})
+_HOSTILE = frozenset({"zombie", "skeleton"})
 _DRINK_LOW, _FOOD_LOW = 4, 3
 _PREY_MEMORY = 12
 _GATHER_DETOUR = 8
@@ -334,9 +334,11 @@ class _Step:
             distance = self._steps_to(cell)
             if kind not in _HOSTILE or distance > 2:
                 continue
-            # Fleeing rarely shakes a zombie off: fight it unless killing it is forbidden.
-            if not self.forbidden(KILL_ACHIEVEMENT[kind]) and (distance == 1 or health > 4):
-                fight = Task("hunt", kind, note="zombie next to the player")
+            # Fleeing rarely shakes a zombie off, and skeletons shoot: fight unless forbidden.
+            # Skeletons back off, so they are only fought when next to the player.
+            chase = health > 4 and kind == "zombie"
+            if not self.forbidden(KILL_ACHIEVEMENT[kind]) and (distance == 1 or chase):
+                fight = Task("hunt", kind, note=f"{kind} next to the player")
                 return (self.interact({cell}) or "DO"), fight
             if distance > 1:
                 continue
