@@ -55,6 +55,7 @@ _FACING: dict[str, Cell] = {"left": (-1, 0), "right": (1, 0), "up": (0, 1), "dow
 _HOSTILE = frozenset({"zombie", "skeleton"})
 _DRINK_LOW, _FOOD_LOW = 4, 3
 _PREY_MEMORY = 12
+_PLACED_ON_CLEARED = frozenset({"PLACE_TABLE", "PLACE_FURNACE", "PLACE_STONE"})
 _GATHER_DETOUR = 8
 _MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
 _DEEP = frozenset({"iron", "diamond"})
@@ -456,6 +457,13 @@ class _Step:
             options.append((score, name))
         if options:
             return min(options)[1]
+        # Walled in (a tunnel): clear a neighbouring block to make room.
+        for name, step in MOVES.items():
+            cell = _add(self.pos, step)
+            if self.minable(self.world.get(cell)) and action in _PLACED_ON_CLEARED:
+                if self.facing_cell == cell:
+                    return "DO"
+                return name
         return None
 
     def _closest_to(self, cells: set[Cell]) -> str | None:
