@@ -57,6 +57,8 @@ _DRINK_LOW, _FOOD_LOW = 4, 3
 _PREY_MEMORY = 12
 _PLACED_ON_CLEARED = frozenset({"PLACE_TABLE", "PLACE_FURNACE", "PLACE_STONE"})
 _GATHER_DETOUR = 8
+_HEADING_WEIGHT = 3.0
+_STONE_WEIGHT = 4.0
 _MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
 _DEEP = frozenset({"iron", "diamond"})
 _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
@@ -544,8 +546,8 @@ class _Step:
             align = (dx * hx + dy * hy) / norm
             bonus = 4.0 if prefer and self._near(cell, prefer) else 0.0
             if target in _DEEP:
-                bonus += 8.0 * self._stoniness(cell)
-            return self.dist[cell] - 3.0 * align - bonus
+                bonus += _STONE_WEIGHT * self._stoniness(cell)
+            return self.dist[cell] - _HEADING_WEIGHT * align - bonus
 
         return min(frontier, key=lambda cell: (score(cell), cell))
 
