@@ -386,8 +386,10 @@ class _Step:
                 return self.interact(prey) or self._closest_to(prey)
             last = self.episode.last_prey
             # A creature that just left the view is still about where it was seen.
-            if last is not None and self.obs.step - last[1] <= _PREY_MEMORY:
-                if self._steps_to(last[0]) > 1 and (action := self._closest_to({last[0]})):
+            recent = last is not None and self.obs.step - last[1] <= _PREY_MEMORY
+            if recent and last is not None and self._steps_to(last[0]) > 1:
+                action = self._closest_to({last[0]})
+                if action is not None:
                     return action
             return self._patrol() if target == "skeleton" else None
         if kind == "craft" and target is not None:
