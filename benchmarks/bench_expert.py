@@ -137,19 +137,24 @@ def main() -> None:
         print(f"  {sum(results)}/{len(results)} {category:11s} {goal}")
     print("\nfailed episodes: termination, last task")
     reasons: Counter[str] = Counter()
+    missing_counts: Counter[str] = Counter()
     for episode in episodes:
         if not episode.success:
             note = notes.get(episode.episode_id, "")
             reasons[f"{episode.termination}: {note}"] += 1
             required = goals[episode.goal_id].required if episode.goal_id in goals else ()
             missing = sorted(set(required) - set(episode.achievements))
+            missing_counts.update(missing)
             print(
                 f"  {episode.goal_id} ({episode.termination} at {episode.steps}): {note}; "
                 f"missing {', '.join(missing)}"
             )
-    print("\nfailure reasons:")
+    print("\nfailure reasons (termination: the task at the last step):")
     for reason, count in reasons.most_common():
         print(f"  {count:3d} {reason}")
+    print("\nrequired achievements missing in failed episodes:")
+    for name, count in missing_counts.most_common():
+        print(f"  {count:3d} {name}")
 
 
 if __name__ == "__main__":
