@@ -11,7 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from env.dataset import parse_categories
 from env.errors import UserError
@@ -95,6 +102,12 @@ class EvalConfig(BaseModel):
         if value not in AGENTS:
             raise ValueError(f"unknown agent {value!r}; choose from {', '.join(AGENTS)}")
         return value
+
+    @model_validator(mode="after")
+    def _few_shot_has_demos(self) -> EvalConfig:
+        if self.agent == "few-shot" and self.demos is None:
+            raise ValueError("the few-shot agent needs demos: the run directory of an expert run")
+        return self
 
     @field_validator("splits", mode="before")
     @classmethod

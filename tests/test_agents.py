@@ -102,6 +102,8 @@ def test_unknown_agent_is_a_user_error_with_a_suggestion() -> None:
         agent_class("fewshot")
     with pytest.raises(UserError, match="agent"):
         build_config({"agent": "genius"})
+    with pytest.raises(UserError, match="demos"):
+        build_config({"agent": "few-shot"})
 
 
 def test_build_agent_follows_the_config() -> None:
