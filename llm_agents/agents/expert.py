@@ -89,8 +89,6 @@ class _Episode:
         self.explore_target: Cell | None = None
         self.heading: Cell = (1, 0)
         self.last_task: Task | None = None
-        self.stuck = 0
-        self.last_position: Cell | None = None
         self.patrol_target: Cell | None = None
         self.last_prey: tuple[Cell, int] | None = None
         self.mined: set[Cell] = set()
@@ -564,12 +562,8 @@ class _Step:
         return sum(block in _MOUNTAIN for block in known) / len(known) if known else 0.0
 
     def _wander(self) -> str | None:
-        for name, step in MOVES.items():
-            if _add(self.pos, step) == _add(self.pos, self.episode.heading):
-                cell = _add(self.pos, step)
-                if self.world.get(cell) in WALKABLE and cell not in self.mobs:
-                    return name
-        for name, step in MOVES.items():
+        """A free step along the heading, else any free step (which becomes the heading)."""
+        for name, step in sorted(MOVES.items(), key=lambda item: item[1] != self.episode.heading):
             cell = _add(self.pos, step)
             if self.world.get(cell) in WALKABLE and cell not in self.mobs:
                 self.episode.heading = step
