@@ -112,7 +112,7 @@ def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
 
     import env
     import textualizer
-    from llm_agents.agent import ZeroShotAgent
+    from llm_agents.agents.zero_shot import ZeroShotAgent
 
     craftext = env.CrafTextEnv(env.EnvConfig(variant=env.Variant(variant)))
     goals = env.load_dataset().goals

@@ -26,8 +26,8 @@ PARTS = {
     "env step": ("env:VectorEnv", "step"),
     "env refill": ("env:VectorEnv", "refill"),
     "observe": ("textualizer", "observe_batch"),
-    "prompt (render text, template)": ("llm_agents.agent:ZeroShotAgent", "prepare"),
-    "decide (parse, hash)": ("llm_agents.agent:ZeroShotAgent", "decide"),
+    "prompt (render text, template)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "prepare"),
+    "decide (parse, hash)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "decide"),
     "records + JSON lines": ("llm_agents.runner:_Sink", "record"),
 }
 

@@ -73,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="re-score the run: does a goal completed on the step the game ends count? "
         "(default: the rule the run was played under)",
     )
+    report.add_argument(
+        "--compare", metavar="OTHER_RUN", help="another run (e.g. the expert's) shown beside it"
+    )
 
     data = commands.add_parser(
         "data",
@@ -152,14 +155,17 @@ def _open_model(settings: ModelSettings) -> Any:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from llm_agents.agents import NoModel, agent_class
     from llm_agents.report import report_run
     from llm_agents.runner import execute_run, prepare_run
 
     config: EvalConfig = _settings(args)
     prepared = prepare_run(config)
-    with _open_model(config) as model:
+    needs_model = agent_class(config.agent).needs_model
+    with _open_model(config) if needs_model else NoModel() as model:
+        player = config.model if needs_model else "the scripted expert"
         print(
-            f"evaluating {config.model} on {', '.join(config.splits)} "
+            f"evaluating {player} ({config.agent}) on {', '.join(config.splits)} "
             f"({config.variant.value} Craftax) -> {config.output_dir}",
             file=sys.stderr,
         )
@@ -192,6 +198,11 @@ def _print_report(run_dir: str | Path) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     from llm_agents.report import report_run
 
+    if args.compare:
+        from llm_agents.report import compare_runs
+
+        print(compare_runs(args.run_dir, args.compare))
+        return 0
     print(report_run(args.run_dir, success_rule=args.success_rule))
     return 0
 

@@ -15,7 +15,14 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from env.dataset import parse_categories
 from env.errors import UserError
@@ -146,6 +153,34 @@ class EvalConfig(ModelSettings):
         completed, departures = apply_protocol(settings | {"generation": generation}, explicit)
         completed["protocol_overrides"] = tuple(departures)
         return completed
+
+    agent: str = "zero-shot"
+    """Agent strategy: `zero-shot`, `cot` (keeps its recent reasoning), `few-shot` (expert
+    demonstrations first) or `expert` (scripted, no model)."""
+    cot_steps: int = Field(3, ge=1)
+    """cot: how many of the model's last replies stay in the conversation."""
+    cot_max_tokens: int = Field(384, ge=1)
+    """cot: the kept replies' total size cap, in tokens (estimated as 4 characters each)."""
+    few_shot_steps: int = Field(8, ge=1)
+    """few-shot: demonstration steps shown before each episode."""
+    demos: str | None = None
+    """few-shot: a run directory of the `expert` agent on training goals (`one`, `combo`) with
+    the same renderer, whose successful episodes give the demonstrations."""
+
+    @field_validator("agent")
+    @classmethod
+    def _known_agent(cls, value: str) -> str:
+        from llm_agents.agents import AGENTS
+
+        if value not in AGENTS:
+            raise ValueError(f"unknown agent {value!r}; choose from {', '.join(AGENTS)}")
+        return value
+
+    @model_validator(mode="after")
+    def _few_shot_has_demos(self) -> EvalConfig:
+        if self.agent == "few-shot" and self.demos is None:
+            raise ValueError("the few-shot agent needs demos: the run directory of an expert run")
+        return self
 
     @field_validator("splits", mode="before")
     @classmethod

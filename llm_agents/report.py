@@ -32,6 +32,7 @@ from llm_agents.run_store import (
 __all__ = [
     "PUBLISHED",
     "PublishedResult",
+    "compare_runs",
     "format_table",
     "paper_differences",
     "plot_success",
@@ -325,6 +326,8 @@ def plot_success(
 
 
 def model_name_of(results: RunResults) -> str:
+    if results.config.get("agent") == "expert":
+        return "expert (scripted, no model)"
     model = results.config.get("model")
     return model if isinstance(model, str) and model else "this model"
 
@@ -389,3 +392,45 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         notes=notes,
     )
     return f"{table}\n{run_status(results)}"
+
+
+def _run_row(run_dir: Path) -> tuple[str, Summary, RunResults]:
+    if not (run_dir / RESULTS_FILE).is_file():
+        raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
+    results = read_results(run_dir / RESULTS_FILE)
+    episodes = scheduled_episodes(run_dir, results)
+    if not episodes:
+        raise UserError(f"no episode of the run in {run_dir} has finished yet")
+    agent = results.config.get("agent", "zero-shot")
+    name = model_name_of(results)
+    label = name if agent == "expert" else f"{name} ({agent})"
+    partial = results.status != "complete"
+    return f"{label}{', partial' if partial else ''}", summarize(episodes), results
+
+
+def compare_runs(run_dir: str | Path, other_dir: str | Path) -> str:
+    """A run's table with another run's row beside it (e.g. the expert's on the same dataset),
+    and the published rows; says so when the two runs read different datasets."""
+    rows_data = [_run_row(Path(run_dir)), _run_row(Path(other_dir))]
+    categories = {c for _, summary, _ in rows_data for c in summary.by_category}
+    columns: list[str] = [
+        c for c in (*_PAPER_CATEGORIES, "paraphrased") if c in categories or c in _PAPER_CATEGORIES
+    ]
+    columns.append("overall")
+    rows = [["Run", *(CATEGORY_LABELS[c] for c in columns)]]
+    rows += [[label, *(our_cell(our_rate(s, c)) for c in columns)] for label, s, _ in rows_data]
+    rows += [
+        [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
+        for result in PUBLISHED
+    ]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(columns) + 1)]
+    lines = [
+        " | ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
+        for row in rows
+    ]
+    lines.insert(1, "-+-".join("-" * w for w in widths))
+    notes = ["", "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split."]
+    datasets = [r.dataset.get("sha256") for _, _, r in rows_data]
+    if datasets[0] != datasets[1]:
+        notes.append("Note: the two runs read different datasets (or one is unknown).")
+    return "\n".join(lines + notes)

@@ -38,7 +38,8 @@ import numpy as np
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
 from env.rules import OFFICIAL_WORLD_KEY
-from llm_agents.agent import Decision, StepPrompt, ZeroShotAgent
+from llm_agents.agents import Agent, build_agent
+from llm_agents.agents.zero_shot import Decision, StepPrompt
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 from llm_agents.config import EvalConfig
 from llm_agents.metrics import Summary, summarize
@@ -181,17 +182,6 @@ def versions(model: ModelAPI) -> dict[str, str]:
     return found
 
 
-def _make_agent(config: EvalConfig) -> ZeroShotAgent:
-    return ZeroShotAgent(
-        config.variant,
-        renderer=config.renderer,
-        templates_dir=config.templates_dir,
-        history_length=config.history_length,
-        fallback_action=config.fallback_action,
-        choice_rule=config.choice,
-    )
-
-
 def _template_hashes(templates_dir: str | None) -> dict[str, str]:
     """Every template a run may render (packaged names, resolved through the override dir)."""
     from prompts import PACKAGE_TEMPLATES_DIR, template_source
@@ -232,7 +222,7 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     schedule = build_schedule(config, instructions, plans)
     # Renders the system prompt and checks the fallback action; a step prompt is rendered
     # too, so a broken template fails here rather than on the first model call.
-    agent = _make_agent(config)
+    agent: Agent = build_agent(config)
     agent.check_templates(schedule[0].instruction.text, schedule[0].plan)
     identity = RunIdentity(
         settings=config.result_settings(),
@@ -558,7 +548,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
     from env import VectorEnv, goal_masks
     from textualizer import observe_batch
 
-    agent = _make_agent(config)
+    agent: Agent = build_agent(config)
     first = sink.take(config.batch_size)
     if not first:
         return
@@ -579,7 +569,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
     live: dict[int, _Live] = {}
     for slot, spec in enumerate(first):
         live[slot] = _Live(spec)
-        agent.start_episode(slot, spec.instruction.text, spec.plan)
+        agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
     to_prompt = list(range(slots))
 
     dispatcher = Dispatcher(model, agent.choices)
@@ -643,7 +633,9 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
                 host = vector.refill(refill_slots, *task_rows(specs))
                 for slot, spec in zip(refill_slots, specs, strict=True):
                     live[slot] = _Live(spec)
-                    agent.start_episode(slot, spec.instruction.text, spec.plan)
+                    agent.start_episode(
+                        slot, spec.instruction.text, spec.plan, spec.instruction.goal
+                    )
                 to_prompt.extend(refill_slots)
             to_prompt.sort()
     finally:

@@ -9,7 +9,7 @@ from pydantic import BaseModel, Field
 
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.agent import Decision, ZeroShotAgent, describe_outcome
+from llm_agents.agents.zero_shot import Decision, ZeroShotAgent, describe_outcome
 from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel

@@ -167,7 +167,7 @@ def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]],
     import numpy as np
 
     from env import ACHIEVEMENT_IDS, NUM_ACHIEVEMENTS, episode_key, make_task
-    from llm_agents.agent import ZeroShotAgent
+    from llm_agents.agents.zero_shot import ZeroShotAgent
     from textualizer import observe
 
     agent = ZeroShotAgent("classic", choice_rule="loglik")

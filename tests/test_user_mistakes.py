@@ -72,6 +72,8 @@ MISTAKES: dict[str, Mistake] = {
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", "--choice", "loglik"], "loglik"
     ),
     "unknown choice rule": Mistake([*EVAL, "--choice", "best"], "invalid choice"),
+    "unknown agent": Mistake([*EVAL, "--agent", "genius"], "genius"),
+    "few-shot without demonstrations": Mistake([*EVAL, "--agent", "few-shot"], "demos"),
     # numbers out of range
     "batch size 0": Mistake([*EVAL, "--batch-size", "0"], "batch_size"),
     "max steps 0": Mistake([*EVAL, "--max-steps", "0"], "max_steps"),

@@ -1,4 +1,4 @@
-"""The zero-shot LLM agent: one object plays many episodes (slots) at once.
+"""The zero-shot LLM agent (`zero-shot`): one object plays many episodes (slots) at once.
 
 For each slot's observation it builds [system, user] messages from the templates (`prepare`),
 and turns the model's answer into a decision (`decide`): parse, or fall back to a fixed action
@@ -16,7 +16,7 @@ import json
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from pydantic import BaseModel, ConfigDict
 
@@ -26,6 +26,10 @@ from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, actio
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelAPI, ModelOutput
 from llm_agents.parser import ParseResult, parse_action
 from prompts import render_template
+
+if TYPE_CHECKING:
+    from env.dataset import Goal
+    from llm_agents.config import EvalConfig
 
 SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"
@@ -117,9 +121,10 @@ class StepPrompt:
 
 
 class _Episode:
-    def __init__(self, instruction: str, plan: str | None):
+    def __init__(self, instruction: str, plan: str | None, goal: Goal | None = None):
         self.instruction = instruction
         self.plan = plan
+        self.goal = goal
         self.step = 0
         self.history: list[HistoryEntry] = []
         self.pending: tuple[str, Any] | None = None
@@ -173,6 +178,10 @@ class ZeroShotAgent:
     """Plays many episodes (slots) at once: `act` for a batch in one call, or `prepare` and
     `decide` per slot."""
 
+    needs_model: ClassVar[bool] = True
+    step_template: ClassVar[str] = STEP_TEMPLATE
+    """The template of the per-step user message (strategies built on this one swap it)."""
+
     def __init__(
         self,
         variant: Variant | str = Variant.FULL,
@@ -209,6 +218,18 @@ class ZeroShotAgent:
         )
         self._episodes: dict[int, _Episode] = {}
 
+    @classmethod
+    def from_config(cls, config: EvalConfig) -> ZeroShotAgent:
+        """The agent an evaluation config describes."""
+        return cls(
+            config.variant,
+            renderer=config.renderer,
+            templates_dir=config.templates_dir,
+            history_length=config.history_length,
+            fallback_action=config.fallback_action,
+            choice_rule=config.choice,
+        )
+
     def system_context(self) -> dict[str, Any]:
         """The variables `system.j2` is rendered with."""
         return {
@@ -240,9 +261,15 @@ class ZeroShotAgent:
         context = self.step_context("(observation)", instruction, plan, history)
         render_template(STEP_TEMPLATE, context, self.templates_dir)
 
-    def start_episode(self, slot: int, instruction: str, plan: str | None = None) -> None:
-        """Begin a new episode in a slot, forgetting the slot's previous one."""
-        self._episodes[slot] = _Episode(instruction, plan)
+    def start_episode(
+        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Begin a new episode in a slot, forgetting the slot's previous one.
+
+        `goal` is the dataset record the instruction describes; strategies that must know which
+        goal is played (few-shot leaves it out of its demonstrations) read it.
+        """
+        self._episodes[slot] = _Episode(instruction, plan, goal)
 
     def end_episode(self, slot: int) -> None:
         """Forget a slot's episode."""
@@ -274,7 +301,7 @@ class ZeroShotAgent:
         recent = episode.history[-self.history_length :] if self.history_length else []
         context = self.step_context(text, episode.instruction, episode.plan, recent)
         user = ChatMessage(
-            role="user", content=render_template(STEP_TEMPLATE, context, self.templates_dir)
+            role="user", content=render_template(self.step_template, context, self.templates_dir)
         )
         return [self.system_message, user], text
 

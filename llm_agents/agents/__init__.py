@@ -1,0 +1,98 @@
+"""Agent strategies by name: `zero-shot`, `cot`, `few-shot` and the scripted `expert`.
+
+Like the backends, the registry maps a name to `"module:Class"` and imports lazily. Every agent
+plays a batch of episodes (slots) in lockstep and follows the `Agent` protocol; the runner builds
+one with `build_agent(config)` per lane.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
+
+from env.errors import UserError
+from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
+
+if TYPE_CHECKING:
+    from env.dataset import Goal
+    from llm_agents.agents.zero_shot import Decision, StepPrompt
+    from llm_agents.config import EvalConfig
+
+__all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
+
+#: agent name -> "module:Class"
+AGENTS: dict[str, str] = {
+    "zero-shot": "llm_agents.agents.zero_shot:ZeroShotAgent",
+    "cot": "llm_agents.agents.cot:ChainOfThoughtAgent",
+    "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
+    "expert": "llm_agents.agents.expert:ExpertAgent",
+}
+
+
+@runtime_checkable
+class Agent(Protocol):
+    """What the runner needs of an agent: episodes begin and end per slot; each step of a slot
+    is a prompt built from its observation (`prepare`), the model's answer to it, and the
+    decision read from that answer (`decide`). `act` does both for many slots with one call."""
+
+    needs_model: ClassVar[bool]
+    """False for agents that never call the model (the runner then opens none)."""
+    fallback_id: int
+    """The action id a slot without a decision gets."""
+    choices: ChoiceSet | None
+    """The action names answers are constrained to, with their rule; None: free text."""
+
+    def start_episode(
+        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None: ...
+
+    def end_episode(self, slot: int) -> None: ...
+
+    def check_templates(self, instruction: str, plan: str | None = None) -> None:
+        """Render what the agent would send, so a broken template fails before any work."""
+
+    def prepare(self, slot: int, observation: Any) -> StepPrompt: ...
+
+    def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision: ...
+
+    def act(
+        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
+    ) -> list[Decision]: ...
+
+
+def agent_class(name: str) -> type[Agent]:
+    """The class registered under `name`, imported on first use."""
+    if name not in AGENTS:
+        close = difflib.get_close_matches(name, AGENTS, n=1)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        raise UserError(f"unknown agent {name!r}{hint} (agents: {', '.join(AGENTS)})")
+    module_name, _, class_name = AGENTS[name].partition(":")
+    cls: type[Agent] = getattr(importlib.import_module(module_name), class_name)
+    return cls
+
+
+def build_agent(config: EvalConfig) -> Agent:
+    """The agent `config.agent` names, set up from the run's config."""
+    cls: Any = agent_class(config.agent)
+    agent: Agent = cls.from_config(config)
+    return agent
+
+
+class NoModel(ModelAPI):
+    """The model handed to the runner for agents that need none: calling it is a bug."""
+
+    backend_name = "none"
+
+    def __init__(self) -> None:
+        super().__init__("none")
+
+    def generate(
+        self, conversations: Sequence[Any], choices: ChoiceSet | None = None
+    ) -> list[ModelOutput]:
+        """An empty answer per conversation: an agent without a model decides by itself."""
+        return [ModelOutput(text="") for _ in conversations]
+
+    def info(self) -> dict[str, str]:
+        return {"backend": "none"}

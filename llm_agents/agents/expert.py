@@ -1,0 +1,585 @@
+"""The scripted expert (`expert`): plays from the typed observations alone, with no model.
+
+It sees exactly the `textualizer.Observation` sequence an LLM agent's prompts are rendered from,
+remembers the blocks it has seen (`WorldMap`), and knows the game's fixed rules (recipes, tools,
+dangers; `expert_plan`). The goal comes from the dataset record's required and forbidden
+achievements: the instruction text is never read. Each step it:
+
+1. keeps itself alive: fights (or, when that is forbidden, flees) a zombie next to it, drinks and
+   eats when low, never walks into lava;
+2. asks the planner for the current task and walks to it by the shortest path over known cells
+   (Dijkstra; stone costs an extra step to mine through once it has a pickaxe), exploring towards
+   unseen cells when what it needs has not been seen;
+3. never takes an action that could unlock a forbidden achievement.
+
+Its episodes give the reference row of a report, prove a goal solvable through our observation,
+and are the demonstrations of the `few-shot` agent.
+"""
+
+from __future__ import annotations
+
+import heapq
+import importlib
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from env.errors import UserError
+from env.variant import Variant, as_variant
+from llm_agents.actions import action_id
+from llm_agents.agents.expert_plan import (
+    DO_BLOCK_ACHIEVEMENT,
+    FREE_GROUND,
+    KILL_ACHIEVEMENT,
+    MINING,
+    STONE_GROUND,
+    WALKABLE,
+    Cell,
+    PlanContext,
+    Task,
+    WorldMap,
+    next_task,
+)
+from llm_agents.agents.zero_shot import Decision, StepPrompt, messages_hash
+from llm_agents.backends.base import ModelAPI, ModelOutput
+from llm_agents.parser import ParseResult
+from textualizer.observation import Observation
+
+if TYPE_CHECKING:
+    from env.dataset import Goal
+    from llm_agents.config import EvalConfig
+
+#: Move action -> (dx, dy) in the observation's axes (+x east, +y north).
+MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN": (0, -1)}
+_FACING: dict[str, Cell] = {"left": (-1, 0), "right": (1, 0), "up": (0, 1), "down": (0, -1)}
+_HOSTILE = frozenset({"zombie", "skeleton"})
+_DRINK_LOW, _FOOD_LOW = 4, 3
+_PREY_MEMORY = 12
+_PLACED_ON_CLEARED = frozenset({"PLACE_TABLE", "PLACE_FURNACE", "PLACE_STONE"})
+_GATHER_DETOUR = 8
+_HEADING_WEIGHT = 3.0
+_STONE_WEIGHT = 4.0
+_MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
+_DEEP = frozenset({"iron", "diamond"})
+_MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
+_UNREACHABLE = 10**9
+
+
+def _add(a: Cell, b: Cell) -> Cell:
+    return (a[0] + b[0], a[1] + b[1])
+
+
+def _neighbours(cell: Cell) -> list[Cell]:
+    return [_add(cell, step) for step in MOVES.values()]
+
+
+def _direction(src: Cell, dst: Cell) -> str:
+    step = (dst[0] - src[0], dst[1] - src[1])
+    for name, move in MOVES.items():
+        if move == step:
+            return name
+    raise ValueError(f"{dst} is not next to {src}")
+
+
+class _Episode:
+    def __init__(self, goal: Goal | None):
+        self.required: tuple[str, ...] = goal.required if goal is not None else ()
+        self.forbidden: tuple[str, ...] = goal.forbidden if goal is not None else ()
+        self.world = WorldMap()
+        self.explore_target: Cell | None = None
+        self.heading: Cell = (1, 0)
+        self.last_task: Task | None = None
+        self.patrol_target: Cell | None = None
+        self.last_prey: tuple[Cell, int] | None = None
+        self.mined: set[Cell] = set()
+
+
+class ExpertAgent:
+    """A rule-based player: the planner's task, walked to by shortest paths, nothing forbidden."""
+
+    needs_model: ClassVar[bool] = False
+    choices: ClassVar[None] = None
+
+    def __init__(
+        self,
+        variant: Variant | str = Variant.FULL,
+        renderer: str = "objects",
+        fallback_action: str = "NOOP",
+    ):
+        self.variant = as_variant(variant)
+        self.fallback_id = action_id(fallback_action, self.variant)
+        self.renderer = renderer
+        self._render = importlib.import_module("textualizer").render
+        self._episodes: dict[int, _Episode] = {}
+
+    @classmethod
+    def from_config(cls, config: EvalConfig) -> ExpertAgent:
+        """The expert of an evaluation config (it uses only the variant and renderer)."""
+        return cls(config.variant, renderer=config.renderer, fallback_action=config.fallback_action)
+
+    def start_episode(
+        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Begin an episode; `goal` (the dataset record) is required, the text is ignored."""
+        if goal is None:
+            raise UserError("the expert agent needs the goal record, not only the instruction text")
+        self._episodes[slot] = _Episode(goal)
+
+    def end_episode(self, slot: int) -> None:
+        self._episodes.pop(slot, None)
+
+    def check_templates(self, instruction: str, plan: str | None = None) -> None:
+        """The expert renders no prompt: nothing to check."""
+
+    def task(self, slot: int) -> Task | None:
+        """The task the slot worked on at its last step (for reports of why it failed)."""
+        return self._episode(slot).last_task
+
+    def _episode(self, slot: int) -> _Episode:
+        if slot not in self._episodes:
+            raise UserError(f"slot {slot} has no episode; call start_episode({slot}, ...) first")
+        return self._episodes[slot]
+
+    def prepare(self, slot: int, observation: Any) -> StepPrompt:
+        """The slot's step, rendered as the model would see it; there is no prompt to send."""
+        return StepPrompt(
+            slot=slot,
+            observation=observation,
+            messages=[],
+            text=str(self._render(observation, self.renderer)),
+        )
+
+    def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
+        """The expert's action for the prepared step; `output` (the no-model's) is ignored."""
+        name, task = self.choose(prompt.slot, prompt.observation)
+        note = f"{task.kind} {task.target or ''}".strip() if task else ""
+        action = action_id(name, self.variant)
+        return Decision(
+            slot=prompt.slot,
+            action=action,
+            name=name,
+            parse=ParseResult(action=action, name=name, stage="exact", raw=name),
+            output=ModelOutput(text=name, reasoning=note or None),
+            observation_text=prompt.text,
+            prompt_hash=messages_hash([]),
+            fallback_used=False,
+        )
+
+    def act(
+        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
+    ) -> list[Decision]:
+        """Choose an action for every slot; `model` is never called."""
+        if len(slots) != len(observations):
+            raise ValueError(f"{len(slots)} slots but {len(observations)} observations")
+        empty = ModelOutput(text="")
+        return [
+            self.decide(self.prepare(slot, obs), empty)
+            for slot, obs in zip(slots, observations, strict=True)
+        ]
+
+    # ------------------------------------------------------------------ one step of one slot
+
+    def choose(self, slot: int, obs: Observation) -> tuple[str, Task | None]:
+        """The action for one slot's observation, and the task it serves."""
+        episode = self._episode(slot)
+        episode.world.update(obs)
+        if obs.sleeping:
+            return "NOOP", episode.last_task
+        step = _Step(self, episode, obs)
+        name, task = step.decide()
+        if not step.safe(name):
+            name = "NOOP"
+        if name == "DO" and obs.facing_block in ("stone", "coal", "iron", "diamond"):
+            episode.mined.add(step.facing_cell)
+        episode.last_task = task
+        return name, task
+
+
+class _Step:
+    """The reasoning of one step: the map search from the player and the chosen action."""
+
+    def __init__(self, agent: ExpertAgent, episode: _Episode, obs: Observation):
+        self.agent = agent
+        self.episode = episode
+        self.obs = obs
+        self.world = episode.world
+        self.pos: Cell = (obs.position.x, obs.position.y)
+        self.mobs: dict[Cell, str] = {
+            _add(self.pos, (m.dx, m.dy)): m.kind for m in obs.mobs if m.health is not None
+        }
+        self.facing_cell = _add(self.pos, _FACING[obs.facing])
+        self.pickaxe = self._tier("pickaxe")
+        self.dist, self.parent = self._search()
+
+    # --- knowledge of the player and the rules
+
+    def _tier(self, tool: str) -> int:
+        ctx = PlanContext(self.episode.required, self.episode.forbidden, self.obs, self.world)
+        return ctx.tier(tool)
+
+    def forbidden(self, achievement: str | None) -> bool:
+        return (
+            achievement is not None
+            and achievement in self.episode.forbidden
+            and achievement not in self.obs.achievements
+        )
+
+    def safe(self, name: str) -> bool:
+        """False when the action could unlock a forbidden achievement."""
+        if name.startswith(("MAKE_", "PLACE_")) and self.forbidden(name):
+            return False
+        if name == "SLEEP":
+            return not self.forbidden("WAKE_UP")
+        if name != "DO":
+            return True
+        mob = self.mobs.get(self.facing_cell)
+        if mob is not None:
+            return not self.forbidden(KILL_ACHIEVEMENT.get(mob))
+        block = self.obs.facing_block or ""
+        return not self.forbidden(DO_BLOCK_ACHIEVEMENT.get(block))
+
+    def minable(self, block: str | None) -> bool:
+        if block not in MINING:
+            return False
+        tier, achievement = MINING[block]
+        return self.pickaxe >= tier and not self.forbidden(achievement)
+
+    # --- search
+
+    def _cost(self, cell: Cell) -> int | None:
+        block = self.world.get(cell)
+        if block is None or cell in self.mobs:
+            return None
+        if block in WALKABLE:
+            return 1
+        if self.minable(block):
+            return 3
+        return None
+
+    def _search(self) -> tuple[dict[Cell, int], dict[Cell, Cell]]:
+        dist = {self.pos: 0}
+        parent: dict[Cell, Cell] = {}
+        heap = [(0, self.pos)]
+        while heap:
+            d, cell = heapq.heappop(heap)
+            if d > dist.get(cell, _UNREACHABLE):
+                continue
+            for nxt in _neighbours(cell):
+                cost = self._cost(nxt)
+                if cost is None:
+                    continue
+                if d + cost < dist.get(nxt, _UNREACHABLE):
+                    dist[nxt] = d + cost
+                    parent[nxt] = cell
+                    heapq.heappush(heap, (d + cost, nxt))
+        return dist, parent
+
+    def context(self) -> PlanContext:
+        return PlanContext(
+            self.episode.required,
+            self.episode.forbidden,
+            self.obs,
+            self.world,
+            distances=self.dist,
+        )
+
+    def step_towards(self, goals: set[Cell]) -> str | None:
+        """The first action on the shortest path to the nearest goal cell (None: none reachable,
+        or already standing on one)."""
+        reachable = [cell for cell in goals if cell in self.dist]
+        if not reachable:
+            return None
+        best = min(reachable, key=lambda cell: (self.dist[cell], cell))
+        if best == self.pos:
+            return None
+        cell = best
+        while self.parent[cell] != self.pos:
+            cell = self.parent[cell]
+        direction = _direction(self.pos, cell)
+        block = self.world.get(cell)
+        if block in WALKABLE:
+            return direction
+        if self.facing_cell == cell and self.obs.facing_block == block:
+            return "DO"  # mine through
+        return direction
+
+    def interact(self, targets: set[Cell]) -> str | None:
+        """Face and DO a target cell next to the player, else walk towards one."""
+        for target in targets:
+            if abs(target[0] - self.pos[0]) + abs(target[1] - self.pos[1]) == 1:
+                if self.facing_cell == target:
+                    return "DO"
+                return _direction(self.pos, target)
+        stands = {n for t in targets for n in _neighbours(t)}
+        return self.step_towards(stands)
+
+    # --- the decision
+
+    def decide(self) -> tuple[str, Task | None]:
+        urgent = self._survive()
+        if urgent is not None:
+            return urgent
+        task = self._keep_gathering() or next_task(self.context())
+        action = self.perform(task)
+        if action is None:
+            action = self.explore(task.target if task.kind in ("explore", "hunt") else None)
+            if action is None:
+                action = "NOOP"
+        return action, task
+
+    def _keep_gathering(self) -> Task | None:
+        """The last gathering task while its amount is not reached and its block is close:
+        the planner asks only for what the next craft needs, the amount is what the whole
+        plan will use, and collecting it in one visit saves coming back."""
+        last = self.episode.last_task
+        if last is None or last.kind != "gather" or last.target not in _MATERIALS:
+            return None
+        material = _MATERIALS[last.target]
+        if self.obs.inventory.materials.get(material, 0) >= last.amount:
+            return None
+        blocks = self.world.cells([last.target])
+        stands = {n for b in blocks for n in _neighbours(b)}
+        near = [self.dist[c] for c in stands if c in self.dist]
+        return last if near and min(near) <= _GATHER_DETOUR else None
+
+    def _survive(self) -> tuple[str, Task] | None:
+        """Fight or flee an adjacent zombie; drink or eat when low."""
+        health = self.obs.vitals.health
+        for cell, kind in sorted(self.mobs.items(), key=lambda item: self._steps_to(item[0])):
+            distance = self._steps_to(cell)
+            if kind not in _HOSTILE or distance > 2:
+                continue
+            # Fleeing rarely shakes a zombie off, and skeletons shoot: fight unless forbidden.
+            # Skeletons back off, so they are only fought when next to the player.
+            chase = health > 4 and kind == "zombie"
+            if not self.forbidden(KILL_ACHIEVEMENT[kind]) and (distance == 1 or chase):
+                fight = Task("hunt", kind, note=f"{kind} next to the player")
+                return (self.interact({cell}) or "DO"), fight
+            if distance > 1:
+                continue
+            away = self._flee(cell)
+            if away is not None:
+                return away, Task("hunt", kind, note="keeping away from a zombie")
+        vitals = self.obs.vitals
+        facing_water = self.obs.facing_block == "water"
+        topping_up = facing_water and vitals.drink < vitals.max_food
+        if (vitals.drink <= _DRINK_LOW or topping_up) and not self.forbidden("COLLECT_DRINK"):
+            water = set(self.world.cells(["water"]))
+            if water and (action := self.interact(water)):
+                return action, Task("gather", "water", note="thirsty")
+        if vitals.food <= _FOOD_LOW and not self.forbidden("EAT_COW"):
+            cows = {cell for cell, kind in self.mobs.items() if kind == "cow"}
+            if cows and (action := self.interact(cows)):
+                return action, Task("hunt", "cow", note="hungry")
+        return None
+
+    def _steps_to(self, cell: Cell) -> int:
+        return abs(cell[0] - self.pos[0]) + abs(cell[1] - self.pos[1])
+
+    def _damage(self) -> int:
+        return {0: 1, 1: 2, 2: 3, 3: 5, 4: 8}[self._tier("sword")]
+
+    def _flee(self, threat: Cell) -> str | None:
+        options = [
+            ((n[0] - threat[0]) ** 2 + (n[1] - threat[1]) ** 2, name)
+            for name, step in MOVES.items()
+            if (n := _add(self.pos, step)) and self.world.get(n) in WALKABLE and n not in self.mobs
+        ]
+        return max(options)[1] if options else None
+
+    def perform(self, task: Task) -> str | None:
+        kind, target = task.kind, task.target
+        if kind == "gather" and target is not None:
+            return self.interact(set(self.world.cells([target])))
+        if kind == "hunt" and target is not None:
+            prey = {cell for cell, mob in self.mobs.items() if mob == target}
+            if prey:
+                self.episode.last_prey = (min(prey, key=self._steps_to), self.obs.step)
+                return self.interact(prey) or self._closest_to(prey)
+            last = self.episode.last_prey
+            # A creature that just left the view is still about where it was seen.
+            recent = last is not None and self.obs.step - last[1] <= _PREY_MEMORY
+            if recent and last is not None and self._steps_to(last[0]) > 1:
+                action = self._closest_to({last[0]})
+                if action is not None:
+                    return action
+            return self._patrol() if target == "skeleton" else None
+        if kind == "craft" and target is not None:
+            return self._craft(target, task.needs_furnace)
+        if kind == "place" and target is not None:
+            return self._place(target)
+        if kind == "forage":
+            return self._face_ground({"grass"}, "DO")
+        if kind == "sleep":
+            return "SLEEP"
+        if kind == "wait" and target is not None:
+            spots = {n for t in self.world.cells([target]) for n in _neighbours(t)}
+            return self.step_towards(spots) or "NOOP"
+        if kind in ("wait", "idle"):
+            return "NOOP"
+        return None  # explore
+
+    def _near(self, cell: Cell, blocks: set[str]) -> bool:
+        return any(
+            self.world.get((cell[0] + dx, cell[1] + dy)) in blocks
+            for dx in (-1, 0, 1)
+            for dy in (-1, 0, 1)
+            if dx or dy
+        )
+
+    def _station(self, needs_furnace: bool) -> set[Cell]:
+        """Walkable cells with a table (and a furnace, when asked) among their 8 neighbours."""
+        wanted = [{"crafting_table"}, {"furnace"}] if needs_furnace else [{"crafting_table"}]
+        tables = self.world.cells(["crafting_table"])
+        cells = {(tx + dx, ty + dy) for tx, ty in tables for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
+        return {
+            c
+            for c in cells
+            if (c == self.pos or self.world.get(c) in WALKABLE)
+            and all(self._near(c, blocks) for blocks in wanted)
+        }
+
+    def _craft(self, action: str, needs_furnace: bool) -> str | None:
+        station = self._station(needs_furnace)
+        if self.pos in station:
+            return action
+        return self.step_towards(station)
+
+    def _place(self, action: str) -> str | None:
+        ground = STONE_GROUND if action == "PLACE_STONE" else FREE_GROUND
+        if action == "PLACE_PLANT":
+            ground = frozenset({"grass"})
+        if action == "PLACE_FURNACE":
+            station = self._station(False)
+            if station and self.pos not in station:
+                return self.step_towards(station)
+            return self._face_ground(ground, action, keep_near_table=bool(station))
+        return self._face_ground(ground, action)
+
+    def _face_ground(
+        self, ground: frozenset[str] | set[str], action: str, keep_near_table: bool = False
+    ) -> str | None:
+        """`action` when facing a free cell of `ground`, else a move that ends facing one."""
+        if self.obs.facing_block in ground and self.facing_cell not in self.mobs:
+            return action
+        options = []
+        for name, step in MOVES.items():
+            one, two = _add(self.pos, step), _add(self.pos, (2 * step[0], 2 * step[1]))
+            if self.world.get(one) not in WALKABLE or one in self.mobs:
+                continue
+            if keep_near_table and not self._near(one, {"crafting_table"}):
+                continue
+            score = 0 if self.world.get(two) in ground else 1
+            options.append((score, name))
+        if options:
+            return min(options)[1]
+        # Walled in (a tunnel): clear a neighbouring block to make room.
+        for name, step in MOVES.items():
+            cell = _add(self.pos, step)
+            if self.minable(self.world.get(cell)) and action in _PLACED_ON_CLEARED:
+                if self.facing_cell == cell:
+                    return "DO"
+                return name
+        return None
+
+    def _closest_to(self, cells: set[Cell]) -> str | None:
+        """A step towards the reachable cell nearest (as the crow flies) to any of `cells`."""
+        if not self.dist:
+            return None
+        best = min(
+            self.dist,
+            key=lambda c: (min(abs(c[0] - t[0]) + abs(c[1] - t[1]) for t in cells), self.dist[c]),
+        )
+        return self.step_towards({best})
+
+    def _patrol(self) -> str | None:
+        """Walk the known tunnels: skeletons appear only on tunnel floor 10-13 steps away and
+        mostly wander, so covering the tunnels finds them. None: no tunnel known (explore)."""
+        tunnels = [
+            c for c in self.world.cells(["path"]) if c in self.dist and c not in self.episode.mined
+        ]
+        if not tunnels:
+            return None
+        frontier = [c for c in self._frontier() if self.world.get(c) == "path"]
+        if frontier:
+            return self.explore("skeleton")
+        goal = self.episode.patrol_target
+        if goal is None or goal == self.pos or goal not in self.dist:
+            far = [c for c in tunnels if 6 <= self._steps_to(c) <= 16] or tunnels
+            # Deterministic but varied: the episode step picks among the far tunnel cells.
+            goal = sorted(far)[self.obs.step * 7 % len(far)]
+            self.episode.patrol_target = goal
+        return self.step_towards({goal})
+
+    # --- exploration
+
+    def explore(self, target: str | None) -> str | None:
+        """A step towards unseen cells, keeping to a heading; biased towards where `target`
+        is found (ores in stone, cows and zombies on grass, skeletons in tunnels)."""
+        episode = self.episode
+        frontier = self._frontier()
+        goal = episode.explore_target
+        if goal is None or goal not in frontier or goal == self.pos or goal not in self.dist:
+            goal = self._pick_frontier(frontier, target)
+            episode.explore_target = goal
+            if goal is not None:
+                dx, dy = goal[0] - self.pos[0], goal[1] - self.pos[1]
+                norm = math.hypot(dx, dy) or 1.0
+                episode.heading = (round(dx / norm), round(dy / norm))
+        if goal is None:
+            return self._wander()
+        return self.step_towards({goal}) or self._wander()
+
+    def _frontier(self) -> set[Cell]:
+        known = self.world.blocks
+        return {
+            cell
+            for cell in self.dist
+            if cell != self.pos and any(n not in known for n in _neighbours(cell))
+        }
+
+    def _pick_frontier(self, frontier: set[Cell], target: str | None) -> Cell | None:
+        if not frontier:
+            return None
+        prefer = {
+            "stone": {"stone", "path"},
+            "coal": {"stone", "path"},
+            "iron": {"stone", "path", "coal"},
+            "diamond": {"stone", "path", "iron"},
+            "skeleton": {"path"},
+            "water": {"sand", "water"},
+            "cow": {"grass"},
+            "zombie": {"grass"},
+            "tree": {"grass", "tree"},
+        }.get(target or "", set())
+        hx, hy = self.episode.heading
+
+        def score(cell: Cell) -> float:
+            dx, dy = cell[0] - self.pos[0], cell[1] - self.pos[1]
+            norm = math.hypot(dx, dy) or 1.0
+            align = (dx * hx + dy * hy) / norm
+            bonus = 4.0 if prefer and self._near(cell, prefer) else 0.0
+            if target in _DEEP:
+                bonus += _STONE_WEIGHT * self._stoniness(cell)
+            return self.dist[cell] - _HEADING_WEIGHT * align - bonus
+
+        return min(frontier, key=lambda cell: (score(cell), cell))
+
+    def _stoniness(self, cell: Cell) -> float:
+        """The share of known cells around `cell` that are mountain (diamonds lie deep in it)."""
+        around = [
+            self.world.get((cell[0] + dx, cell[1] + dy))
+            for dx in range(-3, 4)
+            for dy in range(-3, 4)
+        ]
+        known = [block for block in around if block is not None]
+        return sum(block in _MOUNTAIN for block in known) / len(known) if known else 0.0
+
+    def _wander(self) -> str | None:
+        """A free step along the heading, else any free step (which becomes the heading)."""
+        for name, step in sorted(MOVES.items(), key=lambda item: item[1] != self.episode.heading):
+            cell = _add(self.pos, step)
+            if self.world.get(cell) in WALKABLE and cell not in self.mobs:
+                self.episode.heading = step
+                return name
+        return None
