@@ -152,7 +152,7 @@ def test_a_run_without_step_log_gets_pages_without_replays(
     assert {s.state for s in outcome.statuses.values()} == {"not replayed"}
     assert outcome.frames == 0 and not list((run / "report" / "episodes").glob("*.png"))
     page = (run / "report" / "episodes" / "episode-00000.html").read_text()
-    assert 'id="replay-missing"' in page and "--no-step-log" in page
+    assert 'id="replay-missing"' in page and "--no-record-steps" in page
     assert 'id="frame"' not in page
 
 

@@ -170,7 +170,7 @@ def _goals(dataset: Any) -> dict[tuple[str, str], Goal]:
 
 def _why_unreplayable(view: EpisodeView, *, has_steps: bool) -> str | None:
     if not has_steps:
-        return "the run kept no step log (--no-step-log): nothing to replay"
+        return "the run kept no step log (--no-record-steps): nothing to replay"
     if view.goal is None:
         return f"goal {view.record.goal_id!r} is not in the run's dataset any more"
     indices = [step.step for step in view.steps]
