@@ -44,17 +44,8 @@ class ChainOfThoughtAgent(ZeroShotAgent):
         self._replies: dict[int, list[tuple[int, str]]] = {}
 
     @classmethod
-    def from_config(cls, config: EvalConfig) -> ChainOfThoughtAgent:
-        return cls(
-            config.variant,
-            renderer=config.renderer,
-            templates_dir=config.templates_dir,
-            history_length=config.history_length,
-            fallback_action=config.fallback_action,
-            choice_rule=config.choice,
-            steps=config.cot_steps,
-            max_tokens=config.cot_max_tokens,
-        )
+    def strategy_settings(cls, config: EvalConfig) -> dict[str, Any]:
+        return {"steps": config.cot_steps, "max_tokens": config.cot_max_tokens}
 
     def start_episode(
         self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None

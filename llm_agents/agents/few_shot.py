@@ -156,17 +156,8 @@ class FewShotAgent(ZeroShotAgent):
         self._demos: dict[int, list[Demonstration]] = {}
 
     @classmethod
-    def from_config(cls, config: EvalConfig) -> FewShotAgent:
-        return cls(
-            config.variant,
-            renderer=config.renderer,
-            templates_dir=config.templates_dir,
-            history_length=config.history_length,
-            fallback_action=config.fallback_action,
-            choice_rule=config.choice,
-            demos=config.demos,
-            steps=config.few_shot_steps,
-        )
+    def strategy_settings(cls, config: EvalConfig) -> dict[str, Any]:
+        return {"demos": config.demos, "steps": config.few_shot_steps}
 
     def start_episode(
         self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None

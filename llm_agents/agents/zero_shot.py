@@ -16,7 +16,7 @@ import json
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self
 
 from pydantic import BaseModel, ConfigDict
 
@@ -219,7 +219,7 @@ class ZeroShotAgent:
         self._episodes: dict[int, _Episode] = {}
 
     @classmethod
-    def from_config(cls, config: EvalConfig) -> ZeroShotAgent:
+    def from_config(cls, config: EvalConfig) -> Self:
         """The agent an evaluation config describes."""
         return cls(
             config.variant,
@@ -228,7 +228,13 @@ class ZeroShotAgent:
             history_length=config.history_length,
             fallback_action=config.fallback_action,
             choice_rule=config.choice,
+            **cls.strategy_settings(config),
         )
+
+    @classmethod
+    def strategy_settings(cls, config: EvalConfig) -> dict[str, Any]:
+        """Constructor keywords a strategy built on this agent reads from the config."""
+        return {}
 
     def system_context(self) -> dict[str, Any]:
         """The variables `system.j2` is rendered with."""
