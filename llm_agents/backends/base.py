@@ -122,6 +122,29 @@ class ModelOutput(BaseModel):
         return line if len(line) <= ERROR_CHARS else line[:ERROR_CHARS] + "..."
 
 
+def ranked_choices(
+    options: Sequence[str],
+    prompts: Sequence[Sequence[int]],
+    candidates: Sequence[Sequence[int]],
+    scores: Sequence[Sequence[float]],
+    latency_s: float,
+) -> list[ModelOutput]:
+    """One `choice` output per prompt: the option whose score in that prompt's row is highest."""
+    outputs = []
+    for prompt, row in zip(prompts, scores, strict=True):
+        best = max(range(len(options)), key=row.__getitem__)
+        outputs.append(
+            ModelOutput(
+                text=options[best],
+                prompt_tokens=len(prompt),
+                completion_tokens=len(candidates[best]),
+                latency_s=latency_s,
+                finish_reason="choice",
+            )
+        )
+    return outputs
+
+
 def bad_options(backend: str, err: ValidationError) -> UserError:
     """One line naming each option a backend's options model refused, and why."""
     problems = "; ".join(

@@ -41,6 +41,7 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    ranked_choices,
 )
 from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
 from llm_agents.backends.reasoning import (
@@ -268,22 +269,12 @@ class HFModel(ModelAPI):
         prompts = [self._encode(self._render(conversation)) for conversation in conversations]
         with torch.inference_mode():
             scores = self._candidate_log_likelihoods(prompts, candidates)
-        latency = time.perf_counter() - start
-        outputs = []
-        for prompt, row in zip(prompts, scores, strict=True):
-            if self.choice_scoring == "mean":
-                row = [score / len(ids) for score, ids in zip(row, candidates, strict=True)]
-            best = max(range(len(choices)), key=row.__getitem__)
-            outputs.append(
-                ModelOutput(
-                    text=choices[best],
-                    prompt_tokens=len(prompt),
-                    completion_tokens=len(candidates[best]),
-                    latency_s=latency,
-                    finish_reason="choice",
-                )
-            )
-        return outputs
+        if self.choice_scoring == "mean":
+            scores = [
+                [score / len(ids) for score, ids in zip(row, candidates, strict=True)]
+                for row in scores
+            ]
+        return ranked_choices(choices, prompts, candidates, scores, time.perf_counter() - start)
 
     def _candidate_log_likelihoods(
         self, prompts: list[list[int]], candidates: list[list[int]]

@@ -42,6 +42,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
     bad_options,
+    ranked_choices,
 )
 from llm_agents.backends.reasoning import THINK_OPEN, generate_with_followup, with_reasoning_split
 
@@ -197,20 +198,7 @@ class VLLMModel(ModelAPI):
                 for conversation in conversations
                 for output in self._choose([conversation], options)
             ]
-        latency = time.perf_counter() - start
-        outputs = []
-        for prompt, row in zip(prompts, scores, strict=True):
-            best = max(range(len(options)), key=row.__getitem__)
-            outputs.append(
-                ModelOutput(
-                    text=options[best],
-                    prompt_tokens=len(prompt),
-                    completion_tokens=len(candidates[best]),
-                    latency_s=latency,
-                    finish_reason="choice",
-                )
-            )
-        return outputs
+        return ranked_choices(options, prompts, candidates, scores, time.perf_counter() - start)
 
     def _prompt_ids(self, conversation: Conversation) -> list[int]:
         tokenizer = self.llm.get_tokenizer()
