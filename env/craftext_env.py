@@ -125,11 +125,14 @@ class CrafTextEnv:
         # would trace and lower the whole game again (seconds) even with a warm compile cache.
         self.batched_reset = jax.jit(jax.vmap(self.reset))
         self.batched_step = jax.jit(self.masked_batch_step)
+        # Donated like place_episode: only the stepped slots' rows are written back.
+        self.slots_step = jax.jit(self.step_slots, donate_argnums=0)
         self.jitted_reset = jax.jit(self.reset)
         # Donates the batch state (VectorEnv never reads it again), so XLA writes the new world
         # in place instead of copying every slot's (5x faster on CPU). The masked step is not
         # donated: measured, it then ran slower (10.6 ms vs 6.0 ms for 32 full-Craftax slots).
         self.place_episode = jax.jit(_place_episode, donate_argnums=0)
+        self.place_chosen = jax.jit(_place_chosen, donate_argnums=0)
 
     @property
     def variant(self) -> Variant:
@@ -239,6 +242,35 @@ class CrafTextEnv:
         )
         return next_state, info
 
+    def step_slots(
+        self, state: EpisodeState, slots: jax.Array, actions: jax.Array, valid: jax.Array
+    ) -> tuple[EpisodeState, StepInfo]:
+        """Step only the listed slots of a batch (rows where `valid` is false are written back
+        unchanged); the info has one row per listed slot.
+
+        The cost follows the number of slots listed, not the batch size. `slots` must not repeat
+        a slot: scattered rows would race.
+        """
+        current = jax.tree.map(lambda leaf: leaf[slots], state)
+        stepped, info = jax.vmap(self.step_from_episode_key)(current, actions)
+
+        def keep_invalid(new: jax.Array, old: jax.Array) -> jax.Array:
+            return jnp.where(valid.reshape(valid.shape + (1,) * (new.ndim - 1)), new, old)
+
+        stepped = jax.tree.map(keep_invalid, stepped, current)
+        next_state: EpisodeState = jax.tree.map(
+            lambda batch, rows: batch.at[slots].set(rows), state, stepped
+        )
+        info = StepInfo(
+            reward=jnp.where(valid, info.reward, 0.0),
+            done=stepped.done,
+            termination=stepped.termination,
+            craftax_reward=jnp.where(valid, info.craftax_reward, 0.0),
+            new_achievements=valid[:, None] & info.new_achievements,
+            goal_at_game_over=valid & info.goal_at_game_over,
+        )
+        return next_state, info
+
 
 def episode_key(seed: int, goal_id: str, instruction_index: int, episode_index: int) -> np.ndarray:
     """The raw PRNG key (two uint32 words) of one episode.
@@ -265,6 +297,10 @@ class HostBatch(struct.PyTreeNode):
     goal_at_game_over: np.ndarray
 
 
+#: Slots stepped per call when only a few of a large batch are ready (see `VectorEnv.step`).
+SLOT_GROUP = 8
+
+
 class VectorEnv:
     """A fixed batch of episodes stepped with one compiled function, all of them or a masked
     subset.
@@ -281,7 +317,13 @@ class VectorEnv:
         self._reset = env.batched_reset
         self._reset_one = env.jitted_reset
         self._step = env.batched_step
+        self._step_slots = env.slots_step
+        # Continuous scheduling steps a few ready slots at a time: stepping all of a large batch
+        # for them costs the whole batch (full Craftax, 32 slots, CPU: 10.4 ms), a group of 8
+        # listed slots 2.8 ms. Small batches, or most slots ready, take the one masked step.
+        self._group = min(batch_size, SLOT_GROUP)
         self._place = env.place_episode
+        self._place_chosen = env.place_chosen
         self._state: EpisodeState | None = None
 
     @property
@@ -306,12 +348,21 @@ class VectorEnv:
         keys = np.asarray(keys, dtype=np.uint32).reshape(len(slots), 2)
         required = np.asarray(required, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
         forbidden = np.asarray(forbidden, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
-        # Worlds are generated one at a time: a batched reset would rebuild every slot's world.
-        for row, slot in enumerate(slots):
-            fresh = self._reset_one(
-                jnp.asarray(keys[row]), make_task(required[row], forbidden[row])
-            )
-            state = self._place(state, fresh, jnp.int32(slot))
+        if 2 * len(slots) > self.batch_size:
+            # Most slots at once (episodes that ended together): one batched reset builds every
+            # slot's world, which costs less than half as many one-at-a-time resets.
+            rows = np.zeros(self.batch_size, dtype=np.int64)
+            rows[list(slots)] = np.arange(len(slots))
+            chosen = np.zeros(self.batch_size, dtype=bool)
+            chosen[list(slots)] = True
+            fresh = self._reset(*self._device_inputs(keys[rows], required[rows], forbidden[rows]))
+            state = self._place_chosen(state, fresh, jnp.asarray(chosen))
+        else:
+            for row, slot in enumerate(slots):
+                fresh = self._reset_one(
+                    jnp.asarray(keys[row]), make_task(required[row], forbidden[row])
+                )
+                state = self._place(state, fresh, jnp.int32(slot))
         self._state = state
         zeros = jnp.zeros(self.batch_size, jnp.float32)
         no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
@@ -321,14 +372,37 @@ class VectorEnv:
         """Step every slot, or only those where `active` is true (the others stay exactly as
         they were, earning nothing); finished slots earn nothing and keep their termination."""
         state = self._require_state()
-        actions_device = jnp.asarray(np.asarray(actions, dtype=np.int32).reshape(self.batch_size))
+        actions = np.asarray(actions, dtype=np.int32).reshape(self.batch_size)
         if active is None:
             active = np.ones(self.batch_size, dtype=bool)
-        active_device = jnp.asarray(np.asarray(active, dtype=bool).reshape(self.batch_size))
-        self._state, info = self._step(state, actions_device, active_device)
-        return self._to_host(
-            self._state, info.reward, info.new_achievements, info.goal_at_game_over
-        )
+        active = np.asarray(active, dtype=bool).reshape(self.batch_size)
+        ready = np.flatnonzero(active)
+        if self._group == self.batch_size or 2 * len(ready) > self.batch_size:
+            self._state, info = self._step(state, jnp.asarray(actions), jnp.asarray(active))
+            return self._to_host(
+                self._state, info.reward, info.new_achievements, info.goal_at_game_over
+            )
+        reward = np.zeros(self.batch_size, np.float32)
+        new = np.zeros((self.batch_size, NUM_ACHIEVEMENTS), bool)
+        at_game_over = np.zeros(self.batch_size, bool)
+        idle = np.flatnonzero(~active)
+        for start in range(0, len(ready), self._group):
+            group = ready[start : start + self._group]
+            # Padding rows name distinct idle slots, which are written back as they were.
+            slots = np.concatenate([group, idle[: self._group - len(group)]]).astype(np.int32)
+            valid = np.arange(self._group) < len(group)
+            state, info = self._step_slots(
+                state, jnp.asarray(slots), jnp.asarray(actions[slots]), jnp.asarray(valid)
+            )
+            rows_reward, rows_new, rows_over = jax.device_get(
+                (info.reward, info.new_achievements, info.goal_at_game_over)
+            )
+            count = len(group)
+            reward[group] = rows_reward[:count]
+            new[group] = rows_new[:count]
+            at_game_over[group] = rows_over[:count]
+        self._state = state
+        return self._to_host(self._state, reward, new, at_game_over)
 
     def _require_state(self) -> EpisodeState:
         if self._state is None:
@@ -347,7 +421,10 @@ class VectorEnv:
 
     @staticmethod
     def _to_host(
-        state: EpisodeState, reward: jax.Array, new: jax.Array, goal_at_game_over: jax.Array
+        state: EpisodeState,
+        reward: jax.Array | np.ndarray,
+        new: jax.Array | np.ndarray,
+        goal_at_game_over: jax.Array | np.ndarray,
     ) -> HostBatch:
         game, reward_np, termination, steps, new_np, at_game_over = jax.device_get(
             (state.game, reward, state.termination, state.steps, new, goal_at_game_over)
@@ -362,6 +439,14 @@ class VectorEnv:
             new_achievements=new_np,
             goal_at_game_over=at_game_over,
         )
+
+
+def _place_chosen(state: EpisodeState, fresh: EpisodeState, chosen: jax.Array) -> EpisodeState:
+    def pick(old: jax.Array, new: jax.Array) -> jax.Array:
+        return jnp.where(chosen.reshape(chosen.shape + (1,) * (old.ndim - 1)), new, old)
+
+    result: EpisodeState = jax.tree.map(pick, state, fresh)
+    return result
 
 
 def _place_episode(state: EpisodeState, episode: EpisodeState, slot: jax.Array) -> EpisodeState:

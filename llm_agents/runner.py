@@ -570,17 +570,20 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
     for slot, spec in enumerate(first):
         live[slot] = _Live(spec)
         agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
-    to_prompt = list(range(slots))
 
     dispatcher = Dispatcher(model, agent.choices)
+
+    def send(host: Any, ready: list[int]) -> None:
+        if ready:
+            observations = observe_batch(host.game, config.variant, indices=ready)
+            dispatcher.submit(
+                [agent.prepare(s, o) for s, o in zip(ready, observations, strict=True)]
+            )
+
     fallback = agent.fallback_id
     try:
+        send(host, list(range(slots)))
         while not sink.stopped:
-            if to_prompt:
-                observations = observe_batch(host.game, config.variant, indices=to_prompt)
-                dispatcher.submit(
-                    [agent.prepare(s, o) for s, o in zip(to_prompt, observations, strict=True)]
-                )
             if dispatcher.in_flight == 0:
                 return
             decisions = [agent.decide(prompt, output) for prompt, output in dispatcher.wait()]
@@ -594,7 +597,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
             step_records = []
             ended: list[EpisodeRecord] = []
             aborted: list[str] = []
-            to_prompt = []
+            continuing = []
             for decision in decisions:
                 slot = decision.slot
                 state = live[slot]
@@ -620,10 +623,17 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
                         )
                     )
                 else:
-                    to_prompt.append(slot)
+                    continuing.append(slot)
                     continue
                 agent.end_episode(slot)
                 del live[slot]
+            # A server answers each request on its own: the continuing episodes' prompts go out
+            # before anything is written or a new world generated (tens of ms on a busy CPU). An
+            # engine batches what it is handed at once, so it gets them with the refilled ones.
+            to_prompt = sorted(continuing)
+            if model.concurrent_requests:
+                send(host, to_prompt)
+                to_prompt = []
             sink.record(decisions, step_records, ended, aborted)
 
             free = [s for s in range(slots) if s not in live]
@@ -636,8 +646,8 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
                     agent.start_episode(
                         slot, spec.instruction.text, spec.plan, spec.instruction.goal
                     )
-                to_prompt.extend(refill_slots)
-            to_prompt.sort()
+                to_prompt = sorted(to_prompt + refill_slots)
+            send(host, to_prompt)
     finally:
         dispatcher.close()
 

@@ -199,7 +199,8 @@ def test_episode_key_depends_on_every_component() -> None:
     assert all(not np.array_equal(base, v) for v in variants)
 
 
-def test_refill_restarts_only_the_named_slots(classic_env: Any) -> None:
+@pytest.mark.parametrize("refilled", [[1], [0, 2]], ids=["one at a time", "batched"])
+def test_refill_restarts_only_the_named_slots(classic_env: Any, refilled: list[int]) -> None:
     batch = 3
     keys = np.stack([episode_key(2, "goal", 0, i) for i in range(batch)])
     req = np.zeros((batch, NUM_ACHIEVEMENTS), bool)
@@ -210,21 +211,28 @@ def test_refill_restarts_only_the_named_slots(classic_env: Any) -> None:
     for _ in range(5):
         before = vector.step(np.full(batch, 1))
 
-    new_key = episode_key(2, "goal", 0, 99)
+    new_keys = np.stack([episode_key(2, "goal", 0, 99 + slot) for slot in refilled])
     new_req, new_forb = masks(["COLLECT_WOOD"])
-    after = vector.refill([1], new_key[None], new_req[None], new_forb[None])
-
-    assert after.steps.tolist() == [5, 0, 5]
-    fresh = jax.device_get(
-        classic_env.reset(jnp.asarray(new_key), make_task(new_req, new_forb)).game
+    after = vector.refill(
+        refilled,
+        new_keys,
+        np.repeat(new_req[None], len(refilled), 0),
+        np.repeat(new_forb[None], len(refilled), 0),
     )
-    assert _leaves_equal(fresh, jax.tree.map(lambda x: x[1], after.game))
-    for slot in (0, 2):
+
+    kept = [slot for slot in range(batch) if slot not in refilled]
+    assert after.steps.tolist() == [0 if slot in refilled else 5 for slot in range(batch)]
+    for row, slot in enumerate(refilled):
+        fresh = jax.device_get(
+            classic_env.reset(jnp.asarray(new_keys[row]), make_task(new_req, new_forb)).game
+        )
+        assert _leaves_equal(fresh, jax.tree.map(lambda x, s=slot: x[s], after.game))
+    for slot in kept:
         assert _leaves_equal(
             jax.tree.map(lambda x, s=slot: x[s], before.game),
             jax.tree.map(lambda x, s=slot: x[s], after.game),
         )
-    # The refilled slot now plays the new task: unlocking wood succeeds there only.
+    # The refilled slots now play the new task: unlocking wood succeeds there only.
     game = after.game
     achievements = np.asarray(game.achievements).copy()
     achievements[:, ACHIEVEMENT_IDS["COLLECT_WOOD"]] = True
@@ -232,7 +240,9 @@ def test_refill_restarts_only_the_named_slots(classic_env: Any) -> None:
         game=vector._require_state().game.replace(achievements=jnp.asarray(achievements))
     )
     stepped = vector.step(np.zeros(batch))
-    assert stepped.termination.tolist() == [0, Termination.SUCCESS, 0]
+    assert stepped.termination.tolist() == [
+        Termination.SUCCESS if slot in refilled else 0 for slot in range(batch)
+    ]
 
 
 def test_new_achievements_are_reported_on_the_unlocking_step_only(any_env: Any) -> None:
@@ -314,27 +324,49 @@ def test_official_world_seeding_gives_every_episode_the_world_of_prng_key_1(
     assert not np.array_equal(np.asarray(first.episode_key), np.asarray(second.episode_key))
 
 
+def _staggered_schedule(batch: int, steps: int, seed: int) -> list[list[int]]:
+    """Rounds of ready slots, each slot ready `steps` times: mostly a few slots per round (the
+    grouped step of a large batch), now and then most of them (the masked step)."""
+    rng = np.random.default_rng(seed)
+    left = [steps] * batch
+    rounds: list[list[int]] = []
+    while any(left):
+        pending = [slot for slot in range(batch) if left[slot]]
+        size = len(pending) if len(rounds) % 5 == 4 else int(rng.integers(1, 4))
+        ready = sorted(rng.choice(pending, size=min(size, len(pending)), replace=False).tolist())
+        for slot in ready:
+            left[slot] -= 1
+        rounds.append(ready)
+    return rounds
+
+
+@pytest.mark.parametrize("batch", [3, 12])
 def test_masked_step_freezes_inactive_slots_and_timing_never_changes_a_trajectory(
-    classic_env: Any,
+    classic_env: Any, batch: int
 ) -> None:
-    batch = 3
+    steps = 6
     keys = np.stack([episode_key(4, "goal", 0, i) for i in range(batch)])
     req = np.zeros((batch, NUM_ACHIEVEMENTS), bool)
     req[:, ACHIEVEMENT_IDS["COLLECT_DIAMOND"]] = True
     forb = np.zeros_like(req)
-    actions = np.random.default_rng(7).integers(0, classic_env.env.num_actions, (6, batch))
+    actions = np.random.default_rng(7).integers(0, classic_env.env.num_actions, (steps, batch))
 
     lockstep = VectorEnv(classic_env.env, batch)
     lockstep.reset(keys, req, forb)
-    for t in range(6):
+    expected_reward = np.zeros(batch)
+    expected_new = np.zeros((batch, NUM_ACHIEVEMENTS), int)
+    for t in range(steps):
         expected = lockstep.step(actions[t])
+        expected_reward += expected.reward
+        expected_new += expected.new_achievements
 
     # The same actions per slot, but each slot stepped on its own schedule.
     staggered = VectorEnv(classic_env.env, batch)
     staggered.reset(keys, req, forb)
     taken = [0] * batch
-    schedule = [[0], [0, 1], [2], [0, 2], [1], [0, 1, 2], [1, 2], [1, 2], [2], [0, 1], [0]]
-    for ready in schedule:
+    reward = np.zeros(batch)
+    new = np.zeros((batch, NUM_ACHIEVEMENTS), int)
+    for ready in _staggered_schedule(batch, steps, seed=batch):
         before = jax.device_get(staggered._require_state())
         active = np.zeros(batch, bool)
         step_actions = np.zeros(batch, np.int32)
@@ -343,6 +375,8 @@ def test_masked_step_freezes_inactive_slots_and_timing_never_changes_a_trajector
             step_actions[slot] = actions[taken[slot], slot]
             taken[slot] += 1
         host = staggered.step(step_actions, active)
+        reward += host.reward
+        new += host.new_achievements
         after = jax.device_get(staggered._require_state())
         for slot in set(range(batch)) - set(ready):
             assert _leaves_equal(
@@ -350,6 +384,7 @@ def test_masked_step_freezes_inactive_slots_and_timing_never_changes_a_trajector
                 jax.tree.map(lambda x, s=slot: x[s], after),
             )
             assert host.reward[slot] == 0 and not host.new_achievements[slot].any()
-    assert taken == [6, 6, 6]
+    assert taken == [steps] * batch
     assert _leaves_equal(expected.game, host.game)
-    assert host.steps.tolist() == expected.steps.tolist() == [6, 6, 6]
+    assert host.steps.tolist() == expected.steps.tolist() == [steps] * batch
+    assert np.allclose(reward, expected_reward) and np.array_equal(new, expected_new)
