@@ -38,7 +38,7 @@ from llm_agents.run_store import (
     complete_lines,
     make_output_dir,
 )
-from prompts import render_blocks, template_source
+from prompts import BlockRole, render_blocks, template_source
 
 __all__ = [
     "PlanCheck",
@@ -411,6 +411,10 @@ def _template_hashes(templates_dir: str | Path | None) -> dict[str, str]:
     }
 
 
+def _messages(blocks: Sequence[tuple[BlockRole, str]]) -> list[ChatMessage]:
+    return [ChatMessage(role=role, content=text) for role, text in blocks]
+
+
 class _Prompter:
     """Renders plan and repair requests with the limits and the variant's names."""
 
@@ -428,7 +432,7 @@ class _Prompter:
 
     def plan(self, instruction: str) -> list[ChatMessage]:
         context = {"instruction": instruction, **self.common}
-        return render_blocks(PLANNER_TEMPLATE, context, self.templates_dir)
+        return _messages(render_blocks(PLANNER_TEMPLATE, context, self.templates_dir))
 
     def repair(self, instruction: str, answer: str, check: PlanCheck) -> list[ChatMessage]:
         context = {
@@ -437,7 +441,7 @@ class _Prompter:
             "problems": [issue.detail for issue in check.issues],
             **self.common,
         }
-        return render_blocks(REPAIR_TEMPLATE, context, self.templates_dir)
+        return _messages(render_blocks(REPAIR_TEMPLATE, context, self.templates_dir))
 
 
 # ---------------------------------------------------------------- files

@@ -113,6 +113,18 @@ def test_no_import_circles() -> None:
     assert cycles(import_graph()) == []
 
 
+def test_packages_import_only_downwards() -> None:
+    # env <- textualizer <- prompts <- llm_agents: a package uses only those before it.
+    layer = {package: rank for rank, package in enumerate(PACKAGES)}
+    upward = [
+        f"{module} -> {target}"
+        for module, targets in import_graph().items()
+        for target in targets
+        if layer[target.split(".")[0]] > layer[module.split(".")[0]]
+    ]
+    assert upward == []
+
+
 def test_the_cycle_finder_finds_a_circle() -> None:
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
