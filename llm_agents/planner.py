@@ -549,7 +549,7 @@ def _settings(model: ModelAPI, config: PlannerConfig) -> PlanSettings:
     )
 
 
-def _batches(items: Sequence[str], size: int) -> Iterator[Sequence[str]]:
+def _groups(items: Sequence[str], size: int) -> Iterator[Sequence[str]]:
     for start in range(0, len(items), size):
         yield items[start : start + size]
 
@@ -566,14 +566,14 @@ class _Usage:
             self.completion_tokens += output.completion_tokens
 
 
-def _plan_batch(
+def _plan_group(
     instructions: Sequence[str],
     model: ModelAPI,
     prompter: _Prompter,
     config: PlannerConfig,
     usage: _Usage,
 ) -> list[PlanRecord]:
-    """Plan one batch: one call for the plans, one for the repairs of flagged plans."""
+    """Plan up to `requests_per_call` instructions: one call for the plans, one for the repairs."""
     outputs = model.generate([prompter.plan(text) for text in instructions])
     usage.add(outputs)
     records: dict[str, PlanRecord] = {}
@@ -636,9 +636,9 @@ def plan_instructions(
             unit="instr",
             disable=not progress,
         ) as bar:
-            for batch in _batches(todo, config.requests_per_call):
-                journal.add(_plan_batch(batch, model, prompter, config, usage))
-                bar.update(len(batch))
+            for group in _groups(todo, config.requests_per_call):
+                journal.add(_plan_group(group, model, prompter, config, usage))
+                bar.update(len(group))
     finally:
         # Runs on Ctrl-C too, so the plans file always reflects the journal.
         plans = journal.plans(config.drop_failed)

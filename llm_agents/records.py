@@ -61,7 +61,7 @@ class StepRecord(BaseModel):
     completion_tokens: int = Field(0, ge=0)
     """Tokens generated, reasoning included."""
     latency_s: float = Field(0.0, ge=0.0)
-    """Wall time of the model call (for a batched call: the batch's time)."""
+    """Wall time of the model call (for a call carrying many conversations: the call's time)."""
     finish_reason: str = "stop"
     """How the answer ended: `stop`, `length` (hit max_tokens), `choice` or `error`."""
     error: str | None = None
