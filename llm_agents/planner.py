@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from tqdm import tqdm
 
 from env import craftax_names as names
-from env.dataset import Goal, check_split, load_dataset
+from env.dataset import CATEGORY_SPLIT, Goal, check_split, load_dataset
 from env.errors import UserError
 from env.variant import Variant
 from llm_agents.actions import action_catalogue
@@ -231,8 +231,6 @@ class PlannerConfig(ModelSettings):
     @field_validator("splits", mode="before")
     @classmethod
     def _split_names(cls, value: Any) -> list[str]:
-        from env.dataset import CATEGORY_SPLIT
-
         names: list[str] = [value] if isinstance(value, str) else list(value)
         by_category: dict[str, str] = {str(k): str(v) for k, v in CATEGORY_SPLIT.items()}
         return list(dict.fromkeys(check_split(by_category.get(n, n)) for n in names))
