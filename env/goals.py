@@ -22,7 +22,7 @@ from env.errors import UserError
 
 Split = Literal["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
 Category = Literal["one", "combo", "paraphrased", "new_objects"]
-"""CrafText goal sets: single achievements, combinations, unseen objects, paraphrased instructions."""
+"""CrafText goal sets: single achievements, combinations, paraphrased instructions, unseen objects."""
 SourceKind = Literal["archive", "directory", "wheel", "json"]
 
 SPLITS: tuple[Split, ...] = get_args(Split)
