@@ -1,6 +1,8 @@
 """`env.craftax_names`, copied by value to stay free of JAX, equals the installed craftax."""
 
+import ast
 from enum import Enum
+from pathlib import Path
 
 import pytest
 from craftax.craftax import constants as full
@@ -21,6 +23,12 @@ def by_value(enum: type[Enum]) -> list[str]:
     members = sorted(enum, key=lambda member: member.value)
     assert [member.value for member in members] == list(range(len(members)))
     return [member.name for member in members]
+
+
+def test_the_module_is_plain_data_importing_nothing() -> None:
+    tree = ast.parse(Path(names.__file__).read_text(encoding="utf-8"))
+    assert not [node for node in ast.walk(tree) if isinstance(node, ast.Import | ast.ImportFrom)]
+    assert not [node for node in tree.body if isinstance(node, ast.FunctionDef | ast.ClassDef)]
 
 
 def test_actions_follow_craftax_ids() -> None:
