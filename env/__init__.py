@@ -6,7 +6,7 @@ This is the only package that imports JAX, and only when an env name is first us
 
 from typing import TYPE_CHECKING, Any
 
-from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS, NUM_ACHIEVEMENTS, achievement_id
+from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS, NUM_ACHIEVEMENTS
 from env.dataset import (
     CATEGORIES,
     SPLITS,
@@ -19,6 +19,7 @@ from env.dataset import (
     parse_categories,
 )
 from env.errors import UserError
+from env.termination import Termination
 from env.variant import Variant
 
 if TYPE_CHECKING:
@@ -29,7 +30,6 @@ if TYPE_CHECKING:
         HostBatch,
         StepInfo,
         Task,
-        Termination,
         VectorEnv,
         episode_key,
         make_task,
@@ -42,7 +42,6 @@ _LAZY = {
     "HostBatch",
     "StepInfo",
     "Task",
-    "Termination",
     "VectorEnv",
     "episode_key",
     "make_task",
@@ -68,7 +67,6 @@ __all__ = [
     "UserError",
     "Variant",
     "VectorEnv",
-    "achievement_id",
     "episode_key",
     "goal_masks",
     "load_dataset",

@@ -4,39 +4,8 @@ Craftax-Classic has exactly these, with these ids; full Craftax has 67 and its f
 same ids with the same meaning, so one checker serves both variants.
 """
 
-from env.errors import UserError
+from env.craftax_names import CLASSIC_ACHIEVEMENTS
 
-ACHIEVEMENTS: tuple[str, ...] = (
-    "COLLECT_WOOD",
-    "PLACE_TABLE",
-    "EAT_COW",
-    "COLLECT_SAPLING",
-    "COLLECT_DRINK",
-    "MAKE_WOOD_PICKAXE",
-    "MAKE_WOOD_SWORD",
-    "PLACE_PLANT",
-    "DEFEAT_ZOMBIE",
-    "COLLECT_STONE",
-    "PLACE_STONE",
-    "EAT_PLANT",
-    "DEFEAT_SKELETON",
-    "MAKE_STONE_PICKAXE",
-    "MAKE_STONE_SWORD",
-    "WAKE_UP",
-    "PLACE_FURNACE",
-    "COLLECT_COAL",
-    "COLLECT_IRON",
-    "COLLECT_DIAMOND",
-    "MAKE_IRON_PICKAXE",
-    "MAKE_IRON_SWORD",
-)
+ACHIEVEMENTS: tuple[str, ...] = CLASSIC_ACHIEVEMENTS
 NUM_ACHIEVEMENTS = len(ACHIEVEMENTS)
 ACHIEVEMENT_IDS: dict[str, int] = {name: i for i, name in enumerate(ACHIEVEMENTS)}
-
-
-def achievement_id(name: str) -> int:
-    """The id of an achievement name such as `COLLECT_WOOD` (case-insensitive)."""
-    key = name.strip().upper()
-    if key not in ACHIEVEMENT_IDS:
-        raise UserError(f"unknown achievement {name!r}; known: {', '.join(ACHIEVEMENTS)}")
-    return ACHIEVEMENT_IDS[key]

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from enum import IntEnum
 from typing import Any
 
 import jax
@@ -27,23 +26,11 @@ from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import scored_success
 from env.jax_cache import enable_compilation_cache
 from env.rules import SuccessRule
+from env.termination import Termination
 from env.variant import Variant
 
 #: Each success is worth this much more than Craftax's own per-step reward, which is divided by it.
 CRAFTAX_REWARD_SCALE = 50.0
-
-
-class Termination(IntEnum):
-    """Why an episode ended; RUNNING while it has not."""
-
-    RUNNING = 0
-    SUCCESS = 1
-    DEATH = 2
-    TIMEOUT = 3
-
-    @property
-    def label(self) -> str:
-        return self.name.lower()
 
 
 class EnvConfig(BaseModel):

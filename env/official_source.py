@@ -5,7 +5,7 @@ The EASY modules build each goal's target through calls such as
 also hold the instruction and its paraphrases; splits are module-level dicts built from such
 literals, `**other_module.name` spreads and `|` merges. This module evaluates exactly that subset
 of Python with `ast` (the modules import JAX at module level, so importing them is not an option)
-and returns typed `Dataset` records. `env.dataset.load_dataset` is the entry point.
+and returns typed `Dataset` records (`env.goals`). `env.dataset.load_dataset` is the entry point.
 """
 
 from __future__ import annotations
@@ -22,7 +22,9 @@ from typing import Any, Protocol
 from pydantic import ValidationError
 
 from env.achievements import ACHIEVEMENT_IDS
-from env.dataset import (
+from env.downloads import sha256_file
+from env.errors import UserError
+from env.goals import (
     Dataset,
     DatasetSource,
     Goal,
@@ -30,8 +32,6 @@ from env.dataset import (
     Split,
     category_of,
 )
-from env.downloads import sha256_file
-from env.errors import UserError
 
 
 class _SourceFiles(Protocol):

@@ -20,7 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from env.achievements import ACHIEVEMENTS
-from env.craftext_env import CrafTextEnv, EpisodeState, Termination, make_task
+from env.craftext_env import CrafTextEnv, EpisodeState, make_task
+from env.termination import Termination
 from env.variant import Variant
 
 #: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for

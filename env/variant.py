@@ -2,6 +2,7 @@
 
 from enum import StrEnum
 
+from env import craftax_names
 from env.errors import UserError
 
 
@@ -17,8 +18,22 @@ class Variant(StrEnum):
         return "Craftax-Symbolic-v1" if self is Variant.FULL else "Craftax-Classic-Symbolic-v1"
 
     @property
+    def action_names(self) -> tuple[str, ...]:
+        """craftax `Action` names of the variant by id."""
+        if self is Variant.FULL:
+            return craftax_names.FULL_ACTIONS
+        return craftax_names.CLASSIC_ACTIONS
+
+    @property
+    def achievement_names(self) -> tuple[str, ...]:
+        """craftax `Achievement` names of the variant by id."""
+        if self is Variant.FULL:
+            return craftax_names.FULL_ACHIEVEMENTS
+        return craftax_names.CLASSIC_ACHIEVEMENTS
+
+    @property
     def num_actions(self) -> int:
-        return 43 if self is Variant.FULL else 17
+        return len(self.action_names)
 
 
 def as_variant(variant: Variant | str) -> Variant:

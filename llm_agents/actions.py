@@ -1,7 +1,7 @@
 """The action catalogue: every action of both Craftax variants with its id and what it does.
 
-Ids and names are those of craftax's `Action` enums (tests check them against craftax), kept
-here as plain data so that the agent side never imports JAX. The descriptions are ours,
+Ids and names are those of craftax's `Action` enums, as `env.craftax_names` holds them (the
+variant's `action_names`). The descriptions are ours,
 written from craftax's game logic: "nearby" means one of the 8 cells around the player,
 "facing" means the cell the player looks at (the last direction it moved or tried to move).
 """
@@ -123,56 +123,6 @@ _FULL_DESCRIPTIONS: tuple[str, ...] = (
     "Enchant your bow while facing an enchantment table; costs 9 mana and 1 ruby or sapphire.",
 )
 
-_CLASSIC_NAMES: tuple[str, ...] = (
-    "NOOP",
-    "LEFT",
-    "RIGHT",
-    "UP",
-    "DOWN",
-    "DO",
-    "SLEEP",
-    "PLACE_STONE",
-    "PLACE_TABLE",
-    "PLACE_FURNACE",
-    "PLACE_PLANT",
-    "MAKE_WOOD_PICKAXE",
-    "MAKE_STONE_PICKAXE",
-    "MAKE_IRON_PICKAXE",
-    "MAKE_WOOD_SWORD",
-    "MAKE_STONE_SWORD",
-    "MAKE_IRON_SWORD",
-)
-
-_FULL_NAMES: tuple[str, ...] = (
-    *_CLASSIC_NAMES,
-    "REST",
-    "DESCEND",
-    "ASCEND",
-    "MAKE_DIAMOND_PICKAXE",
-    "MAKE_DIAMOND_SWORD",
-    "MAKE_IRON_ARMOUR",
-    "MAKE_DIAMOND_ARMOUR",
-    "SHOOT_ARROW",
-    "MAKE_ARROW",
-    "CAST_FIREBALL",
-    "CAST_ICEBALL",
-    "PLACE_TORCH",
-    "DRINK_POTION_RED",
-    "DRINK_POTION_GREEN",
-    "DRINK_POTION_BLUE",
-    "DRINK_POTION_PINK",
-    "DRINK_POTION_CYAN",
-    "DRINK_POTION_YELLOW",
-    "READ_BOOK",
-    "ENCHANT_SWORD",
-    "ENCHANT_ARMOUR",
-    "MAKE_TORCH",
-    "LEVEL_UP_DEXTERITY",
-    "LEVEL_UP_STRENGTH",
-    "LEVEL_UP_INTELLIGENCE",
-    "ENCHANT_BOW",
-)
-
 #: Compass heading of each movement action, as the prompts and observations name it.
 MOVE_HEADINGS: dict[str, str] = dict(_MOVES)
 
@@ -185,8 +135,8 @@ def _build(names: tuple[str, ...], descriptions: tuple[str, ...]) -> tuple[Actio
 
 
 _CATALOGUES: dict[Variant, tuple[ActionSpec, ...]] = {
-    Variant.CLASSIC: _build(_CLASSIC_NAMES, _CLASSIC_DESCRIPTIONS),
-    Variant.FULL: _build(_FULL_NAMES, _FULL_DESCRIPTIONS),
+    Variant.CLASSIC: _build(Variant.CLASSIC.action_names, _CLASSIC_DESCRIPTIONS),
+    Variant.FULL: _build(Variant.FULL.action_names, _FULL_DESCRIPTIONS),
 }
 
 
@@ -197,17 +147,12 @@ def action_catalogue(variant: Variant | str) -> tuple[ActionSpec, ...]:
 
 def action_names(variant: Variant | str) -> tuple[str, ...]:
     """The action names of a variant, in id order (index = action id)."""
-    return _names(as_variant(variant))
-
-
-@cache
-def _names(variant: Variant) -> tuple[str, ...]:
-    return tuple(spec.name for spec in _CATALOGUES[variant])
+    return as_variant(variant).action_names
 
 
 @cache
 def _ids(variant: Variant) -> dict[str, int]:
-    return {spec.name: spec.id for spec in _CATALOGUES[variant]}
+    return {name: i for i, name in enumerate(variant.action_names)}
 
 
 def action_id(name: str, variant: Variant | str) -> int:
@@ -218,17 +163,6 @@ def action_id(name: str, variant: Variant | str) -> int:
     if key not in ids:
         raise UserError(
             f"unknown action {name!r} for the {resolved.value} variant; "
-            f"known: {', '.join(_names(resolved))}"
+            f"known: {', '.join(resolved.action_names)}"
         )
     return ids[key]
-
-
-def action_name(action: int, variant: Variant | str) -> str:
-    """The name of an action id in a variant."""
-    names = _names(as_variant(variant))
-    if not 0 <= action < len(names):
-        raise UserError(
-            f"action id {action} is out of range for the {Variant(variant).value} variant "
-            f"(0-{len(names) - 1})"
-        )
-    return names[action]

@@ -28,8 +28,12 @@ from env.dataset import parse_categories
 from env.errors import UserError
 from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
+from llm_agents.actions import action_names
+from llm_agents.agents.registry import AGENTS
+from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import ChoiceRule, GenerateConfig
 from llm_agents.protocol import ProtocolName, apply_protocol
+from textualizer import RENDERERS
 
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
@@ -77,8 +81,6 @@ class ModelSettings(BaseModel):
     @field_validator("model")
     @classmethod
     def _known_backend(cls, value: str) -> str:
-        from llm_agents.backends import parse_model_spec
-
         parse_model_spec(value)
         return value
 
@@ -170,8 +172,6 @@ class EvalConfig(ModelSettings):
     @field_validator("agent")
     @classmethod
     def _known_agent(cls, value: str) -> str:
-        from llm_agents.agents import AGENTS
-
         if value not in AGENTS:
             raise ValueError(f"unknown agent {value!r}; choose from {', '.join(AGENTS)}")
         return value
@@ -190,8 +190,6 @@ class EvalConfig(ModelSettings):
     @field_validator("renderer")
     @classmethod
     def _known_renderer(cls, value: str) -> str:
-        from textualizer import RENDERERS
-
         if value not in RENDERERS:
             raise ValueError(f"unknown renderer {value!r}; choose from {', '.join(RENDERERS)}")
         return value
@@ -199,8 +197,6 @@ class EvalConfig(ModelSettings):
     @field_validator("fallback_action")
     @classmethod
     def _known_action(cls, value: str) -> str:
-        from llm_agents.actions import action_names
-
         # The variant is validated after this field, so accept a name of either variant here;
         # the agent checks it against the run's variant before anything is written.
         names = set(action_names(Variant.FULL)) | set(action_names(Variant.CLASSIC))

@@ -15,7 +15,9 @@ from collections.abc import Sequence
 from pydantic import BaseModel, Field
 
 from env.errors import UserError
-from llm_agents.records import CATEGORIES, TERMINATIONS, EpisodeRecord
+from env.goals import CATEGORIES
+from env.termination import TERMINATIONS
+from llm_agents.records import EpisodeRecord
 
 __all__ = ["SuccessRate", "Summary", "summarize", "wilson_interval"]
 

@@ -9,9 +9,7 @@ interrupted run loses nothing and a rerun skips what is already planned.
 
 from __future__ import annotations
 
-import ast
 import hashlib
-import importlib.util
 import json
 import os
 import re
@@ -26,10 +24,11 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from tqdm import tqdm
 
-from env.dataset import Goal, check_split, load_dataset
+from env import craftax_names as names
+from env.dataset import CATEGORY_SPLIT, Goal, check_split, load_dataset
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.actions import action_catalogue, action_names
+from llm_agents.actions import action_catalogue
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
 from llm_agents.config import ModelSettings
 from llm_agents.run_store import (
@@ -39,7 +38,7 @@ from llm_agents.run_store import (
     complete_lines,
     make_output_dir,
 )
-from prompts import render_blocks, template_source
+from prompts import BlockRole, render_blocks, template_source
 
 __all__ = [
     "PlanCheck",
@@ -53,7 +52,6 @@ __all__ = [
     "goal_instructions",
     "is_known",
     "load_plans",
-    "missing_plans",
     "parse_plan",
     "plan_instructions",
     "run_planner",
@@ -64,9 +62,6 @@ __all__ = [
 PLANNER_TEMPLATE = "planner.j2"
 REPAIR_TEMPLATE = "plan_repair.j2"
 
-#: Enum classes whose member names are the things and actions of the game.
-_THING_ENUMS = ("BlockType", "ItemType", "ProjectileType")
-_ENUMS = (*_THING_ENUMS, "Achievement")
 #: Enum members that are engine bookkeeping, not things a plan can name.
 _INTERNAL_NAMES = frozenset(
     {"INVALID", "OUT_OF_BOUNDS", "DARKNESS", "NONE", "LADDER_DOWN_BLOCKED", "ARROW2"}
@@ -236,8 +231,6 @@ class PlannerConfig(ModelSettings):
     @field_validator("splits", mode="before")
     @classmethod
     def _split_names(cls, value: Any) -> list[str]:
-        from env.dataset import CATEGORY_SPLIT
-
         names: list[str] = [value] if isinstance(value, str) else list(value)
         by_category: dict[str, str] = {str(k): str(v) for k, v in CATEGORY_SPLIT.items()}
         return list(dict.fromkeys(check_split(by_category.get(n, n)) for n in names))
@@ -288,53 +281,29 @@ class PlanSummary(BaseModel):
 
 
 @cache
-def _craftax_enums(variant: Variant) -> dict[str, tuple[str, ...]]:
-    """Member names of craftax's thing enums, read from its source.
-
-    Importing craftax's constants pulls in JAX and loads textures (seconds), and JAX belongs
-    in `env/` only, so the enum bodies are read with `ast` instead.
-    """
-    spec = importlib.util.find_spec("craftax")
-    if spec is None or not spec.submodule_search_locations:
-        raise UserError("the craftax package is not installed; pip install craftax==1.6.1")
-    package = "craftax" if variant is Variant.FULL else "craftax_classic"
-    source = Path(next(iter(spec.submodule_search_locations))) / package / "constants.py"
-    enums: dict[str, tuple[str, ...]] = {}
-    for node in ast.parse(source.read_text(encoding="utf-8")).body:
-        if isinstance(node, ast.ClassDef) and node.name in _ENUMS:
-            enums[node.name] = tuple(
-                target.id
-                for statement in node.body
-                if isinstance(statement, ast.Assign)
-                for target in statement.targets
-                if isinstance(target, ast.Name) and target.id not in _INTERNAL_NAMES
-            )
-    return enums
-
-
-@cache
 def _things(variant: Variant) -> tuple[str, ...]:
     """Names of blocks, items, projectiles and creatures of the variant, e.g. `CRAFTING_TABLE`."""
-    enums = _craftax_enums(variant)
+    enums: tuple[tuple[str, ...], ...]
+    if variant is Variant.FULL:
+        enums = (names.FULL_BLOCKS, names.FULL_ITEMS, names.FULL_PROJECTILES)
+    else:
+        enums = (names.CLASSIC_BLOCKS,)
+    # Creatures are named as their achievements name them (DEFEAT_ZOMBIE, EAT_COW).
     creatures = [
         name.removeprefix(prefix)
-        for name in enums.get("Achievement", ())
+        for name in variant.achievement_names
         for prefix in _CREATURE_PREFIXES
         if name.startswith(prefix)
     ]
-    things = [name for enum in _THING_ENUMS for name in enums.get(enum, ())]
+    things = [name for enum in enums for name in enum if name not in _INTERNAL_NAMES]
     return tuple(dict.fromkeys(things + creatures))
 
 
 @cache
 def craftax_vocabulary(variant: Variant = Variant.FULL) -> frozenset[str]:
     """Lower-case words of every Craftax name of the variant: things, creatures, actions, achievements."""
-    names = [
-        *_things(variant),
-        *_craftax_enums(variant).get("Achievement", ()),
-        *action_names(variant),
-    ]
-    return frozenset(word for name in names for word in name.lower().split("_") if word.isalpha())
+    every = [*_things(variant), *variant.achievement_names, *variant.action_names]
+    return frozenset(word for name in every for word in name.lower().split("_") if word.isalpha())
 
 
 def _known(word: str, vocabulary: frozenset[str]) -> bool:
@@ -440,6 +409,10 @@ def _template_hashes(templates_dir: str | Path | None) -> dict[str, str]:
     }
 
 
+def _messages(blocks: Sequence[tuple[BlockRole, str]]) -> list[ChatMessage]:
+    return [ChatMessage(role=role, content=text) for role, text in blocks]
+
+
 class _Prompter:
     """Renders plan and repair requests with the limits and the variant's names."""
 
@@ -457,7 +430,7 @@ class _Prompter:
 
     def plan(self, instruction: str) -> list[ChatMessage]:
         context = {"instruction": instruction, **self.common}
-        return render_blocks(PLANNER_TEMPLATE, context, self.templates_dir)
+        return _messages(render_blocks(PLANNER_TEMPLATE, context, self.templates_dir))
 
     def repair(self, instruction: str, answer: str, check: PlanCheck) -> list[ChatMessage]:
         context = {
@@ -466,7 +439,7 @@ class _Prompter:
             "problems": [issue.detail for issue in check.issues],
             **self.common,
         }
-        return render_blocks(REPAIR_TEMPLATE, context, self.templates_dir)
+        return _messages(render_blocks(REPAIR_TEMPLATE, context, self.templates_dir))
 
 
 # ---------------------------------------------------------------- files
@@ -558,11 +531,6 @@ def load_plans(path: str | os.PathLike[str]) -> dict[str, str]:
     return data
 
 
-def missing_plans(instructions: Iterable[str], plans: dict[str, str]) -> list[str]:
-    """The instructions with no plan, each once, in the given order."""
-    return [text for text in dict.fromkeys(instructions) if text not in plans]
-
-
 # ---------------------------------------------------------------- planning
 
 
@@ -579,7 +547,7 @@ def _settings(model: ModelAPI, config: PlannerConfig) -> PlanSettings:
     )
 
 
-def _batches(items: Sequence[str], size: int) -> Iterator[Sequence[str]]:
+def _groups(items: Sequence[str], size: int) -> Iterator[Sequence[str]]:
     for start in range(0, len(items), size):
         yield items[start : start + size]
 
@@ -596,14 +564,14 @@ class _Usage:
             self.completion_tokens += output.completion_tokens
 
 
-def _plan_batch(
+def _plan_group(
     instructions: Sequence[str],
     model: ModelAPI,
     prompter: _Prompter,
     config: PlannerConfig,
     usage: _Usage,
 ) -> list[PlanRecord]:
-    """Plan one batch: one call for the plans, one for the repairs of flagged plans."""
+    """Plan up to `requests_per_call` instructions: one call for the plans, one for the repairs."""
     outputs = model.generate([prompter.plan(text) for text in instructions])
     usage.add(outputs)
     records: dict[str, PlanRecord] = {}
@@ -666,9 +634,9 @@ def plan_instructions(
             unit="instr",
             disable=not progress,
         ) as bar:
-            for batch in _batches(todo, config.requests_per_call):
-                journal.add(_plan_batch(batch, model, prompter, config, usage))
-                bar.update(len(batch))
+            for group in _groups(todo, config.requests_per_call):
+                journal.add(_plan_group(group, model, prompter, config, usage))
+                bar.update(len(group))
     finally:
         # Runs on Ctrl-C too, so the plans file always reflects the journal.
         plans = journal.plans(config.drop_failed)

@@ -4,26 +4,27 @@ finished episode. `llm_agents.run_store` owns the files they live in.
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, Field, computed_field, model_validator
+from pydantic import AfterValidator, BaseModel, Field, computed_field, model_validator
+
+from env.goals import Category
+from env.termination import TERMINATIONS
 
 __all__ = [
-    "CATEGORIES",
-    "TERMINATIONS",
-    "Category",
     "EpisodeRecord",
     "StepRecord",
-    "Termination",
 ]
 
-Category = Literal["one", "combo", "new_objects", "paraphrased"]
-"""CrafText goal sets: single achievements, combinations, unseen objects, paraphrased instructions."""
-CATEGORIES: tuple[Category, ...] = get_args(Category)
 
-Termination = Literal["success", "death", "timeout"]
-"""Why an episode ended; `success` wins when the goal is met on the step the agent dies."""
-TERMINATIONS: tuple[Termination, ...] = get_args(Termination)
+def _finished(label: str) -> str:
+    if label not in TERMINATIONS:
+        raise ValueError(f"termination must be one of {', '.join(TERMINATIONS)}, not {label!r}")
+    return label
+
+
+FinishedTermination = Annotated[str, AfterValidator(_finished)]
+"""The label of `env.termination.Termination` a finished episode ended with."""
 
 
 class StepRecord(BaseModel):
@@ -60,7 +61,7 @@ class StepRecord(BaseModel):
     completion_tokens: int = Field(0, ge=0)
     """Tokens generated, reasoning included."""
     latency_s: float = Field(0.0, ge=0.0)
-    """Wall time of the model call (for a batched call: the batch's time)."""
+    """Wall time of the model call (for a call carrying many conversations: the call's time)."""
     finish_reason: str = "stop"
     """How the answer ended: `stop`, `length` (hit max_tokens), `choice` or `error`."""
     error: str | None = None
@@ -93,7 +94,7 @@ class EpisodeRecord(BaseModel):
     """True when the goal was met."""
     steps: int = Field(ge=0)
     """Agent steps taken."""
-    termination: Termination
+    termination: FinishedTermination
     """Why the episode ended."""
     episode_return: float
     """Sum of environment rewards."""

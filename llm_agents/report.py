@@ -204,6 +204,18 @@ def recorded_rule(results: RunResults) -> SuccessRule:
     return rule if rule in SUCCESS_RULES else _RECORDED_RULE_BEFORE_SETTING
 
 
+def run_summary(
+    results: RunResults, episodes: Sequence[EpisodeRecord], rule: SuccessRule
+) -> Summary:
+    """The metrics of a run's finished `episodes` under `rule`: the summary the runner stored
+    with them when it covers exactly these under the rule they were played by, else (a re-score,
+    or episodes written after the runner's last save) computed from the episodes."""
+    stored = results.summary
+    if stored is not None and rule == recorded_rule(results) and results.finished == len(episodes):
+        return stored
+    return summarize(rescore(episodes, rule))
+
+
 def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
     """How a run departs from the paper's protocol where that changes the numbers: variant,
     dataset splits, step cap, and the success rule it is scored under (`rule`)."""
@@ -379,7 +391,7 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         + (f" (re-scored; the run was played under {played})" if rule != played else "")
         + f". Goals completed on the step the game ended: {at_game_over}."
     ]
-    summary = summarize(rescore(episodes, rule))
+    summary = run_summary(results, episodes, rule)
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)
     plot_success(summary, model_name, run_dir / CHART_FILE, with_published=not differences)
@@ -405,7 +417,8 @@ def _run_row(run_dir: Path) -> tuple[str, Summary, RunResults]:
     name = model_name_of(results)
     label = name if agent == "expert" else f"{name} ({agent})"
     partial = results.status != "complete"
-    return f"{label}{', partial' if partial else ''}", summarize(episodes), results
+    summary = run_summary(results, episodes, recorded_rule(results))
+    return f"{label}{', partial' if partial else ''}", summary, results
 
 
 def compare_runs(run_dir: str | Path, other_dir: str | Path) -> str:

@@ -6,10 +6,9 @@ Rendering is strict: an undefined variable is an error, never an empty string. E
 problem with a template (missing, bad syntax, undefined variable) raises `UserError`
 naming the file.
 
-Two ways to get chat messages:
-- `render_messages(context, system="system", user="step")`: one template per role;
-- `render_blocks(name, context)`: one template with `{% block system %}` and
-  `{% block user %}` blocks.
+`render_blocks(name, context)` renders one template with `{% block system %}` and
+`{% block user %}` blocks into (role, text) pairs, which the caller turns into chat messages:
+this package knows templates, not backends.
 """
 
 from __future__ import annotations
@@ -17,18 +16,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import jinja2
 
 from env.errors import UserError
-from llm_agents.backends.base import ChatMessage, Role
 
 __all__ = [
     "PACKAGE_TEMPLATES_DIR",
+    "BlockRole",
     "load_template",
     "render_blocks",
-    "render_messages",
     "render_template",
     "template_path",
     "template_source",
@@ -38,6 +36,9 @@ __all__ = [
 PACKAGE_TEMPLATES_DIR = Path(__file__).resolve().parent
 
 _SUFFIX = ".j2"
+
+BlockRole = Literal["system", "user"]
+"""The chat role a template block renders for."""
 
 
 def _file_name(name: str) -> str:
@@ -119,37 +120,20 @@ def render_template(
         raise _render_error(template, err) from err
 
 
-def render_messages(
-    context: Mapping[str, Any],
-    *,
-    system: str | None = "system",
-    user: str = "step",
-    templates_dir: str | Path | None = None,
-) -> list[ChatMessage]:
-    """[system, user] messages from one template per role (no system message if None)."""
-    messages = []
-    if system is not None:
-        messages.append(
-            ChatMessage(role="system", content=render_template(system, context, templates_dir))
-        )
-    messages.append(ChatMessage(role="user", content=render_template(user, context, templates_dir)))
-    return messages
-
-
 def render_blocks(
     name: str,
     context: Mapping[str, Any],
     templates_dir: str | Path | None = None,
-) -> list[ChatMessage]:
-    """Messages from a template's `system` and `user` blocks, in that order (absent: skipped)."""
+) -> list[tuple[BlockRole, str]]:
+    """(role, text) of a template's `system` and `user` blocks, in that order (absent: skipped)."""
     template = load_template(name, templates_dir)
-    roles: tuple[Role, ...] = ("system", "user")
+    roles: tuple[BlockRole, ...] = ("system", "user")
     if not any(role in template.blocks for role in roles):
         raise UserError(f"prompt template {template.filename} has no system or user block")
     try:
         jinja_context = template.new_context(dict(context))
         return [
-            ChatMessage(role=role, content="".join(template.blocks[role](jinja_context)).strip())
+            (role, "".join(template.blocks[role](jinja_context)).strip())
             for role in roles
             if role in template.blocks
         ]

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from env.variant import Variant
 from llm_agents.actions import action_catalogue, action_id
 from llm_agents.parser import ParseResult, parse_action
-from prompts import render_messages
+from prompts import render_template
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BALROG = DATA / "balrog_crafter_outputs.jsonl"
@@ -137,20 +137,20 @@ def test_no_answer_or_an_echo_is_invalid(text: str) -> None:
 
 @pytest.mark.parametrize("variant", list(Variant))
 def test_echo_of_our_own_prompt_is_never_an_answer(variant: Variant) -> None:
-    messages = render_messages(
-        {
-            "variant": variant.value,
-            "actions": [spec.model_dump() for spec in action_catalogue(variant)],
-            "instruction": "Collect wood and then place a table.",
-            "plan": "1. collect wood\n2. place table",
-            "history": [{"step": 4, "action": "LEFT", "outcome": "moved west"}],
-            "observation": "You face grass. A tree is 2 north.",
-            "choice_mode": False,
-        }
-    )
-    echo = "\n\n".join(m.content for m in messages)
+    context = {
+        "variant": variant.value,
+        "actions": [spec.model_dump() for spec in action_catalogue(variant)],
+        "instruction": "Collect wood and then place a table.",
+        "plan": "1. collect wood\n2. place table",
+        "history": [{"step": 4, "action": "LEFT", "outcome": "moved west"}],
+        "observation": "You face grass. A tree is 2 north.",
+        "choice_mode": False,
+    }
+    # The messages the zero-shot agent sends: its system prompt, then its step prompt.
+    messages = [render_template("system", context), render_template("step", context)]
+    echo = "\n\n".join(messages)
     assert parse_action(echo, variant, prompt=echo).action is None
-    per_message = [m.content for m in messages]
+    per_message = messages
     assert parse_action(echo, variant, prompt=per_message).action is None
     # The plan's lines echoed alone are skipped whether the prompt comes whole or per message.
     plan_echo = "Plan for this instruction:\n1. collect wood\n2. place table"
@@ -160,7 +160,7 @@ def test_echo_of_our_own_prompt_is_never_an_answer(variant: Variant) -> None:
     answered = parse_action(echo + "\n\nACTION: PLACE_TABLE", variant, prompt=echo)
     assert answered.name == "PLACE_TABLE"
     # Without the prompt, an echoed action catalogue is still recognisably no answer.
-    catalogue = messages[0].content.split("Actions:")[1]
+    catalogue = messages[0].split("Actions:")[1]
     assert parse_action(catalogue, variant).action is None
 
 

@@ -21,7 +21,6 @@ from llm_agents.planner import (
     craftax_vocabulary,
     goal_instructions,
     load_plans,
-    missing_plans,
     parse_plan,
     plan_instructions,
     run_planner,
@@ -338,14 +337,6 @@ def test_load_plans_rejects_bad_files(tmp_path: Path, content: str | None, messa
     with pytest.raises(UserError, match=message) as caught:
         load_plans(path)
     assert str(path) in str(caught.value)
-
-
-def test_missing_plans_lists_each_unplanned_instruction_once() -> None:
-    plans = {"Collect wood.": GOOD}
-    assert missing_plans(["Eat a cow.", "Collect wood.", "Eat a cow.", "Drink."], plans) == [
-        "Eat a cow.",
-        "Drink.",
-    ]
 
 
 @pytest.mark.skipif(not OFFICIAL_PLANS.exists(), reason=f"reference data absent: {OFFICIAL_PLANS}")

@@ -12,7 +12,6 @@ from prompts import (
     PACKAGE_TEMPLATES_DIR,
     load_template,
     render_blocks,
-    render_messages,
     render_template,
     template_path,
 )
@@ -29,13 +28,9 @@ def test_renders_any_package_template_by_name_with_or_without_suffix() -> None:
 
 def test_user_folder_overrides_by_name_and_keeps_the_rest(tmp_path: Path) -> None:
     (tmp_path / "step.j2").write_text("Goal={{ instruction }}\n")
-    messages = render_messages(
-        {"instruction": "collect wood", "variant": "classic", "actions": []},
-        templates_dir=tmp_path,
-    )
-    assert [m.role for m in messages] == ["system", "user"]
-    assert messages[1].content == "Goal=collect wood"
-    assert "Craftax-Classic" in messages[0].content
+    context = {"instruction": "collect wood", "variant": "classic", "actions": []}
+    assert render_template("step", context, tmp_path) == "Goal=collect wood"
+    assert "Craftax-Classic" in render_template("system", context, tmp_path)
     assert template_path("step", tmp_path) == tmp_path / "step.j2"
     assert template_path("system", tmp_path) == PACKAGE_TEMPLATES_DIR / "system.j2"
 
@@ -63,9 +58,7 @@ def test_syntax_error_names_the_file_and_line(tmp_path: Path) -> None:
 def test_undefined_variable_is_an_error_naming_file_and_variable(tmp_path: Path) -> None:
     (tmp_path / "step.j2").write_text("{{ instruction }} {{ not_given }}")
     with pytest.raises(UserError, match=r"step\.j2.*not_given"):
-        render_messages(
-            {"instruction": "x", "variant": "full", "actions": []}, templates_dir=tmp_path
-        )
+        render_template("step", {"instruction": "x", "variant": "full", "actions": []}, tmp_path)
     # Strictness holds for attribute access and loops too, not only plain names.
     (tmp_path / "loop.j2").write_text("{% for a in actions %}{{ a.missing }}{% endfor %}")
     with pytest.raises(UserError, match=r"loop\.j2"):
@@ -77,7 +70,7 @@ def test_block_templates_give_system_and_user_messages(tmp_path: Path) -> None:
         "{% block system %} You plan. {% endblock %}{% block user %}Goal: {{ goal }}{% endblock %}"
     )
     messages = render_blocks("two", {"goal": "eat cow"}, tmp_path)
-    assert [(m.role, m.content) for m in messages] == [
+    assert messages == [
         ("system", "You plan."),
         ("user", "Goal: eat cow"),
     ]

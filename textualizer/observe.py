@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from env.achievements import ACHIEVEMENTS
 from env.errors import UserError
 from env.variant import Variant, as_variant
 from textualizer import vocabulary as voc
@@ -288,13 +287,12 @@ def observe(state: Any, variant: Variant | str) -> Observation:
             )
             if known
         ]
-        achievements = [voc.FULL_ACHIEVEMENTS[i] for i in achieved]
     else:
         vitals = _vitals(state, mana=None, max_health=9, max_food=9, max_mana=None)
         attributes, floor, spells = None, None, []
         inventory = _classic_inventory(state.inventory)
-        achievements = [ACHIEVEMENTS[i] for i in achieved]
 
+    achievements = [variant.achievement_names[i] for i in achieved]
     return Observation(
         variant=variant,
         step=int(state.timestep),

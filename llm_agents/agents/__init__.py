@@ -1,8 +1,8 @@
 """Agent strategies by name: `zero-shot`, `cot`, `few-shot` and the scripted `expert`.
 
-Like the backends, the registry maps a name to `"module:Class"` and imports lazily. Every agent
-plays a batch of episodes (slots) in lockstep and follows the `Agent` protocol; the runner builds
-one with `build_agent(config)` per lane.
+Like the backends, the registry (`registry.AGENTS`) maps a name to `"module:Class"` and
+imports lazily. Every agent plays a batch of episodes (slots) in lockstep and follows the `Agent`
+protocol; the runner builds one with `build_agent(config)` per lane.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from env.errors import UserError
+from llm_agents.agents.registry import AGENTS
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 
 if TYPE_CHECKING:
@@ -21,14 +22,6 @@ if TYPE_CHECKING:
     from llm_agents.config import EvalConfig
 
 __all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
-
-#: agent name -> "module:Class"
-AGENTS: dict[str, str] = {
-    "zero-shot": "llm_agents.agents.zero_shot:ZeroShotAgent",
-    "cot": "llm_agents.agents.cot:ChainOfThoughtAgent",
-    "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
-    "expert": "llm_agents.agents.expert:ExpertAgent",
-}
 
 
 @runtime_checkable

@@ -376,9 +376,6 @@ class _Step:
     def _steps_to(self, cell: Cell) -> int:
         return abs(cell[0] - self.pos[0]) + abs(cell[1] - self.pos[1])
 
-    def _damage(self) -> int:
-        return {0: 1, 1: 2, 2: 3, 3: 5, 4: 8}[self._tier("sword")]
-
     def _flee(self, threat: Cell) -> str | None:
         options = [
             ((n[0] - threat[0]) ** 2 + (n[1] - threat[1]) ** 2, name)

@@ -345,7 +345,7 @@ class ZeroShotAgent:
     def act(
         self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
     ) -> list[Decision]:
-        """Choose an action for every slot with one batched model call."""
+        """Choose an action for every slot with one model call."""
         if len(slots) != len(observations):
             raise ValueError(f"{len(slots)} slots but {len(observations)} observations")
         if len(set(slots)) != len(slots):

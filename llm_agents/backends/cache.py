@@ -62,8 +62,6 @@ class CachedModel(ModelAPI):
         self.concurrent_requests = model.concurrent_requests
         self.path = Path(path).expanduser()
         self.cache_sampled = cache_sampled
-        self.hits = 0
-        self.misses = 0
         self._lock = threading.Lock()
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -108,8 +106,6 @@ class CachedModel(ModelAPI):
         ]
         for i, output in zip(missing, fresh, strict=True):
             outputs[i] = output
-        self.hits += len(keys) - len(missing)
-        self.misses += len(missing)
         return outputs
 
     def check_choice_rule(self, rule: ChoiceRule) -> None:

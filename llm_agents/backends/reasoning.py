@@ -31,10 +31,10 @@ _TAG = re.compile(r"<(/?)(" + "|".join(REASONING_TAGS) + r")>", re.IGNORECASE | 
 _CLOSE_TAG = re.compile(r"</(?:" + "|".join(REASONING_TAGS) + r")>", re.IGNORECASE | re.ASCII)
 ANSWER_ONLY_TEMPLATE = "answer_only.j2"
 
-#: One batched backend call: conversations in, one raw output per conversation out.
-BatchGenerate = Callable[[Sequence[Conversation]], list[ModelOutput]]
-#: One batched backend call with optional choices (None: free generation).
-ChoiceBatchGenerate = Callable[[Sequence[Conversation], list[str] | None], list[ModelOutput]]
+#: One raw backend call: conversations in, one raw output per conversation out.
+GenerateCall = Callable[[Sequence[Conversation]], list[ModelOutput]]
+#: One raw backend call with optional choices (None: free generation).
+ChoiceGenerateCall = Callable[[Sequence[Conversation], list[str] | None], list[ModelOutput]]
 
 
 class ReasoningSplit(BaseModel):
@@ -167,12 +167,12 @@ def merge_followup(first: ModelOutput, followup: ModelOutput) -> ModelOutput:
 def resolve_truncated(
     conversations: Sequence[Conversation],
     outputs: list[ModelOutput],
-    generate: BatchGenerate,
+    generate: GenerateCall,
 ) -> list[ModelOutput]:
-    """Make one batched "answer only" follow-up for every output cut off while reasoning.
+    """Make one "answer only" follow-up call for every output cut off while reasoning.
 
     `outputs` must already be split (`with_reasoning_split`); `generate` is the backend's raw
-    batched call, and its outputs must be split too. Never more than one follow-up per answer.
+    call, and its outputs must be split too. Never more than one follow-up per answer.
     """
     pending = [i for i, output in enumerate(outputs) if needs_answer_followup(output)]
     if not pending:
@@ -187,9 +187,9 @@ def resolve_truncated(
 def generate_with_followup(
     conversations: Sequence[Conversation],
     choices: Sequence[str] | None,
-    generate: ChoiceBatchGenerate,
+    generate: ChoiceGenerateCall,
 ) -> list[ModelOutput]:
-    """`ModelAPI.generate` over a backend's raw batched call `generate(batch, choices)`.
+    """`ModelAPI.generate` over a backend's raw call `generate(conversations, choices)`.
 
     With choices, one call (a choice has no thinking to cut off). Without, a free call, then one
     "answer only" follow-up for the outputs cut off while reasoning (`resolve_truncated`).
@@ -197,7 +197,7 @@ def generate_with_followup(
     if choices:
         return generate(conversations, list(choices))
     outputs = generate(conversations, None)
-    return resolve_truncated(conversations, outputs, lambda batch: generate(batch, None))
+    return resolve_truncated(conversations, outputs, lambda pending: generate(pending, None))
 
 
 def _answer_only_text(*, has_partial_answer: bool) -> str:
