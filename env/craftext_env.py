@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import scored_success
 from env.jax_cache import enable_compilation_cache
+from env.placement import EnvDevice, place_env
 from env.rules import SuccessRule
 from env.termination import Termination
 from env.variant import Variant
@@ -48,6 +49,9 @@ class EnvConfig(BaseModel):
     world_key: int | None = None
     """When set, every episode's world is generated from `jax.random.PRNGKey(world_key)` (the
     official loop uses 1) instead of its episode key; steps still draw from the episode key."""
+    device: EnvDevice = "cpu"
+    """Where JAX steps the worlds: `cpu` (the default: the accelerator stays the model's) or
+    `default` (JAX's default device); see `env.placement`."""
 
 
 @struct.dataclass
@@ -99,9 +103,10 @@ class CrafTextEnv:
     jit caches compiled functions per env instance."""
 
     def __init__(self, config: EnvConfig | None = None, *, compilation_cache: bool = True):
+        self.config = config or EnvConfig()
+        place_env(self.config.device)
         if compilation_cache:
             enable_compilation_cache()
-        self.config = config or EnvConfig()
         from craftax.craftax_env import make_craftax_env_from_name
 
         self.craftax = make_craftax_env_from_name(

@@ -25,8 +25,9 @@ def enable_compilation_cache(directory: Path | None = None) -> Path:
         return directory
     directory.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(directory))
-    # Cache every compile that takes noticeable time; the tiny ones are cheaper to redo.
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    # Every compile, the small eager ones too: on a GPU each of those takes a noticeable part of
+    # a second, and a second process should compile nothing at all.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     _enabled_dir = directory
     return directory

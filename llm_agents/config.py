@@ -26,6 +26,7 @@ from pydantic import (
 
 from env.dataset import parse_categories
 from env.errors import UserError
+from env.placement import EnvDevice
 from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
 from llm_agents.actions import action_names
@@ -144,6 +145,9 @@ class EvalConfig(ModelSettings):
     world_seeding: WorldSeeding = "per_episode"
     """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
     episode in the one world of reset key PRNGKey(1), as the official loop plays."""
+    env_device: EnvDevice = "cpu"
+    """Where JAX steps the worlds: `cpu` (the accelerator stays the model's, and JAX claims none
+    of its memory) or `default` (JAX's default device)."""
 
     @classmethod
     def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
@@ -227,6 +231,7 @@ class EvalConfig(ModelSettings):
                 "record_steps",
                 "probe",
                 "max_consecutive_failures",
+                "env_device",
             },
         )
         settings["generation"] = self.generation.model_dump(

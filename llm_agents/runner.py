@@ -298,6 +298,7 @@ def execute_run(
         max_steps=config.max_steps,
         success_rule=config.success_rule,
         world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
+        device=config.env_device,
     )
     if env is None:
         env = CrafTextEnv(env_config)

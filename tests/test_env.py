@@ -3,6 +3,10 @@ batched vs single stepping, determinism and slot refills, in both variants."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -388,3 +392,59 @@ def test_masked_step_freezes_inactive_slots_and_timing_never_changes_a_trajector
     assert _leaves_equal(expected.game, host.game)
     assert host.steps.tolist() == expected.steps.tolist() == [steps] * batch
     assert np.allclose(reward, expected_reward) and np.array_equal(new, expected_new)
+
+
+@pytest.mark.slow
+def test_a_second_process_compiles_nothing(tmp_path: Path) -> None:
+    """Every env function a run compiles is loaded from the persistent cache the next time."""
+    child = """
+import sys
+from collections import Counter
+from jax import monitoring
+events = Counter()
+monitoring.register_event_listener(lambda name, **_: events.update([name]))
+import numpy as np
+from env import CrafTextEnv, EnvConfig, Variant, VectorEnv, episode_key
+from env.achievements import NUM_ACHIEVEMENTS
+vector = VectorEnv(CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=5)), 2)
+keys = np.stack([episode_key(0, "g", 0, i) for i in range(2)])
+required = np.zeros((2, NUM_ACHIEVEMENTS), bool)
+vector.reset(keys, required, required)
+vector.step(np.zeros(2, np.int32), np.array([True, False]))
+vector.refill([0], keys[:1], required[:1], required[:1])
+print(events["/jax/compilation_cache/cache_misses"], events["/jax/compilation_cache/cache_hits"])
+"""
+    environ = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path)}
+    counts = []
+    for _ in range(2):
+        done = subprocess.run(
+            [sys.executable, "-c", child], env=environ, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
+        counts.append([int(n) for n in done.stdout.split()])
+    (first_misses, _), (second_misses, second_hits) = counts
+    assert first_misses > 0
+    assert second_misses == 0 and second_hits >= first_misses
+
+
+@pytest.mark.parametrize("jax_started_first", [False, True])
+def test_the_env_keeps_jax_off_the_accelerator_by_default(jax_started_first: bool) -> None:
+    """Before JAX starts, only its CPU client is allowed (no accelerator memory is claimed);
+    after, the env's arrays still land on the CPU."""
+    child = f"""
+import jax, jax.numpy as jnp
+if {jax_started_first}:
+    jnp.zeros(1)
+from env import CrafTextEnv, EnvConfig, Variant
+env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC), compilation_cache=False)
+print(jax.config.jax_platforms, jax.config.jax_default_device.platform, jnp.zeros(1).devices())
+"""
+    environ = {k: v for k, v in os.environ.items() if k != "JAX_PLATFORMS"}
+    done = subprocess.run(
+        [sys.executable, "-c", child], env=environ, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    platforms, default_device, placed = done.stdout.split(maxsplit=2)
+    assert platforms == ("None" if jax_started_first else "cpu")
+    assert default_device == "cpu"
+    assert "CpuDevice" in placed
