@@ -325,9 +325,7 @@ class VectorEnv:
     def reset(self, keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray) -> HostBatch:
         """Start a new episode in every slot."""
         self._state = self._reset(*self._device_inputs(keys, required, forbidden))
-        zeros = jnp.zeros(self.batch_size, jnp.float32)
-        no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
-        return self._to_host(self._state, zeros, no_new, jnp.zeros(self.batch_size, jnp.bool_))
+        return self._fresh_host()
 
     def refill(
         self, slots: Sequence[int], keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray
@@ -356,9 +354,7 @@ class VectorEnv:
                 )
                 state = self._place(state, fresh, jnp.int32(slot))
         self._state = state
-        zeros = jnp.zeros(self.batch_size, jnp.float32)
-        no_new = jnp.zeros((self.batch_size, NUM_ACHIEVEMENTS), jnp.bool_)
-        return self._to_host(self._state, zeros, no_new, jnp.zeros(self.batch_size, jnp.bool_))
+        return self._fresh_host()
 
     def step(self, actions: np.ndarray, active: np.ndarray | None = None) -> HostBatch:
         """Step every slot, or only those where `active` is true (the others stay exactly as
@@ -395,6 +391,15 @@ class VectorEnv:
             at_game_over[group] = rows_over[:count]
         self._state = state
         return self._to_host(self._state, reward, new, at_game_over)
+
+    def _fresh_host(self) -> HostBatch:
+        # numpy zeros: an eager jnp.zeros would be one more compile on an accelerator.
+        return self._to_host(
+            self._require_state(),
+            np.zeros(self.batch_size, np.float32),
+            np.zeros((self.batch_size, NUM_ACHIEVEMENTS), bool),
+            np.zeros(self.batch_size, bool),
+        )
 
     def _require_state(self) -> EpisodeState:
         if self._state is None:
