@@ -1,46 +1,81 @@
 """Scheduling efficiency against a heavy-tailed server: lockstep vs continuous, side by side.
 
-A loopback OpenAI-compatible server (its own process) answers each request after a lognormal
-time (median 0.2 s, sigma 1: reasoning models' answer lengths are heavy-tailed) and records
-when each answer started and ended. Efficiency = sum of answer times / (in flight x busy span),
-measured at the server: 1.0 means every one of the `in flight` request slots was busy all the
+The episodes talk to a loopback OpenAI-compatible server (its own process) that records when
+each answer started and ended. Efficiency = sum of answer times / (in flight x busy span),
+measured at that server: 1.0 means every one of the `in flight` request slots was busy all the
 time. Two spans are reported: the whole run (which ends with the last episodes draining, as any
 finite run does), and the steady part, up to the first request of the last episode started.
 
+Servers (`--server`):
+- `lognormal`: answers after a lognormal time (median 0.2 s, sigma 1: reasoning models' answer
+  lengths are heavy-tailed);
+- `vllm`: a proxy in front of a real `vllm serve` of the embedded model on CPU (from the vLLM
+  environment, `$VLLM_VENV`), which gives each request a lognormal `max_tokens` (median 12,
+  sigma 1, at most 128) and `ignore_eos`, so answers really are of mixed lengths.
+
+Schedulers:
 - lockstep: the scheduling before continuous scheduling, reimplemented minimally here: every
   step sends all live episodes' prompts as one batch and waits for the slowest answer;
 - continuous: `run_eval` as shipped (each episode steps when its own answer arrives).
 
-    python benchmarks/bench_scheduling.py [--episodes 128] [--lockstep-episodes 32]
-        [--max-steps 20] [--in-flight 32] [--variant full]
+    python benchmarks/bench_scheduling.py [--server lognormal|vllm] [--episodes 128]
+        [--lockstep-episodes 32] [--max-steps 20] [--in-flight 32] [--variant full]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
 import random
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 from typing import Any
 
 MEDIAN_S = 0.2
 SIGMA = 1.0
+MEDIAN_TOKENS = 12
+MAX_TOKENS = 128
 ANSWERS = ["ACTION: LEFT", "ACTION: RIGHT", "ACTION: UP", "ACTION: DOWN", "ACTION: DO"]
 #: Text of the step template when the episode has no history yet: marks an episode's start.
 FIRST_STEP_MARK = "first step"
 
 
-def serve(seed: int) -> None:
-    """The server process: prints its port, answers chat completions, reports on GET /stats."""
+def serve(seed: int, upstream: str | None) -> None:
+    """The server process: prints its port, answers chat completions (itself, or through
+    `upstream` with a drawn `max_tokens`), reports on GET /stats."""
+    import httpx
+
     rng = random.Random(seed)
     lock = threading.Lock()
     answers: list[tuple[float, float, bool]] = []
+    client = httpx.Client(base_url=upstream, timeout=600) if upstream else None
+
+    def answer(body: dict[str, Any]) -> dict[str, Any]:
+        if client is None:
+            with lock:
+                delay = rng.lognormvariate(math.log(MEDIAN_S), SIGMA)
+                text = rng.choice(ANSWERS)
+            time.sleep(delay)
+            return {
+                "choices": [
+                    {"message": {"role": "assistant", "content": text}, "finish_reason": "stop"}
+                ],
+                "usage": {"prompt_tokens": 1, "completion_tokens": 2},
+            }
+        with lock:
+            tokens = rng.lognormvariate(math.log(MEDIAN_TOKENS), SIGMA)
+        body |= {"max_tokens": max(1, min(MAX_TOKENS, round(tokens))), "ignore_eos": True}
+        reply: dict[str, Any] = client.post("/chat/completions", json=body).json()
+        return reply
 
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
@@ -52,18 +87,7 @@ def serve(seed: int) -> None:
             start = time.monotonic()
             body = json.loads(self.rfile.read(int(self.headers.get("Content-Length") or 0)))
             first = FIRST_STEP_MARK in body["messages"][-1]["content"]
-            with lock:
-                delay = rng.lognormvariate(math.log(MEDIAN_S), SIGMA)
-                text = rng.choice(ANSWERS)
-            time.sleep(delay)
-            self._send(
-                {
-                    "choices": [
-                        {"message": {"role": "assistant", "content": text}, "finish_reason": "stop"}
-                    ],
-                    "usage": {"prompt_tokens": 1, "completion_tokens": 2},
-                }
-            )
+            self._send(answer(body))
             with lock:
                 answers.append((start, time.monotonic(), first))
 
@@ -90,6 +114,58 @@ def serve(seed: int) -> None:
     httpd = Server(("127.0.0.1", 0), Handler)
     print(httpd.server_address[1], flush=True)
     httpd.serve_forever()
+
+
+SERVED_NAME = "smollm2"
+VLLM_START_TIMEOUT_S = 600
+
+
+@contextlib.contextmanager
+def vllm_serve(max_seqs: int) -> Iterator[str]:
+    """`vllm serve` of the embedded model from the vLLM environment; yields its /v1 URL."""
+    import socket
+
+    import httpx
+
+    from llm_agents.backends.embedded import embedded_model_dir
+
+    venv = Path(os.environ.get("VLLM_VENV") or Path(__file__).parents[1] / ".venv-vllm")
+    if not (venv / "bin" / "vllm").exists():
+        sys.exit(f"no vLLM environment at {venv}: build it with scripts/setup_vllm_cpu.sh")
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    command = [
+        str(venv / "bin" / "vllm"), "serve", str(embedded_model_dir()),
+        "--served-model-name", SERVED_NAME, "--host", "127.0.0.1", "--port", str(port),
+        "--enforce-eager", "--dtype", "float32", "--max-model-len", "4096",
+        "--max-num-seqs", str(max_seqs),
+    ]  # fmt: skip
+    with tempfile.NamedTemporaryFile("w+", suffix=".log") as log:
+        server = subprocess.Popen(
+            command,
+            env={**os.environ, "VLLM_CPU_KVCACHE_SPACE": "2"},
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        try:
+            deadline = time.monotonic() + VLLM_START_TIMEOUT_S
+            while True:
+                if server.poll() is not None or time.monotonic() > deadline:
+                    log.seek(0)
+                    sys.exit(f"vllm serve did not start:\n{log.read()[-3000:]}")
+                with contextlib.suppress(httpx.TransportError):
+                    health = httpx.get(f"http://127.0.0.1:{port}/health", timeout=2)
+                    if health.status_code == 200:
+                        break
+                time.sleep(1)
+            yield f"http://127.0.0.1:{port}/v1"
+        finally:
+            server.terminate()
+            try:
+                server.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                server.kill()
 
 
 def efficiency(answers: list[list[Any]], in_flight: int) -> dict[str, float]:
@@ -164,10 +240,12 @@ def main() -> None:
     )
     parser.add_argument("--variant", default="full", choices=["full", "classic"])
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--server", default="lognormal", choices=["lognormal", "vllm"])
     parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--upstream", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve:
-        serve(args.seed)
+        serve(args.seed, args.upstream)
         return
 
     import httpx
@@ -177,20 +255,27 @@ def main() -> None:
     from llm_agents.config import build_config
     from llm_agents.runner import run_eval
 
-    server = subprocess.Popen(
-        [sys.executable, __file__, "--serve", "--seed", str(args.seed)],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
+    with contextlib.ExitStack() as stack:
+        upstream = (
+            stack.enter_context(vllm_serve(args.in_flight)) if args.server == "vllm" else None
+        )
+        server = subprocess.Popen(
+            [sys.executable, __file__, "--serve", "--seed", str(args.seed)]
+            + (["--upstream", upstream] if upstream else []),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        stack.callback(server.wait)
+        stack.callback(server.terminate)
         assert server.stdout is not None
         url = f"http://127.0.0.1:{server.stdout.readline().strip()}/v1"
+        model_name = SERVED_NAME if upstream else "bench"
         env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
 
         def settings(episodes: int, out: str) -> Any:
             return build_config(
                 {
-                    "model": f"openai:bench@{url}",
+                    "model": f"openai:{model_name}@{url}",
                     "variant": args.variant,
                     "splits": ["one", "combo", "paraphrased", "new_objects"],
                     "max_steps": args.max_steps,
@@ -217,12 +302,15 @@ def main() -> None:
             config = settings(args.episodes, f"{tmp}/continuous")
             run_eval(config, model, env=env)
             results["continuous"] = (args.episodes, stats())
-    finally:
-        server.terminate()
-        server.wait()
 
+    answers = (
+        f"vllm serve (embedded model, CPU), lognormal max_tokens (median {MEDIAN_TOKENS}, "
+        f"sigma {SIGMA}, at most {MAX_TOKENS})"
+        if args.server == "vllm"
+        else f"lognormal answer time (median {MEDIAN_S} s, sigma {SIGMA})"
+    )
     print(
-        f"server: lognormal answer time (median {MEDIAN_S} s, sigma {SIGMA}); "
+        f"server: {answers}; "
         f"{args.in_flight} episodes and {args.in_flight} requests in flight; "
         f"{args.variant} Craftax, {args.max_steps} steps per episode"
     )
