@@ -143,6 +143,14 @@ class EvalConfig(ModelSettings):
     """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
     episode in the one world of reset key PRNGKey(1), as the official loop plays."""
 
+    ray: bool = False
+    """Play the episodes on a Ray cluster (the one RAY_ADDRESS names, else a local one started
+    for the run): workers with their own env and model each, results written here as usual."""
+    ray_workers: int = Field(2, ge=1)
+    """--ray: worker actors, each playing --batch-size episodes at once (one per node, spread)."""
+    ray_worker_gpus: float = Field(0.0, ge=0.0)
+    """--ray: GPUs each worker reserves (1 for an in-process vllm: engine per GPU)."""
+
     @classmethod
     def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
         """The settings over their protocol's choices; explicit departures are recorded."""
@@ -231,6 +239,9 @@ class EvalConfig(ModelSettings):
                 "record_steps",
                 "probe",
                 "max_consecutive_failures",
+                "ray",
+                "ray_workers",
+                "ray_worker_gpus",
             },
         )
         settings["generation"] = self.generation.model_dump(

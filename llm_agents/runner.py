@@ -279,6 +279,18 @@ def run_eval(
     return execute_run(prepared, model, progress=progress, env=env)
 
 
+def make_env_config(config: EvalConfig) -> Any:
+    """The `EnvConfig` of the env a run's episodes are played in."""
+    from env import EnvConfig
+
+    return EnvConfig(
+        variant=config.variant,
+        max_steps=config.max_steps,
+        success_rule=config.success_rule,
+        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
+    )
+
+
 def execute_run(
     prepared: PreparedRun,
     model: ModelAPI,
@@ -291,15 +303,10 @@ def execute_run(
     `env` may pass an existing `CrafTextEnv` of the same variant and step cap (tests share one).
     Raises `BackendFailure` (after saving) when the backend failed too often in a row.
     """
-    from env import CrafTextEnv, EnvConfig
+    from env import CrafTextEnv
 
     config = prepared.config
-    env_config = EnvConfig(
-        variant=config.variant,
-        max_steps=config.max_steps,
-        success_rule=config.success_rule,
-        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
-    )
+    env_config = make_env_config(config)
     if env is None:
         env = CrafTextEnv(env_config)
     elif env.config != env_config:
