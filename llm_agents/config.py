@@ -147,7 +147,7 @@ class EvalConfig(ModelSettings):
     """Play the episodes on a Ray cluster (the one RAY_ADDRESS names, else a local one started
     for the run): workers with their own env and model each, results written here as usual."""
     ray_workers: int = Field(2, ge=1)
-    """--ray: worker actors, each playing --batch-size episodes at once (one per node, spread)."""
+    """--ray: worker actors, spread over the nodes, each playing --batch-size episodes at once."""
     ray_worker_gpus: float = Field(0.0, ge=0.0)
     """--ray: GPUs each worker reserves (1 for an in-process vllm: engine per GPU)."""
 
