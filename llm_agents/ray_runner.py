@@ -330,6 +330,19 @@ def _connect(ray: Any, config: EvalConfig) -> bool:
     return True
 
 
+def _check_resources(ray: Any, config: EvalConfig) -> None:
+    """Refuse workers the cluster cannot hold: Ray would leave them waiting for ever."""
+    available = ray.cluster_resources()
+    wanted = {"CPU": float(config.ray_workers), "GPU": config.ray_workers * config.ray_worker_gpus}
+    for resource, amount in wanted.items():
+        if amount > available.get(resource, 0.0):
+            raise UserError(
+                f"{config.ray_workers} Ray workers need {amount:g} {resource} in all, and the "
+                f"cluster has {available.get(resource, 0.0):g}: lower --ray-workers"
+                + (" or --ray-worker-gpus" if resource == "GPU" else "")
+            )
+
+
 def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None) -> RunOutcome:
     """Play the prepared run on Ray workers, writing the run directory here (see the module)."""
     ray = _import_ray()
@@ -337,6 +350,7 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
     disconnect = _connect(ray, config)
     workers: list[Any] = []
     try:
+        _check_resources(ray, config)
         actor = ray.remote(EpisodeWorker).options(
             num_cpus=1,
             num_gpus=config.ray_worker_gpus,

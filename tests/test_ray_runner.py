@@ -23,7 +23,7 @@ from llm_agents.backends.mock import MockModel
 from llm_agents.config import build_config
 from llm_agents.report import report_run
 from llm_agents.run_store import read_episodes, read_results
-from llm_agents.runner import prepare_run, run_eval
+from llm_agents.runner import BackendFailure, prepare_run, run_eval
 
 ray = pytest.importorskip("ray")
 
@@ -104,8 +104,17 @@ def test_a_ray_run_gives_the_episodes_of_a_local_run(
     assert report_run(tmp_path) == report_run(local_run)
 
 
+def _parent(pid: int) -> int:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return 0
+    return int(stat.rpartition(")")[2].split()[1])
+
+
 def worker_pids() -> list[int]:
-    """Processes of this machine's Ray episode workers, read from their titles."""
+    """Processes of the Ray episode workers of this test's cluster (its raylet is our child),
+    found by their titles."""
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -114,7 +123,12 @@ def worker_pids() -> list[int]:
             title = (entry / "cmdline").read_bytes().split(b"\0")[0]
         except OSError:
             continue
-        if title.startswith(b"ray::EpisodeWorker"):
+        if not title.startswith(b"ray::EpisodeWorker"):
+            continue
+        ancestor = int(entry.name)
+        while ancestor > 1 and ancestor != os.getpid():
+            ancestor = _parent(ancestor)
+        if ancestor == os.getpid():
             found.append(int(entry.name))
     return found
 
@@ -145,7 +159,8 @@ def test_a_worker_killed_mid_run_has_its_episodes_played_elsewhere(
         run_on_ray(prepare_run(slow))
     killer.join()
     assert killed, "no worker was running to kill"
-    assert any("lost" in record.getMessage() for record in caplog.records)
+    lost = [r.getMessage() for r in caplog.records if "lost" in r.getMessage()]
+    assert lost and "its 0 unfinished" not in lost[0], lost
     results = read_results(tmp_path / "results.json")
     assert results.status == "complete" and results.finished == EPISODES
     assert episodes(tmp_path) == episodes(local_run)
@@ -183,6 +198,29 @@ def test_a_killed_driver_is_resumed_by_the_same_command(
     assert results.status == "complete" and results.finished == EPISODES
     assert episodes(tmp_path) == episodes(local_run)
     assert decisions(tmp_path) == decisions(local_run)
+
+
+def test_a_model_that_does_not_answer_stops_a_ray_run_by_the_integrity_rules(
+    cluster: str, tmp_path: Path
+) -> None:
+    # The probe, in each worker, refuses the model before anything is written.
+    with pytest.raises(UserError, match="could not start: mock:error:gone does not answer: gone"):
+        run_on_ray(prepare_run(config(tmp_path, ray=True, model="mock:error:gone")))
+    assert not tmp_path.joinpath("results.json").exists()
+    # Without the probe, failed answers trip the circuit breaker, counted across the workers.
+    unprobed = config(
+        tmp_path, ray=True, model="mock:error:gone", probe=False, max_consecutive_failures=3
+    )
+    with pytest.raises(BackendFailure, match="3 failed model answers in a row"):
+        run_on_ray(prepare_run(unprobed))
+    results = read_results(tmp_path / "results.json")
+    assert results.status == "failed" and results.finished == 0
+    assert results.backend_errors.failed_calls >= 3
+
+
+def test_workers_the_cluster_cannot_hold_are_refused(cluster: str, tmp_path: Path) -> None:
+    with pytest.raises(UserError, match="need 1 GPU in all, and the cluster has 0"):
+        run_on_ray(prepare_run(config(tmp_path, ray=True, ray_workers=1, ray_worker_gpus=1)))
 
 
 def test_without_ray_installed_the_error_says_how_to_install_it(
