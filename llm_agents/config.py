@@ -35,7 +35,7 @@ from llm_agents.protocol import ProtocolName, apply_protocol
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
 
 #: Backend options that change how fast or where a model runs, never what it answers.
-TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env"})
+TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env", "health_interval_s"})
 
 
 class ModelSettings(BaseModel):
