@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
@@ -61,6 +61,9 @@ from llm_agents.run_store import (
     rewrite_lines,
     write_results,
 )
+
+if TYPE_CHECKING:
+    from env import EnvConfig
 
 logger = logging.getLogger(__name__)
 
@@ -279,7 +282,7 @@ def run_eval(
     return execute_run(prepared, model, progress=progress, env=env)
 
 
-def make_env_config(config: EvalConfig) -> Any:
+def make_env_config(config: EvalConfig) -> EnvConfig:
     """The `EnvConfig` of the env a run's episodes are played in."""
     from env import EnvConfig
 
