@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from fault_server import FaultServer
 
 from env import CrafTextEnv, EnvConfig, Variant
 from env.errors import UserError
@@ -216,6 +217,29 @@ def test_a_model_that_does_not_answer_stops_a_ray_run_by_the_integrity_rules(
     results = read_results(tmp_path / "results.json")
     assert results.status == "failed" and results.finished == 0
     assert results.backend_errors.failed_calls >= 3
+
+
+def test_the_workers_counts_per_server_add_up_in_the_results(
+    cluster: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    servers = [FaultServer(max_requests=1000).start() for _ in range(2)]
+    try:
+        spec = f"openai:test-model@{servers[0].url},{servers[1].url}"
+        run_on_ray(prepare_run(config(tmp_path, ray=True, model=spec, limit=4, max_steps=4)))
+    finally:
+        for server in servers:
+            server.stop()
+    results = read_results(tmp_path / "results.json")
+    assert results.status == "complete" and results.backend_errors.failed_calls == 0
+    chats = [sum(not r.key.startswith("GET ") for r in s.requests) for s in servers]
+    # Each worker's probe sends a one-token chat to each server (they list no models).
+    probes = 2
+    assert [(e.url, e.requests) for e in results.endpoints] == [
+        (servers[0].url, chats[0] - probes),
+        (servers[1].url, chats[1] - probes),
+    ]
+    assert sum(e.requests for e in results.endpoints) == len(steps(tmp_path))
 
 
 def test_workers_the_cluster_cannot_hold_are_refused(cluster: str, tmp_path: Path) -> None:
