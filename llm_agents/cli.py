@@ -133,7 +133,7 @@ def _progress_bar(enabled: bool) -> Any:
     return factory
 
 
-def _open_model(settings: ModelSettings) -> Any:
+def open_model(settings: ModelSettings) -> Any:
     """Load the model the settings name and check it answers (unless `probe` is off)."""
     from llm_agents.backends import get_model
 
@@ -162,23 +162,31 @@ def cmd_eval(args: argparse.Namespace) -> int:
     config: EvalConfig = _settings(args)
     prepared = prepare_run(config)
     needs_model = agent_class(config.agent).needs_model
-    with _open_model(config) if needs_model else NoModel() as model:
-        player = config.model if needs_model else "the scripted expert"
+    player = config.model if needs_model else "the scripted expert"
+    where = f" on Ray ({config.ray_workers} workers)" if config.ray else ""
+    banner = (
+        f"evaluating {player} ({config.agent}) on {', '.join(config.splits)} "
+        f"({config.variant.value} Craftax) -> {config.output_dir}{where}"
+    )
+    progress = _progress_bar(not args.no_progress)
+    try:
+        if config.ray:
+            from llm_agents.ray_runner import run_on_ray
+
+            print(banner, file=sys.stderr)
+            outcome = run_on_ray(prepared, progress=progress)
+        else:
+            with open_model(config) if needs_model else NoModel() as model:
+                print(banner, file=sys.stderr)
+                outcome = execute_run(prepared, model, progress=progress)
+    except KeyboardInterrupt:
         print(
-            f"evaluating {player} ({config.agent}) on {', '.join(config.splits)} "
-            f"({config.variant.value} Craftax) -> {config.output_dir}",
+            f"\ninterrupted: partial results are in {config.output_dir}; "
+            "rerun the same command to resume",
             file=sys.stderr,
         )
-        try:
-            outcome = execute_run(prepared, model, progress=_progress_bar(not args.no_progress))
-        except KeyboardInterrupt:
-            print(
-                f"\ninterrupted: partial results are in {config.output_dir}; "
-                "rerun the same command to resume",
-                file=sys.stderr,
-            )
-            _print_report(config.output_dir)
-            return EXIT_INTERRUPTED
+        _print_report(config.output_dir)
+        return EXIT_INTERRUPTED
     if outcome.missing_plans:
         print(
             f"note: {len(outcome.missing_plans)} instructions had no plan in {config.plans}",
@@ -279,7 +287,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     config: PlannerConfig = _settings(args)
     instructions, provenance = planned_instructions(config)
-    with _open_model(config) as model:
+    with open_model(config) as model:
         summary = plan_instructions(
             instructions, model, config, provenance, progress=not args.no_progress
         )

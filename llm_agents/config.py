@@ -40,7 +40,7 @@ from textualizer import RENDERERS
 DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
 
 #: Backend options that change how fast or where a model runs, never what it answers.
-TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env"})
+TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env", "health_interval_s"})
 
 
 class ModelSettings(BaseModel):
@@ -149,6 +149,14 @@ class EvalConfig(ModelSettings):
     """Where JAX steps the worlds: `cpu` (the accelerator stays the model's, and JAX claims none
     of its memory) or `default` (JAX's default device)."""
 
+    ray: bool = False
+    """Play the episodes on a Ray cluster (the one RAY_ADDRESS names, else a local one started
+    for the run): workers with their own env and model each, results written here as usual."""
+    ray_workers: int = Field(2, ge=1)
+    """--ray: worker actors, spread over the nodes, each playing --batch-size episodes at once."""
+    ray_worker_gpus: float = Field(0.0, ge=0.0)
+    """--ray: GPUs each worker reserves (1 for an in-process vllm: engine per GPU)."""
+
     @classmethod
     def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
         """The settings over their protocol's choices; explicit departures are recorded."""
@@ -232,6 +240,9 @@ class EvalConfig(ModelSettings):
                 "probe",
                 "max_consecutive_failures",
                 "env_device",
+                "ray",
+                "ray_workers",
+                "ray_worker_gpus",
             },
         )
         settings["generation"] = self.generation.model_dump(

@@ -26,6 +26,7 @@ from typing import Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_field
 
 from env.errors import UserError
+from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.metrics import Summary
 from llm_agents.records import EpisodeRecord
 
@@ -257,6 +258,9 @@ class RunResults(BaseModel):
     """Why a `failed` run stopped."""
     backend_errors: BackendErrors = Field(default_factory=BackendErrors)
     """Backend failures seen by the process that wrote this file (since it resumed)."""
+    endpoints: list[EndpointStats] = Field(default_factory=list)
+    """Per-server counts of an HTTP backend (one entry per URL of the model spec, summed over
+    Ray workers), since the run resumed; empty for in-process backends."""
     started_at: datetime
     """When the run started."""
     finished_at: datetime | None = None

@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
@@ -41,6 +41,7 @@ from env.rules import OFFICIAL_WORLD_KEY
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.zero_shot import Decision, StepPrompt
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
+from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.config import EvalConfig
 from llm_agents.metrics import Summary, summarize
 from llm_agents.records import EpisodeRecord, StepRecord
@@ -60,6 +61,9 @@ from llm_agents.run_store import (
     rewrite_lines,
     write_results,
 )
+
+if TYPE_CHECKING:
+    from env import EnvConfig
 
 logger = logging.getLogger(__name__)
 
@@ -278,6 +282,19 @@ def run_eval(
     return execute_run(prepared, model, progress=progress, env=env)
 
 
+def make_env_config(config: EvalConfig) -> EnvConfig:
+    """The `EnvConfig` of the env a run's episodes are played in."""
+    from env import EnvConfig
+
+    return EnvConfig(
+        variant=config.variant,
+        max_steps=config.max_steps,
+        success_rule=config.success_rule,
+        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
+        device=config.env_device,
+    )
+
+
 def execute_run(
     prepared: PreparedRun,
     model: ModelAPI,
@@ -290,20 +307,38 @@ def execute_run(
     `env` may pass an existing `CrafTextEnv` of the same variant and step cap (tests share one).
     Raises `BackendFailure` (after saving) when the backend failed too often in a row.
     """
-    from env import CrafTextEnv, EnvConfig
+    from env import CrafTextEnv
 
-    config, out = prepared.config, prepared.output_dir
-    env_config = EnvConfig(
-        variant=config.variant,
-        max_steps=config.max_steps,
-        success_rule=config.success_rule,
-        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
-        device=config.env_device,
-    )
+    config = prepared.config
+    env_config = make_env_config(config)
     if env is None:
         env = CrafTextEnv(env_config)
     elif env.config != env_config:
         raise ValueError("the env passed to run_eval does not match the config")
+    return run_schedule(
+        prepared,
+        versions(model),
+        lambda sink: _play(config, env, model, sink),
+        progress=progress,
+        endpoint_stats=model.endpoint_stats,
+    )
+
+
+def run_schedule(
+    prepared: PreparedRun,
+    model_versions: dict[str, str],
+    play: Callable[[_Sink], None],
+    *,
+    progress: ProgressFactory | None = None,
+    endpoint_stats: Callable[[], list[EndpointStats]] = list,
+) -> RunOutcome:
+    """Open the run directory (keeping the episodes that finished there), have `play` run the
+    pending ones through the sink, and save the results: the part of a run that is the same
+    wherever the episodes are played (in this process, or on Ray workers).
+
+    Raises `BackendFailure` (after saving) when the backend failed too often in a row.
+    """
+    config, out = prepared.config, prepared.output_dir
     make_output_dir(out)
     scheduled_ids = {spec.episode_id for spec in prepared.schedule}
     finished = _finished_episodes(out)
@@ -314,18 +349,20 @@ def execute_run(
     results = RunResults(
         config=config.model_dump(mode="json"),
         identity=prepared.identity,
-        versions=versions(model),
+        versions=model_versions,
         dataset=prepared.dataset_source
         | {"missing_plans": len(prepared.missing_plans), "instructions": prepared.instructions},
         schedule=[spec.episode_id for spec in prepared.schedule],
         started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
     )
-    sink = _Sink(out, results, scheduled_ids, finished, list(reversed(pending)), config)
+    sink = _Sink(
+        out, results, scheduled_ids, finished, list(reversed(pending)), config, endpoint_stats
+    )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None
     try:
         if pending:
-            _play(config, env, model, sink)
+            play(sink)
     except KeyboardInterrupt:
         # The interrupt may land between an episode's line and its count in memory: the
         # summary is rebuilt from the file, so the two always agree.
@@ -358,8 +395,10 @@ class _Sink:
         finished: list[EpisodeRecord],
         queue: list[ScheduledEpisode],
         config: EvalConfig,
+        endpoint_stats: Callable[[], list[EndpointStats]] = list,
     ):
         self.out = out
+        self.endpoint_stats = endpoint_stats
         self.results = results
         self.scheduled_ids = scheduled_ids
         self.episodes = finished
@@ -381,6 +420,10 @@ class _Sink:
         if self.stopped:
             return []
         return [self.queue.pop() for _ in range(min(count, len(self.queue)))]
+
+    def put_back(self, specs: Sequence[ScheduledEpisode]) -> None:
+        """Episodes taken but lost unplayed (a Ray worker died): they are taken again first."""
+        self.queue.extend(sorted(specs, key=lambda spec: spec.index, reverse=True))
 
     def record(
         self,
@@ -430,6 +473,7 @@ class _Sink:
         results = self.results
         counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
         results.finished = len(counted)
+        results.endpoints = self.endpoint_stats()
         results.summary = summarize(counted) if counted else None
         if failure is not None:
             results.status, results.failure = "failed", failure
@@ -538,7 +582,24 @@ def world_key(seed: int, goal_id: str, instruction_variant: int, repeat: int) ->
     return episode_key(seed, goal_id, instruction_variant, repeat)
 
 
-def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: _Sink) -> None:
+class EpisodeSink(Protocol):
+    """What `_play` takes episodes from and hands records to: the run's `_Sink` here, or a Ray
+    worker's, which ships them to the driver's."""
+
+    stopped: bool
+
+    def take(self, count: int) -> list[ScheduledEpisode]: ...
+
+    def record(
+        self,
+        decisions: list[Decision],
+        steps: list[StepRecord],
+        ended: list[EpisodeRecord],
+        aborted: list[str],
+    ) -> None: ...
+
+
+def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSink) -> None:
     """Continuous scheduling: up to `batch_size` episodes in flight, each stepping as soon as
     its own answer arrives, a finished one's slot refilled at once.
 

@@ -4,11 +4,17 @@ Faults are planned per conversation (keyed by the last message's text), so a pla
 when requests arrive concurrently and in any order. Each request pops the next fault of its key;
 when a key's plan is empty the server answers normally. The server only ever binds 127.0.0.1 and
 refuses to serve more than `max_requests` requests, so a retry loop gone wrong stays bounded.
+
+Run as a script (`python tests/fault_server.py --latency 0.05 --capacity 4`) it is a server of its
+own process, printing its URL: one that can be killed like a real one (`--die-after N` exits on
+the Nth chat request, dropping every connection), or a fixed-latency server for benchmarks.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import socket
 import threading
 import time
@@ -75,12 +81,21 @@ class FaultServer:
     required_key: str | None = None
     """When set, every request without `Authorization: Bearer <key>` gets a 401."""
     max_requests: int = 200
+    latency_s: float = 0.0
+    """Every normal answer waits this long, like a model generating."""
+    capacity: int | None = None
+    """At most this many answers generated at once (others queue), like one GPU's batch."""
+    die_after: int | None = None
+    """The process exits at once on this chat request (a script server only: kills the tests)."""
+    port: int = 0
+    """Port to bind on 127.0.0.1; 0 picks a free one."""
     requests: list[Request] = field(default_factory=list)
     in_flight: int = 0
     max_in_flight: int = 0
     url: str = ""
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _httpd: ThreadingHTTPServer | None = None
+    _slots: threading.BoundedSemaphore | None = None
 
     def count(self, key: str) -> int:
         """Requests received for one conversation key."""
@@ -129,6 +144,8 @@ class FaultServer:
                     return
                 key = str(body.get("messages", [{}])[-1].get("content", ""))
                 with state._lock:
+                    if state.die_after is not None and len(state.requests) + 1 >= state.die_after:
+                        os._exit(1)
                     if len(state.requests) >= state.max_requests:
                         self._send(503, {"error": "fault server request budget spent"})
                         return
@@ -173,6 +190,12 @@ class FaultServer:
                 if state.reject_structured_outputs and "structured_outputs" in body:
                     self._send(400, self._error("unknown field structured_outputs"))
                     return
+                if state.latency_s:
+                    if state._slots is None:
+                        time.sleep(state.latency_s)
+                    else:
+                        with state._slots:
+                            time.sleep(state.latency_s)
                 message = dict(state.answer(body))
                 finish = message.pop("finish_reason", "stop")
                 self._send(
@@ -206,7 +229,9 @@ class FaultServer:
                 self.end_headers()
                 self.wfile.write(data)
 
-        httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        if self.capacity is not None:
+            self._slots = threading.BoundedSemaphore(self.capacity)
+        httpd = ThreadingHTTPServer(("127.0.0.1", self.port), Handler)
         httpd.daemon_threads = True
         self._httpd = httpd
         # A short poll keeps shutdown (once per test) quick.
@@ -219,3 +244,26 @@ class FaultServer:
             self._httpd.shutdown()
             self._httpd.server_close()
             self._httpd = None
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="a loopback OpenAI-compatible test server")
+    parser.add_argument("--latency", type=float, default=0.0, help="seconds per answer")
+    parser.add_argument("--capacity", type=int, help="answers generated at once")
+    parser.add_argument("--die-after", type=int, help="exit on this chat request")
+    parser.add_argument("--port", type=int, default=0)
+    parser.add_argument("--max-requests", type=int, default=1_000_000)
+    args = parser.parse_args()
+    server = FaultServer(
+        latency_s=args.latency,
+        capacity=args.capacity,
+        die_after=args.die_after,
+        port=args.port,
+        max_requests=args.max_requests,
+    ).start()
+    print(server.url, flush=True)
+    threading.Event().wait()
+
+
+if __name__ == "__main__":
+    main()

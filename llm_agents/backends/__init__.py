@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import re
 from typing import Any
 
 from pydantic import BaseModel
@@ -72,7 +73,13 @@ def parse_model_spec(spec: str) -> ModelSpec:
         )
     base_url = None
     if backend == "openai" and "@" in rest:
-        rest, _, base_url = rest.rpartition("@")
+        # The first `@http(s)://` starts the URL(s): model names may hold `@`, and so may the
+        # credentials of a URL, and a list of URLs holds several `@http`.
+        found = re.search(r"@(?=https?://)", rest)
+        if found:
+            rest, base_url = rest[: found.start()], rest[found.end() :]
+        else:
+            rest, _, base_url = rest.rpartition("@")
     if not rest and backend != "mock":
         raise UserError(f"model spec {spec!r} names no model after {backend}:")
     return ModelSpec(backend=backend, name=rest, base_url=base_url)

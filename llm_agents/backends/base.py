@@ -17,6 +17,7 @@ from typing import Any, ClassVar, Literal, Self
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from env.errors import UserError
+from llm_agents.backends.endpoints import EndpointStats
 
 logger = logging.getLogger(__name__)
 
@@ -284,6 +285,10 @@ class ModelAPI(abc.ABC):
     def info(self) -> dict[str, str]:
         """Backend, model and library versions, recorded in results."""
         return {"backend": self.backend_name, "model": self.model_name}
+
+    def endpoint_stats(self) -> list[EndpointStats]:
+        """Per-server counts of a backend that talks to servers (recorded in results); none here."""
+        return []
 
     def close(self) -> None:
         """Release resources (processes, GPU memory, connections)."""

@@ -35,6 +35,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
 )
+from llm_agents.backends.endpoints import EndpointStats
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS responses (
@@ -124,6 +125,9 @@ class CachedModel(ModelAPI):
 
     def probe(self) -> None:
         self.model.probe()
+
+    def endpoint_stats(self) -> list[EndpointStats]:
+        return self.model.endpoint_stats()
 
     def info(self) -> dict[str, str]:
         return {**self.model.info(), "response_cache": str(self.path)}

@@ -1,7 +1,10 @@
 """Backend for any OpenAI-compatible chat server: vLLM's `vllm serve`, or a hosted provider.
 
 Spec: `openai:<model>@<base url>`, e.g. `openai:HuggingFaceTB/SmolLM2-135M-Instruct@http://127.0.0.1:8000/v1`;
-without `@url` the base URL comes from `OPENAI_BASE_URL`. The API key is read from an environment
+without `@url` the base URL comes from `OPENAI_BASE_URL`. Several base URLs separated by commas
+(`openai:M@http://a:8000/v1,http://b:8000/v1`) serve one model from several servers: each attempt
+goes to the one with the fewest requests in flight, and a failing one is taken out of rotation
+and health-checked until it answers again (`endpoints.py`). The API key is read from an environment
 variable (`OPENAI_API_KEY` unless `api_key_env` names another) and is scrubbed from every error
 and log line. Requests run concurrently (at most `max_concurrency` in flight) on an event loop
 inside the synchronous `generate`; transient failures are retried by the policy in `retry.py`.
@@ -36,6 +39,7 @@ from llm_agents.backends.base import (
     ModelOutput,
     bad_options,
 )
+from llm_agents.backends.endpoints import Endpoint, EndpointPool, EndpointStats, takes_out
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
 from llm_agents.backends.retry import (
     RetryPolicy,
@@ -60,7 +64,8 @@ class OpenAIOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     base_url: str | None = None
-    """Server root up to `/v1`; None reads `OPENAI_BASE_URL`."""
+    """Server root up to `/v1`, or several separated by commas (requests spread over them); None
+    reads `OPENAI_BASE_URL`."""
     api_key_env: str = DEFAULT_API_KEY_ENV
     """Environment variable holding the API key; when the default one is unset no key is sent (local servers)."""
     backoff_initial_s: float = Field(1.0, ge=0.0)
@@ -75,6 +80,8 @@ class OpenAIOptions(BaseModel):
     """Constrain choice answers with the server's structured outputs; off, or after the server rejects it, choices are answered in free text."""
     extra_body: dict[str, Any] = Field(default_factory=dict)
     """Extra JSON fields merged into every request (server-specific sampling options)."""
+    health_interval_s: float = Field(5.0, gt=0.0)
+    """With several URLs: seconds between health checks of an endpoint taken out of rotation."""
 
 
 class RequestFailed(Exception):
@@ -110,20 +117,14 @@ class OpenAIModel(ModelAPI):
                 f"no server URL for openai:{model_name}; write openai:{model_name}@http://HOST:PORT/v1 "
                 "or set OPENAI_BASE_URL"
             )
-        if not base_url.startswith(("http://", "https://")):
-            raise UserError(f"server URL {base_url!r} must start with http:// or https://")
-        try:
-            url = httpx.URL(base_url.rstrip("/"))
-        except httpx.InvalidURL as err:
-            raise UserError(f"server URL is not a valid URL: {err}") from None
-        # Credentials in the URL travel as a Basic auth header instead, so that neither httpx's
-        # request log nor any message shows them; the password is then redacted like the key.
-        self.base_url = str(url.copy_with(userinfo=b""))
-        self._auth = httpx.BasicAuth(url.username, url.password) if url.userinfo else None
-        written = url.userinfo.decode("ascii", "replace").partition(":")[2]
-        header = base64.b64encode(f"{url.username}:{url.password}".encode()).decode()
-        self._url_secrets = (
-            [SecretStr(p) for p in {written, url.password, header} if p] if url.userinfo else []
+        self._auth: dict[str, httpx.BasicAuth | None] = {}
+        self._url_secrets: list[SecretStr] = []
+        for written_url in (part.strip() for part in base_url.split(",")):
+            self._add_endpoint(written_url)
+        #: Every endpoint's URL, comma-separated, as messages and results name the server.
+        self.base_url = ",".join(self._auth)
+        self.pool = EndpointPool(
+            list(self._auth), self._healthy, health_interval_s=self.settings.health_interval_s
         )
         key = os.environ.get(self.settings.api_key_env)
         # SecretStr keeps the key out of reprs, tracebacks' locals and debug dumps.
@@ -138,6 +139,24 @@ class OpenAIModel(ModelAPI):
         # Built once: loading the CA bundle costs ~30 ms of CPU, and every `generate` call
         # opens a client (the runner makes one call per request, many at a time).
         self._ssl_context = httpx.create_ssl_context()
+
+    def _add_endpoint(self, written: str) -> None:
+        if not written.startswith(("http://", "https://")):
+            raise UserError(f"server URL {written!r} must start with http:// or https://")
+        try:
+            url = httpx.URL(written.rstrip("/"))
+        except httpx.InvalidURL as err:
+            raise UserError(f"server URL is not a valid URL: {err}") from None
+        # Credentials in the URL travel as a Basic auth header instead, so that neither httpx's
+        # request log nor any message shows them; the password is then redacted like the key.
+        bare = str(url.copy_with(userinfo=b""))
+        if bare in self._auth:
+            raise UserError(f"server URL {bare} is listed twice")
+        self._auth[bare] = httpx.BasicAuth(url.username, url.password) if url.userinfo else None
+        if url.userinfo:
+            password = url.userinfo.decode("ascii", "replace").partition(":")[2]
+            header = base64.b64encode(f"{url.username}:{url.password}".encode()).decode()
+            self._url_secrets += [SecretStr(p) for p in {password, url.password, header} if p]
 
     @property
     def retry_policy(self) -> RetryPolicy:
@@ -155,6 +174,12 @@ class OpenAIModel(ModelAPI):
 
     def info(self) -> dict[str, str]:
         return {**super().info(), "base_url": self.base_url, "httpx": httpx.__version__}
+
+    def endpoint_stats(self) -> list[EndpointStats]:
+        return self.pool.stats()
+
+    def close(self) -> None:
+        self.pool.close()
 
     def generate(
         self,
@@ -187,12 +212,7 @@ class OpenAIModel(ModelAPI):
         limits = httpx.Limits(max_connections=limit, max_keepalive_connections=limit)
         semaphore = asyncio.Semaphore(limit)
         async with httpx.AsyncClient(
-            base_url=self.base_url,
-            timeout=timeout,
-            limits=limits,
-            headers=self._headers(),
-            auth=self._auth,
-            verify=self._ssl_context,
+            timeout=timeout, limits=limits, headers=self._headers(), verify=self._ssl_context
         ) as client:
 
             async def one(conversation: Conversation) -> ModelOutput:
@@ -264,12 +284,16 @@ class OpenAIModel(ModelAPI):
     async def _post_with_retries(
         self, client: httpx.AsyncClient, body: dict[str, Any]
     ) -> dict[str, Any]:
-        url = f"{self.base_url}/chat/completions"
+        url = (
+            f"{self.base_url}/chat/completions"
+            if len(self._auth) == 1
+            else f"/chat/completions on {self.base_url}"
+        )
         policy = self.retry_policy
         try:
             async for attempt in async_retrying(policy, f"POST {url}"):
                 with attempt:
-                    return await self._post_once(client, body, policy.attempt_timeout_s)
+                    return await self._attempt(client, body, policy.attempt_timeout_s)
         except RetryError as exhausted:
             last = exhausted.last_attempt
             raise RequestFailed(
@@ -277,14 +301,40 @@ class OpenAIModel(ModelAPI):
             ) from None
         raise AssertionError("tenacity returned without a result")  # pragma: no cover
 
-    async def _post_once(
+    async def _attempt(
         self, client: httpx.AsyncClient, body: dict[str, Any], timeout_s: float
+    ) -> dict[str, Any]:
+        """One attempt, on the endpoint the pool picks; the outcome goes back to the pool."""
+        endpoint = self.pool.acquire()
+        started = time.perf_counter()
+        try:
+            reply = await self._post_once(client, endpoint.url, body, timeout_s)
+        except TransientError as err:
+            err.failover = self.pool.failed(endpoint, take_out=takes_out(err.status))
+            if len(self.pool.endpoints) > 1:
+                err.args = (f"{endpoint.url}: {err}",)
+            raise
+        except _Rejected:
+            self.pool.failed(endpoint, take_out=False)
+            raise
+        except BaseException:
+            self.pool.released(endpoint)
+            raise
+        self.pool.succeeded(endpoint, time.perf_counter() - started)
+        return reply
+
+    async def _post_once(
+        self, client: httpx.AsyncClient, base_url: str, body: dict[str, Any], timeout_s: float
     ) -> dict[str, Any]:
         try:
             # httpx's timeout bounds each read; this bounds the whole request, so a server that
             # trickles bytes cannot hold a slot for ever.
             async with asyncio.timeout(timeout_s):
-                response = await client.post("/chat/completions", json=body)
+                response = await client.post(
+                    f"{base_url}/chat/completions",
+                    json=body,
+                    auth=self._auth[base_url] or httpx.USE_CLIENT_DEFAULT,
+                )
         except (TimeoutError, httpx.TimeoutException):
             raise TransientError(f"no answer within {timeout_s:g} s") from None
         except httpx.TransportError as err:
@@ -299,9 +349,7 @@ class OpenAIModel(ModelAPI):
             if is_transient_status(status):
                 retry_after = parse_retry_after(response.headers.get("retry-after"))
                 raise TransientError(message, status=status, retry_after_s=retry_after)
-            raise _Rejected(
-                f"POST {self.base_url}/chat/completions rejected, not retried: {message}"
-            )
+            raise _Rejected(f"POST {base_url}/chat/completions rejected, not retried: {message}")
         try:
             reply = response.json()
         except (json.JSONDecodeError, UnicodeDecodeError):
@@ -346,20 +394,24 @@ class OpenAIModel(ModelAPI):
     # ------------------------------------------------------------------ probe
 
     async def _probe(self) -> None:
+        # Every endpoint must pass: a wrong URL among several is a mistake to fix before the run.
+        await asyncio.gather(*(self._probe_endpoint(url) for url in self._auth))
+
+    async def _probe_endpoint(self, base_url: str) -> None:
         timeout_s = min(self.config.timeout_s, PROBE_TIMEOUT_S)
         async with httpx.AsyncClient(
-            base_url=self.base_url,
+            base_url=base_url,
             timeout=httpx.Timeout(timeout_s),
             headers=self._headers(),
-            auth=self._auth,
+            auth=self._auth[base_url],
         ) as client:
-            listing = await self._probe_request(client, "GET", "/models", None, timeout_s)
+            listing = await self._probe_request(client, base_url, "GET", "/models", None, timeout_s)
             served = _served_models(listing) if listing.status_code == 200 else None
             if served is not None:
-                self._check_served(served)
+                self._check_served(served, base_url)
                 return
             if listing.status_code not in (404, 405, 200):
-                self._probe_refused(listing, "GET /models")
+                self._probe_refused(listing, base_url, "GET /models")
             # No model list here: one real request of a single token tells as much.
             body = {
                 "model": self.model_name,
@@ -367,13 +419,32 @@ class OpenAIModel(ModelAPI):
                 "max_tokens": 1,
                 **self.settings.extra_body,
             }
-            chat = await self._probe_request(client, "POST", "/chat/completions", body, timeout_s)
+            chat = await self._probe_request(
+                client, base_url, "POST", "/chat/completions", body, timeout_s
+            )
             if chat.status_code != 200:
-                self._probe_refused(chat, f"a one-token request to model {self.model_name!r}")
+                self._probe_refused(
+                    chat, base_url, f"a one-token request to model {self.model_name!r}"
+                )
+
+    def _healthy(self, endpoint: Endpoint) -> bool:
+        """A health check of an endpoint out of rotation: any answer but a 5xx to `GET /models`."""
+        try:
+            response = httpx.get(
+                f"{endpoint.url}/models",
+                headers=self._headers(),
+                auth=self._auth[endpoint.url],
+                timeout=min(self.config.timeout_s, PROBE_TIMEOUT_S),
+                verify=self._ssl_context,
+            )
+        except httpx.HTTPError:
+            return False
+        return response.status_code < 500
 
     async def _probe_request(
         self,
         client: httpx.AsyncClient,
+        base_url: str,
         method: str,
         path: str,
         body: dict[str, Any] | None,
@@ -385,16 +456,16 @@ class OpenAIModel(ModelAPI):
                 return await client.request(method, path, json=body)
         except (TimeoutError, httpx.TimeoutException):
             raise UserError(
-                f"no answer from {self.base_url} within {timeout_s:g} s: check the URL and that "
-                "the server is up"
+                f"no answer from {base_url} within {timeout_s:g} s: check the URL and "
+                "that the server is up"
             ) from None
         except httpx.TransportError as err:
             cause = self._excerpt(_transport_cause(err), 120)
             raise UserError(
-                f"cannot reach {self.base_url}: {cause}; check the URL and that the server is up"
+                f"cannot reach {base_url}: {cause}; check the URL and that the server is up"
             ) from None
 
-    def _probe_refused(self, response: httpx.Response, what: str) -> None:
+    def _probe_refused(self, response: httpx.Response, base_url: str, what: str) -> None:
         status = response.status_code
         excerpt = self._excerpt(response.text, 160)
         if status in (401, 403):
@@ -405,20 +476,20 @@ class OpenAIModel(ModelAPI):
                 else f"check the key in {env}"
             )
             raise UserError(
-                f"{self.base_url} refused the API key (HTTP {status}): {advice}; server said: {excerpt}"
+                f"{base_url} refused the API key (HTTP {status}): {advice}; server said: {excerpt}"
             )
         if status >= 500:
-            raise UserError(f"{self.base_url} failed {what} (HTTP {status}): {excerpt}")
-        raise UserError(f"{self.base_url} refused {what} (HTTP {status}): {excerpt}")
+            raise UserError(f"{base_url} failed {what} (HTTP {status}): {excerpt}")
+        raise UserError(f"{base_url} refused {what} (HTTP {status}): {excerpt}")
 
-    def _check_served(self, served: list[str]) -> None:
+    def _check_served(self, served: list[str], base_url: str) -> None:
         if self.model_name in served:
             return
         close = difflib.get_close_matches(self.model_name, served, n=3, cutoff=0.4)
         hint = f"; did you mean {' or '.join(repr(m) for m in close)}?" if close else ""
         shown = ", ".join(served[:LISTED_MODELS]) + (" ..." if len(served) > LISTED_MODELS else "")
         raise UserError(
-            f"model {self.model_name!r} is not served at {self.base_url}{hint} "
+            f"model {self.model_name!r} is not served at {base_url}{hint} "
             f"(served: {shown or 'none'})"
         )
 

@@ -4,7 +4,9 @@ A call is retried only when it raises `TransientError`: rate limits (429), serve
 timeouts, dropped connections, garbled responses. Anything else fails at once. Waits grow
 exponentially with random jitter, so that many clients hitting one overloaded server spread out;
 a server's `Retry-After` is honoured as a lower bound on the wait, capped so that one bad header
-cannot stall a run for hours.
+cannot stall a run for hours. A failure that took its server out of a pool of several
+(`endpoints.py`) while another is still in is retried there at once: the wait is for a server to
+recover, and the next attempt does not go to that server.
 """
 
 from __future__ import annotations
@@ -66,6 +68,9 @@ class TransientError(Exception):
         """HTTP status, when the server answered at all."""
         self.retry_after_s = retry_after_s
         """The server's `Retry-After`, in seconds from now, when it sent one."""
+        self.failover = False
+        """Set when the failed server was taken out of its pool and another can take the retry
+        now: the retry does not wait (it still counts as one)."""
 
 
 def is_transient_status(status: int) -> bool:
@@ -109,6 +114,8 @@ def async_retrying(policy: RetryPolicy, description: str = "request") -> AsyncRe
 
     def wait(state: RetryCallState) -> float:
         error = state.outcome.exception() if state.outcome else None
+        if isinstance(error, TransientError) and error.failover:
+            return 0.0
         retry_after = error.retry_after_s if isinstance(error, TransientError) else None
         return backoff_wait(policy, state.attempt_number, retry_after)
 
