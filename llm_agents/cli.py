@@ -133,31 +133,10 @@ def _progress_bar(enabled: bool) -> Any:
     return factory
 
 
-def open_model(settings: ModelSettings) -> Any:
-    """Load the model the settings name and check it answers (unless `probe` is off)."""
-    from llm_agents.backends import get_model
-
-    model = get_model(settings.model, settings.generation, **settings.backend_options)
-    choice = getattr(settings, "choice", None)
-    if choice is not None:
-        model.check_choice_rule(choice)
-    if settings.cache:
-        from llm_agents.backends.cache import CachedModel
-
-        model = CachedModel(model, settings.cache)
-    if settings.probe:
-        try:
-            model.probe()
-        except BaseException:
-            model.close()
-            raise
-    return model
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     from llm_agents.agents import NoModel, agent_class
     from llm_agents.report import report_run
-    from llm_agents.runner import execute_run, prepare_run
+    from llm_agents.runner import execute_run, open_model, prepare_run
 
     config: EvalConfig = _settings(args)
     prepared = prepare_run(config)
@@ -284,6 +263,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from llm_agents.planner import PlannerConfig, plan_instructions, planned_instructions
+    from llm_agents.runner import open_model
 
     config: PlannerConfig = _settings(args)
     instructions, provenance = planned_instructions(config)

@@ -182,7 +182,7 @@ class EpisodeWorker:
         try:
             from env import CrafTextEnv
             from llm_agents.agents import NoModel, agent_class
-            from llm_agents.cli import open_model
+            from llm_agents.runner import open_model
 
             self._env = CrafTextEnv(make_env_config(config))
             self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()

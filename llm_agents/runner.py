@@ -42,7 +42,7 @@ from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.zero_shot import Decision, StepPrompt
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 from llm_agents.backends.endpoints import EndpointStats
-from llm_agents.config import EvalConfig
+from llm_agents.config import EvalConfig, ModelSettings
 from llm_agents.metrics import Summary, summarize
 from llm_agents.records import EpisodeRecord, StepRecord
 from llm_agents.run_store import (
@@ -280,6 +280,27 @@ def run_eval(
     if config.probe:
         model.probe()
     return execute_run(prepared, model, progress=progress, env=env)
+
+
+def open_model(settings: ModelSettings) -> ModelAPI:
+    """Load the model the settings name and check it answers (unless `probe` is off)."""
+    from llm_agents.backends import get_model
+
+    model = get_model(settings.model, settings.generation, **settings.backend_options)
+    choice = getattr(settings, "choice", None)
+    if choice is not None:
+        model.check_choice_rule(choice)
+    if settings.cache:
+        from llm_agents.backends.cache import CachedModel
+
+        model = CachedModel(model, settings.cache)
+    if settings.probe:
+        try:
+            model.probe()
+        except BaseException:
+            model.close()
+            raise
+    return model
 
 
 def make_env_config(config: EvalConfig) -> EnvConfig:
