@@ -77,7 +77,7 @@ class Cell(BaseModel):
 
 def build_workload(max_tokens: int) -> Workload:
     """Agent-like prompts over the classic action set (17 names)."""
-    from llm_agents.actions import action_names
+    from llm_agents.agents.actions import action_names
 
     names = list(action_names("classic"))
     system = (

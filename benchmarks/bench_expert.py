@@ -25,9 +25,9 @@ from pathlib import Path
 
 from env.dataset import Dataset, DatasetSource, Goal, category_of
 from llm_agents.agents import NoModel
-from llm_agents.config import build_config
-from llm_agents.run_store import read_episodes
-from llm_agents.runner import run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import run_eval
+from llm_agents.run_data.store import read_episodes
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "craftext_official_easy.json"
 

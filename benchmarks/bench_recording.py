@@ -13,8 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from llm_agents.records import StepRecord
-from llm_agents.run_store import append_lines
+from llm_agents.run_data.records import StepRecord
+from llm_agents.run_data.store import append_lines
 
 INTEGRITY_FIELDS = {"finish_reason", "error", "cached", "followups"}
 OBSERVATION = "\n".join(f"tree at ({i}, {-i}), 3 steps away" for i in range(20))

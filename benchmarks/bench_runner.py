@@ -28,7 +28,7 @@ PARTS = {
     "observe": ("textualizer", "observe_batch"),
     "prompt (render text, template)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "prepare"),
     "decide (parse, hash)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "decide"),
-    "records + JSON lines": ("llm_agents.runner:_Sink", "record"),
+    "records + JSON lines": ("llm_agents.evaluation.runner:_Sink", "record"),
 }
 
 
@@ -60,8 +60,8 @@ def timed_run(
 ) -> tuple[float, int]:
     """Seconds for the run and agent-steps taken, after a warm-up run of the same shape."""
     from llm_agents.backends.mock import MockModel
-    from llm_agents.config import build_config
-    from llm_agents.runner import run_eval
+    from llm_agents.evaluation.config import build_config
+    from llm_agents.evaluation.runner import run_eval
 
     settings = {
         "model": "mock:cycle:LEFT",

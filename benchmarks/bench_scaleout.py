@@ -41,7 +41,7 @@ def _environment() -> dict[str, str]:
 
 def _eval(args: argparse.Namespace, model: str, out: Path, *extra: str) -> tuple[float, float]:
     """Run `craftext-llm eval`; (wall seconds of the command, episodes/s while playing)."""
-    from llm_agents.run_store import read_results
+    from llm_agents.run_data.store import read_results
 
     argv = [
         sys.executable, "-m", "llm_agents.cli", "eval", "--model", model, "--variant", "classic",
@@ -136,7 +136,7 @@ def endpoints_throughput(args: argparse.Namespace, root: Path) -> None:
                 args, model, out, "--batch-size", str(args.in_flight),
                 "--max-concurrency", str(args.in_flight),
             )  # fmt: skip
-            from llm_agents.run_store import read_results
+            from llm_agents.run_data.store import read_results
 
             results = read_results(out / "results.json")
             assert results.summary is not None and results.finished_at is not None

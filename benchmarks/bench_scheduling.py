@@ -193,7 +193,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
     from env import VectorEnv, episode_key, goal_masks
     from env.dataset import load_dataset
     from llm_agents.agents.zero_shot import ZeroShotAgent
-    from llm_agents.runner import build_schedule
+    from llm_agents.evaluation.runner import build_schedule
     from textualizer import observe_batch
 
     instructions = load_dataset(config.dataset).instructions(config.splits)
@@ -252,8 +252,8 @@ def main() -> None:
 
     from env import CrafTextEnv, EnvConfig, Variant
     from llm_agents.backends import get_model
-    from llm_agents.config import build_config
-    from llm_agents.runner import run_eval
+    from llm_agents.evaluation.config import build_config
+    from llm_agents.evaluation.runner import run_eval
 
     with contextlib.ExitStack() as stack:
         upstream = (

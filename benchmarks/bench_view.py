@@ -18,8 +18,8 @@ from pathlib import Path
 
 from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends.mock import MockModel
-from llm_agents.config import build_config
-from llm_agents.runner import run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import run_eval
 from llm_agents.viewer import build_view
 
 ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION: DOWN"]

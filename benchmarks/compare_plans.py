@@ -22,7 +22,7 @@ from pydantic import BaseModel
 from env.dataset import SPLITS, check_split, load_dataset
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.planner import (
+from llm_agents.planning import (
     PlanLimits,
     check_plan,
     goal_instructions,

@@ -17,7 +17,7 @@ from typing import Any
 
 from env.errors import UserError
 from llm_agents.cli_flags import FlagTarget, add_settings_flags, given_settings
-from llm_agents.config import EvalConfig, ModelSettings, build_settings, load_config_file
+from llm_agents.evaluation.config import EvalConfig, ModelSettings, build_settings, load_config_file
 
 EXIT_USER_ERROR = 2
 EXIT_BACKEND_FAILURE = 3
@@ -45,7 +45,7 @@ def _settings_command(
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from llm_agents.planner import PlannerConfig
+    from llm_agents.planning import PlannerConfig
 
     parser = _Parser(
         prog="craftext-llm",
@@ -135,8 +135,8 @@ def _progress_bar(enabled: bool) -> Any:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from llm_agents.agents import NoModel, agent_class
-    from llm_agents.report import report_run
-    from llm_agents.runner import execute_run, open_model, prepare_run
+    from llm_agents.evaluation.report import report_run
+    from llm_agents.evaluation.runner import execute_run, open_model, prepare_run
 
     config: EvalConfig = _settings(args)
     prepared = prepare_run(config)
@@ -150,7 +150,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     progress = _progress_bar(not args.no_progress)
     try:
         if config.ray:
-            from llm_agents.ray_runner import run_on_ray
+            from llm_agents.evaluation.ray_runner import run_on_ray
 
             print(banner, file=sys.stderr)
             outcome = run_on_ray(prepared, progress=progress)
@@ -176,17 +176,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _print_report(run_dir: str | Path) -> None:
-    from llm_agents.report import report_run
+    from llm_agents.evaluation.report import report_run
 
     with contextlib.suppress(UserError):
         print(report_run(run_dir))
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from llm_agents.report import report_run
+    from llm_agents.evaluation.report import report_run
 
     if args.compare:
-        from llm_agents.report import compare_runs
+        from llm_agents.evaluation.report import compare_runs
 
         print(compare_runs(args.run_dir, args.compare))
         return 0
@@ -262,8 +262,8 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from llm_agents.planner import PlannerConfig, plan_instructions, planned_instructions
-    from llm_agents.runner import open_model
+    from llm_agents.evaluation.runner import open_model
+    from llm_agents.planning import PlannerConfig, plan_instructions, planned_instructions
 
     config: PlannerConfig = _settings(args)
     instructions, provenance = planned_instructions(config)
@@ -292,7 +292,7 @@ COMMANDS = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from llm_agents.runner import BackendFailure
+    from llm_agents.evaluation.runner import BackendFailure
 
     args = build_parser().parse_args(argv)
     logging.basicConfig(

@@ -18,10 +18,10 @@ from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
-from llm_agents.config import build_config
-from llm_agents.records import EpisodeRecord, StepRecord
-from llm_agents.report import compare_runs
-from llm_agents.run_store import RunIdentity, RunResults, append_records, write_results
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.report import compare_runs
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results
 
 SNAPSHOTS = Path(__file__).resolve().parent / "snapshots"
 

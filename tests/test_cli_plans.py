@@ -12,9 +12,9 @@ from env import CrafTextEnv, EnvConfig, Variant
 from env.dataset import load_dataset
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.config import build_config
-from llm_agents.run_store import read_episodes
-from llm_agents.runner import run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import run_eval
+from llm_agents.run_data.store import read_episodes
 
 PLAN = "1. Find a tree\n2. Collect wood\n3. Place a table"
 

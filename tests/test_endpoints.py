@@ -22,7 +22,7 @@ from llm_agents.backends.base import ChatMessage, GenerateConfig
 from llm_agents.backends.endpoints import EndpointStats, merge_endpoint_stats
 from llm_agents.backends.openai import OpenAIModel
 from llm_agents.cli import EXIT_BACKEND_FAILURE, EXIT_USER_ERROR, main
-from llm_agents.run_store import read_results
+from llm_agents.run_data.store import read_results
 
 FAST = {"backoff_initial_s": 0.01, "backoff_max_s": 0.05, "jitter_s": 0.0}
 SERVER_SCRIPT = Path(__file__).with_name("fault_server.py")

@@ -19,9 +19,9 @@ from llm_agents.agents.expert_plan import (
     next_task,
     plan_order,
 )
-from llm_agents.config import build_config
-from llm_agents.run_store import read_episodes
-from llm_agents.runner import run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import run_eval
+from llm_agents.run_data.store import read_episodes
 from textualizer.observation import Inventory, Mob, Observation, Position, Vitals
 
 

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from scipy.stats import binomtest
 
 from env.errors import UserError
-from llm_agents.metrics import summarize, wilson_interval
-from llm_agents.records import EpisodeRecord
+from llm_agents.run_data.metrics import summarize, wilson_interval
+from llm_agents.run_data.records import EpisodeRecord
 
 
 def episode(

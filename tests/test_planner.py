@@ -1,4 +1,4 @@
-"""Plan generation, checking, repair, resume and loading (llm_agents/planner.py)."""
+"""Plan generation, checking, repair, resume and loading (llm_agents/planning/)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from env.errors import UserError
 from env.variant import Variant
 from llm_agents.backends.base import ChatMessage, ChoiceSet, Conversation, ModelOutput
 from llm_agents.backends.mock import MockModel
-from llm_agents.planner import (
+from llm_agents.planning import (
     PlanLimits,
     PlannerConfig,
     check_plan,

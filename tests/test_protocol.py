@@ -12,10 +12,10 @@ from env import CrafTextEnv, EnvConfig, Variant
 from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
-from llm_agents.config import EvalConfig, build_config
-from llm_agents.protocol import PROTOCOLS, apply_protocol, get_protocol
-from llm_agents.run_store import read_episodes, read_results
-from llm_agents.runner import run_eval
+from llm_agents.evaluation.config import EvalConfig, build_config
+from llm_agents.evaluation.protocol import PROTOCOLS, apply_protocol, get_protocol
+from llm_agents.evaluation.runner import run_eval
+from llm_agents.run_data.store import read_episodes, read_results
 
 
 def _value(config: EvalConfig, setting: str) -> object:

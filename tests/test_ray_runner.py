@@ -21,14 +21,14 @@ from fault_server import FaultServer
 from env import CrafTextEnv, EnvConfig, Variant
 from env.errors import UserError
 from llm_agents.backends.mock import MockModel
-from llm_agents.config import build_config
-from llm_agents.report import report_run
-from llm_agents.run_store import read_episodes, read_results
-from llm_agents.runner import BackendFailure, prepare_run, run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.report import report_run
+from llm_agents.evaluation.runner import BackendFailure, prepare_run, run_eval
+from llm_agents.run_data.store import read_episodes, read_results
 
 ray = pytest.importorskip("ray")
 
-from llm_agents.ray_runner import run_on_ray  # noqa: E402
+from llm_agents.evaluation.ray_runner import run_on_ray  # noqa: E402
 
 MAX_STEPS = 6
 EPISODES = 8
@@ -156,7 +156,7 @@ def test_a_worker_killed_mid_run_has_its_episodes_played_elsewhere(
     killer.start()
     # A slow answer (50 ms) keeps the run going long enough for the kill to land mid-run.
     slow = config(tmp_path, ray=True, backend_options={"latency_s": 0.05})
-    with caplog.at_level(logging.WARNING, logger="llm_agents.ray_runner"):
+    with caplog.at_level(logging.WARNING, logger="llm_agents.evaluation.ray_runner"):
         run_on_ray(prepare_run(slow))
     killer.join()
     assert killed, "no worker was running to kill"

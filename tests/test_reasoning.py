@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from llm_agents.agents.parser import parse_action
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.backends.reasoning import (
@@ -18,7 +19,6 @@ from llm_agents.backends.reasoning import (
     split_reasoning,
     with_reasoning_split,
 )
-from llm_agents.parser import parse_action
 
 QUESTION = [ChatMessage(role="user", content="Which action?")]
 

@@ -13,10 +13,10 @@ from scipy.stats import binomtest
 
 from env.dataset import OFFICIAL_SPLIT_SHA256
 from env.errors import UserError
-from llm_agents.metrics import summarize
-from llm_agents.records import EpisodeRecord
-from llm_agents.report import PUBLISHED, format_table, plot_success, report_run, rescore
-from llm_agents.run_store import RunIdentity, RunResults, append_records, write_results
+from llm_agents.evaluation.report import PUBLISHED, format_table, plot_success, report_run, rescore
+from llm_agents.run_data.metrics import summarize
+from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -14,9 +14,9 @@ from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_BACKEND_FAILURE, EXIT_USER_ERROR, main
-from llm_agents.config import build_config
-from llm_agents.run_store import read_episodes, read_results
-from llm_agents.runner import BackendFailure, run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import BackendFailure, run_eval
+from llm_agents.run_data.store import read_episodes, read_results
 
 MAX_STEPS = 6
 SCRIPT = "mock:hash:ACTION: LEFT|I will go RIGHT|<action>DO</action>|zzz"

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from env.errors import UserError
-from llm_agents.records import EpisodeRecord
-from llm_agents.run_store import (
+from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.store import (
     RunIdentity,
     append_records,
     atomic_write_text,

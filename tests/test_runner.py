@@ -20,9 +20,9 @@ from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.config import build_config
-from llm_agents.run_store import read_episodes, read_results
-from llm_agents.runner import build_schedule, run_eval
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import build_schedule, run_eval
+from llm_agents.run_data.store import read_episodes, read_results
 
 REPO = Path(__file__).resolve().parents[1]
 MAX_STEPS = 12
@@ -178,7 +178,7 @@ def test_resume_refuses_a_directory_of_another_run(
 
 
 def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:
-    from llm_agents.config import load_config_file
+    from llm_agents.evaluation.config import load_config_file
 
     file = tmp_path / "run.toml"
     file.write_text(

@@ -19,10 +19,10 @@ from PIL import Image
 from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends import get_model
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.config import build_config
-from llm_agents.records import EpisodeRecord
-from llm_agents.run_store import read_episodes
-from llm_agents.runner import run_eval, world_key
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import run_eval, world_key
+from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.store import read_episodes
 from llm_agents.viewer import build_view
 from llm_agents.viewer.frames import FRAMES_PER_SECOND, sprite_sheet
 from llm_agents.viewer.run import load_run

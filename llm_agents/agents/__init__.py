@@ -19,7 +19,7 @@ from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 if TYPE_CHECKING:
     from env.dataset import Goal
     from llm_agents.agents.zero_shot import Decision, StepPrompt
-    from llm_agents.config import EvalConfig
+    from llm_agents.evaluation.config import EvalConfig
 
 __all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
 

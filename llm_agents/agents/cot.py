@@ -19,7 +19,7 @@ from prompts import render_template
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.config import EvalConfig
+    from llm_agents.evaluation.config import EvalConfig
 
 CHARS_PER_TOKEN = 4
 TURN_TEMPLATE = "cot_turn"

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError
 from env.variant import Variant, as_variant
-from llm_agents.actions import action_id
+from llm_agents.agents.actions import action_id
 from llm_agents.agents.expert_plan import (
     DO_BLOCK_ACHIEVEMENT,
     FREE_GROUND,
@@ -40,14 +40,14 @@ from llm_agents.agents.expert_plan import (
     WorldMap,
     next_task,
 )
+from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.zero_shot import Decision, StepPrompt, messages_hash
 from llm_agents.backends.base import ModelAPI, ModelOutput
-from llm_agents.parser import ParseResult
 from textualizer.observation import Observation
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.config import EvalConfig
+    from llm_agents.evaluation.config import EvalConfig
 
 #: Move action -> (dx, dy) in the observation's axes (+x east, +y north).
 MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN": (0, -1)}

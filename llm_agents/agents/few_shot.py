@@ -20,12 +20,12 @@ from pydantic import BaseModel, ConfigDict
 from env.errors import UserError
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage
-from llm_agents.run_store import read_episodes, read_results
+from llm_agents.run_data.store import read_episodes, read_results
 from prompts import render_template
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.config import EvalConfig
+    from llm_agents.evaluation.config import EvalConfig
 
 TRAINING_CATEGORIES = frozenset({"one", "combo"})
 TEMPLATE = "few_shot"

@@ -22,14 +22,14 @@ from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
 from env.variant import Variant, as_variant
-from llm_agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
+from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
+from llm_agents.agents.parser import ParseResult, parse_action
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelAPI, ModelOutput
-from llm_agents.parser import ParseResult, parse_action
 from prompts import render_template
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.config import EvalConfig
+    from llm_agents.evaluation.config import EvalConfig
 
 SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"

@@ -21,8 +21,7 @@ import jinja2
 import numpy as np
 
 from env.errors import UserError
-from llm_agents.metrics import summarize
-from llm_agents.report import (
+from llm_agents.evaluation.report import (
     CATEGORY_LABELS,
     PUBLISHED,
     chart_categories,
@@ -34,6 +33,7 @@ from llm_agents.report import (
     recorded_rule,
     table_columns,
 )
+from llm_agents.run_data.metrics import summarize
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 

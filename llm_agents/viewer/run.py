@@ -12,9 +12,9 @@ from pydantic import ValidationError
 
 from env.dataset import Goal, load_dataset
 from env.errors import UserError
-from llm_agents.records import EpisodeRecord, StepRecord
-from llm_agents.report import scheduled_episodes
-from llm_agents.run_store import (
+from llm_agents.evaluation.report import scheduled_episodes
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
     STEPS_FILE,
@@ -50,7 +50,7 @@ class EpisodeView:
         """The key the episode's world was reset with: recorded, or derived as the runner did."""
         if self.record.reset_key is not None:
             return np.asarray(self.record.reset_key, dtype=np.uint32)
-        from llm_agents.runner import world_key
+        from llm_agents.evaluation.runner import world_key
 
         # Records written before reset_key existed: the repeat is the id's last field
         # (`ScheduledEpisode.episode_id`).

@@ -29,11 +29,11 @@ from env.errors import UserError
 from env.placement import EnvDevice
 from env.rules import SuccessRule, WorldSeeding
 from env.variant import Variant
-from llm_agents.actions import action_names
+from llm_agents.agents.actions import action_names
 from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import ChoiceRule, GenerateConfig
-from llm_agents.protocol import ProtocolName, apply_protocol
+from llm_agents.evaluation.protocol import ProtocolName, apply_protocol
 from textualizer import RENDERERS
 
 #: The paper's zero-shot EASY table: Achievements one / combo, and New objects.

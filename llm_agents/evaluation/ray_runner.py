@@ -29,9 +29,8 @@ from pydantic import BaseModel, Field
 from env.errors import UserError
 from llm_agents.agents.zero_shot import Decision
 from llm_agents.backends.endpoints import EndpointStats, merge_endpoint_stats
-from llm_agents.config import EvalConfig
-from llm_agents.records import EpisodeRecord, StepRecord
-from llm_agents.runner import (
+from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.runner import (
     PreparedRun,
     ProgressFactory,
     RunOutcome,
@@ -41,10 +40,11 @@ from llm_agents.runner import (
     run_schedule,
     versions,
 )
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
 
 if TYPE_CHECKING:
     from llm_agents.backends.base import ModelAPI
-    from llm_agents.runner import _Sink
+    from llm_agents.evaluation.runner import _Sink
 
 logger = logging.getLogger(__name__)
 
@@ -182,7 +182,7 @@ class EpisodeWorker:
         try:
             from env import CrafTextEnv
             from llm_agents.agents import NoModel, agent_class
-            from llm_agents.runner import open_model
+            from llm_agents.evaluation.runner import open_model
 
             self._env = CrafTextEnv(make_env_config(config))
             self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()

@@ -42,10 +42,10 @@ from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.zero_shot import Decision, StepPrompt
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 from llm_agents.backends.endpoints import EndpointStats
-from llm_agents.config import EvalConfig, ModelSettings
-from llm_agents.metrics import Summary, summarize
-from llm_agents.records import EpisodeRecord, StepRecord
-from llm_agents.run_store import (
+from llm_agents.evaluation.config import EvalConfig, ModelSettings
+from llm_agents.run_data.metrics import Summary, summarize
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
     STEPS_FILE,
@@ -809,7 +809,7 @@ def _episode_record(
 def _load_plans(path: str | None) -> dict[str, str] | None:
     if path is None:
         return None
-    from llm_agents.planner import load_plans
+    from llm_agents.run_data.plans import load_plans
 
     return load_plans(path)
 

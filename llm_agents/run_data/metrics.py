@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 from env.errors import UserError
 from env.goals import CATEGORIES
 from env.termination import TERMINATIONS
-from llm_agents.records import EpisodeRecord
+from llm_agents.run_data.records import EpisodeRecord
 
 __all__ = ["SuccessRate", "Summary", "summarize", "wilson_interval"]
 

@@ -1,5 +1,5 @@
 """Typed records of an evaluation run: one `StepRecord` per agent step, one `EpisodeRecord` per
-finished episode. `llm_agents.run_store` owns the files they live in.
+finished episode. `llm_agents.run_data.store` owns the files they live in.
 """
 
 from __future__ import annotations

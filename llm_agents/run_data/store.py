@@ -27,8 +27,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_fie
 
 from env.errors import UserError
 from llm_agents.backends.endpoints import EndpointStats
-from llm_agents.metrics import Summary
-from llm_agents.records import EpisodeRecord
+from llm_agents.run_data.metrics import Summary
+from llm_agents.run_data.records import EpisodeRecord
 
 logger = logging.getLogger(__name__)
 

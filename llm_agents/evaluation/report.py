@@ -19,9 +19,9 @@ from pydantic import BaseModel, ConfigDict
 from env.dataset import CATEGORY_SPLIT, OFFICIAL_COMMIT, OFFICIAL_SPLIT_SHA256, Category
 from env.errors import UserError
 from env.rules import SUCCESS_RULES, SuccessRule
-from llm_agents.metrics import SuccessRate, Summary, summarize
-from llm_agents.records import EpisodeRecord
-from llm_agents.run_store import (
+from llm_agents.run_data.metrics import SuccessRate, Summary, summarize
+from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
     RunResults,
@@ -69,7 +69,7 @@ PUBLISHED: tuple[PublishedResult, ...] = (
 )
 
 _PAPER_CATEGORIES: tuple[Category, ...] = ("one", "combo", "new_objects")
-# What the official evaluation does where it changes the numbers (see llm_agents.protocol).
+# What the official evaluation does where it changes the numbers (see llm_agents.evaluation.protocol).
 _PAPER_VARIANT = "classic"
 _PAPER_MAX_STEPS = 250
 _PAPER_SUCCESS_RULE: SuccessRule = "official"

@@ -1,0 +1,314 @@
+"""Plans for plan-conditioned agents (CrafText PPO-T+): generate, check, repair, save and load.
+
+A planner model rewrites every instruction as at most a few short numbered steps. The result is
+one JSON object, instruction text -> plan text ("1. ...\\n2. ..."), the shape of CrafText's
+official plan file, plus a sidecar JSON recording how it was made. Every answer is appended to a
+JSONL journal as soon as it arrives; the plans file is rebuilt from the journal atomically, so an
+interrupted run loses nothing and a rerun skips what is already planned.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, Field, field_validator
+from tqdm import tqdm
+
+from env.dataset import CATEGORY_SPLIT, Goal, check_split, load_dataset
+from env.variant import Variant
+from llm_agents.agents.actions import action_catalogue
+from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
+from llm_agents.evaluation.config import ModelSettings
+from llm_agents.planning.checks import PlanCheck, PlanLimits, check_plan
+from llm_agents.planning.journal import Journal, PlanRecord, PlanSettings, journal_paths
+from llm_agents.planning.vocabulary import craftax_things
+from llm_agents.run_data.store import (
+    atomic_write_json,
+    check_output_dir,
+)
+from prompts import BlockRole, render_blocks, template_source
+
+PLANNER_TEMPLATE = "planner.j2"
+REPAIR_TEMPLATE = "plan_repair.j2"
+
+
+class PlannerConfig(ModelSettings):
+    """What `craftext-llm plan` does."""
+
+    output: Path
+    """The plans JSON to write; the journal and sidecar sit beside it."""
+    splits: list[str] = Field(
+        default_factory=lambda: ["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
+    )
+    """Dataset splits (easy_train easy_test_paraphrased easy_test_other_params) or eval's
+    category names (one and combo plan the train split) whose instructions get plans."""
+    limits: PlanLimits = Field(default_factory=PlanLimits)
+    """How short plans must be."""
+    repair: bool = True
+    """Send one repair request for every plan that breaks the rules."""
+    drop_failed: bool = False
+    """Leave plans that still break the rules after repair out of the plans file."""
+    requests_per_call: int = Field(32, ge=1)
+    """Conversations sent to the backend in one call."""
+    restart: bool = False
+    """Discard an existing journal instead of resuming it."""
+
+    @field_validator("splits", mode="before")
+    @classmethod
+    def _split_names(cls, value: Any) -> list[str]:
+        names: list[str] = [value] if isinstance(value, str) else list(value)
+        by_category: dict[str, str] = {str(k): str(v) for k, v in CATEGORY_SPLIT.items()}
+        return list(dict.fromkeys(check_split(by_category.get(n, n)) for n in names))
+
+    @field_validator("output")
+    @classmethod
+    def _plans_file(cls, value: Path) -> Path:
+        if value.is_dir():
+            raise ValueError(f"{value} is a directory; name the plans JSON file to write")
+        check_output_dir(value.parent)
+        return value
+
+
+class PlanSummary(BaseModel):
+    """The outcome of a planning run, over every instruction it was asked for."""
+
+    output: Path
+    """The plans JSON."""
+    sidecar: Path
+    """The JSON recording model, parameters, template hashes and these counts."""
+    journal: Path
+    """The append-only JSONL journal the plans file is built from."""
+    instructions: int
+    """Distinct instructions asked for."""
+    resumed: int
+    """Of those, already planned by an earlier run and skipped."""
+    valid: int
+    """Plans that passed on the first answer."""
+    repaired: int
+    """Plans that passed after the repair request."""
+    failed: int
+    """Plans that still break the rules (kept in the plans file unless `drop_failed`)."""
+    errors: int
+    """Instructions the backend failed on in this run; a rerun retries them."""
+    in_file: int
+    """Plans in the plans file (it may also hold plans of other splits from earlier runs)."""
+    prompt_tokens: int = 0
+    """Prompt tokens spent in this run."""
+    completion_tokens: int = 0
+    """Completion tokens spent in this run."""
+    wall_s: float = 0.0
+    """Seconds this run took."""
+    failed_instructions: list[str] = Field(default_factory=list)
+    """The instructions whose plans failed, for inspection."""
+
+
+# ---------------------------------------------------------------- prompts
+
+
+def _template_hashes(templates_dir: str | Path | None) -> dict[str, str]:
+    return {
+        name: hashlib.sha256(template_source(name, templates_dir).encode("utf-8")).hexdigest()
+        for name in (PLANNER_TEMPLATE, REPAIR_TEMPLATE)
+    }
+
+
+def _messages(blocks: Sequence[tuple[BlockRole, str]]) -> list[ChatMessage]:
+    return [ChatMessage(role=role, content=text) for role, text in blocks]
+
+
+class _Prompter:
+    """Renders plan and repair requests with the limits and the variant's names."""
+
+    def __init__(self, limits: PlanLimits, variant: Variant, templates_dir: str | Path | None):
+        self.templates_dir = templates_dir
+        self.common = {
+            "things": [name.lower().replace("_", " ") for name in craftax_things(variant)],
+            "actions": [
+                {"name": spec.name.lower().replace("_", " "), "description": spec.description}
+                for spec in action_catalogue(variant)
+            ],
+            "max_steps": limits.max_steps,
+            "max_step_words": limits.max_step_words,
+        }
+
+    def plan(self, instruction: str) -> list[ChatMessage]:
+        context = {"instruction": instruction, **self.common}
+        return _messages(render_blocks(PLANNER_TEMPLATE, context, self.templates_dir))
+
+    def repair(self, instruction: str, answer: str, check: PlanCheck) -> list[ChatMessage]:
+        context = {
+            "instruction": instruction,
+            "plan": answer,
+            "problems": [issue.detail for issue in check.issues],
+            **self.common,
+        }
+        return _messages(render_blocks(REPAIR_TEMPLATE, context, self.templates_dir))
+
+
+# ---------------------------------------------------------------- planning
+
+
+def _settings(model: ModelAPI, config: PlannerConfig) -> PlanSettings:
+    transport = {"timeout_s", "max_concurrency", "max_retries"}
+    return PlanSettings(
+        backend=model.backend_name,
+        model=model.model_name,
+        generation=model.config.model_dump(mode="json", exclude=transport),
+        templates=_template_hashes(config.templates_dir),
+        limits=config.limits,
+        variant=config.variant,
+        repair=config.repair,
+    )
+
+
+def _groups(items: Sequence[str], size: int) -> Iterator[Sequence[str]]:
+    for start in range(0, len(items), size):
+        yield items[start : start + size]
+
+
+@dataclass
+class _Usage:
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+    errors: int = 0
+
+    def add(self, outputs: Iterable[ModelOutput]) -> None:
+        for output in outputs:
+            self.prompt_tokens += output.prompt_tokens
+            self.completion_tokens += output.completion_tokens
+
+
+def _plan_group(
+    instructions: Sequence[str],
+    model: ModelAPI,
+    prompter: _Prompter,
+    config: PlannerConfig,
+    usage: _Usage,
+) -> list[PlanRecord]:
+    """Plan up to `requests_per_call` instructions: one call for the plans, one for the repairs."""
+    outputs = model.generate([prompter.plan(text) for text in instructions])
+    usage.add(outputs)
+    records: dict[str, PlanRecord] = {}
+    flagged: list[tuple[str, str, PlanCheck]] = []
+    for instruction, output in zip(instructions, outputs, strict=True):
+        if output.finish_reason == "error":
+            usage.errors += 1
+            continue
+        check = check_plan(output.text, config.limits, config.variant)
+        records[instruction] = PlanRecord(
+            instruction=instruction,
+            plan=check.text,
+            status="valid" if check.ok else "failed",
+            issues=check.issues,
+            raw=output.text,
+        )
+        if not check.ok and config.repair:
+            flagged.append((instruction, output.text, check))
+    if flagged:
+        repairs = model.generate([prompter.repair(*item) for item in flagged])
+        usage.add(repairs)
+        for (instruction, _, first), output in zip(flagged, repairs, strict=True):
+            if output.finish_reason == "error":
+                continue
+            second = check_plan(output.text, config.limits, config.variant)
+            record = records[instruction]
+            record.repair_raw = output.text
+            if second.ok:
+                record.plan, record.status, record.issues = second.text, "repaired", []
+            elif second.steps and len(second.issues) <= len(first.issues):
+                record.plan, record.issues = second.text, second.issues
+    return [records[text] for text in instructions if text in records]
+
+
+def plan_instructions(
+    instructions: Sequence[str],
+    model: ModelAPI,
+    config: PlannerConfig,
+    provenance: dict[str, Any] | None = None,
+    *,
+    progress: bool = False,
+) -> PlanSummary:
+    """Plan every instruction not yet in the journal, then rebuild the plans file and sidecar.
+
+    `provenance` (where the instructions came from) is recorded in the sidecar as is.
+    """
+    started = time.perf_counter()
+    wanted = list(dict.fromkeys(instructions))
+    settings = _settings(model, config)
+    journal_path, sidecar_path = journal_paths(config.output)
+    journal = Journal(journal_path, settings, config.restart)
+    todo = [text for text in wanted if text not in journal.records]
+    prompter = _Prompter(config.limits, config.variant, config.templates_dir)
+    usage = _Usage()
+    try:
+        with tqdm(
+            total=len(wanted),
+            initial=len(wanted) - len(todo),
+            desc="planning",
+            unit="instr",
+            disable=not progress,
+        ) as bar:
+            for group in _groups(todo, config.requests_per_call):
+                journal.add(_plan_group(group, model, prompter, config, usage))
+                bar.update(len(group))
+    finally:
+        # Runs on Ctrl-C too, so the plans file always reflects the journal.
+        plans = journal.plans(config.drop_failed)
+        atomic_write_json(config.output, plans)
+    statuses = [journal.records[t].status for t in wanted if t in journal.records]
+    summary = PlanSummary(
+        output=config.output,
+        sidecar=sidecar_path,
+        journal=journal_path,
+        instructions=len(wanted),
+        resumed=len(wanted) - len(todo),
+        valid=statuses.count("valid"),
+        repaired=statuses.count("repaired"),
+        failed=statuses.count("failed"),
+        errors=usage.errors,
+        in_file=len(plans),
+        prompt_tokens=usage.prompt_tokens,
+        completion_tokens=usage.completion_tokens,
+        wall_s=round(time.perf_counter() - started, 3),
+        failed_instructions=[
+            t for t in wanted if t in journal.records and journal.records[t].status == "failed"
+        ],
+    )
+    sidecar = {
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "model_info": model.info(),
+        "settings": settings.model_dump(mode="json"),
+        "instructions_from": provenance or {},
+        "summary": summary.model_dump(mode="json", exclude={"failed_instructions"}),
+    }
+    atomic_write_json(sidecar_path, sidecar)
+    return summary
+
+
+def goal_instructions(goals: Iterable[Goal]) -> list[str]:
+    """Every instruction and paraphrase of the goals, each once, in dataset order."""
+    return list(dict.fromkeys(text for goal in goals for text in goal.texts))
+
+
+def planned_instructions(config: PlannerConfig) -> tuple[list[str], dict[str, Any]]:
+    """The instructions `config` asks plans for (cut to `limit`), and where they came from."""
+    dataset = load_dataset(config.dataset)
+    instructions = goal_instructions(
+        goal for split in config.splits for goal in dataset.split(split)
+    )
+    if config.limit is not None:
+        instructions = instructions[: config.limit]
+    provenance = {"splits": config.splits, "dataset": dataset.source.model_dump(mode="json")}
+    return instructions, provenance
+
+
+def run_planner(config: PlannerConfig, model: ModelAPI, *, progress: bool = False) -> PlanSummary:
+    """Plan every instruction and paraphrase of the configured splits (`craftext-llm plan`)."""
+    instructions, provenance = planned_instructions(config)
+    return plan_instructions(instructions, model, config, provenance, progress=progress)
