@@ -138,3 +138,34 @@ def test_only_env_imports_jax() -> None:
         names = imported_modules(tree, module, path.name == "__init__.py", ())
         roots = {name.split(".")[0] for name in names}
         assert not roots & heavy, f"{module} imports {sorted(roots & heavy)}"
+
+
+#: llm_agents' rooms, top to bottom: a room imports only rooms below it (see docs/architecture.md).
+ROOMS = (
+    "cli",
+    "cli_flags",
+    "viewer",
+    "planning",
+    "evaluation",
+    "agents",
+    "run_data",
+    "backends",
+)
+
+
+def test_llm_agents_rooms_import_only_downwards() -> None:
+    def room(module: str) -> str | None:
+        parts = module.split(".")
+        return parts[1] if parts[0] == "llm_agents" and len(parts) > 1 else None
+
+    rank = {name: index for index, name in enumerate(ROOMS)}
+    graph = import_graph()
+    rooms = {room(module) for module in graph} - {None}
+    assert rooms == set(ROOMS), f"rooms not in ROOMS: {sorted(rooms - set(ROOMS))}"
+    upward = [
+        f"{module} -> {target}"
+        for module, targets in graph.items()
+        for target in targets
+        if (a := room(module)) and (b := room(target)) and a != b and rank[b] < rank[a]
+    ]
+    assert upward == []

@@ -18,8 +18,8 @@ from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 
 if TYPE_CHECKING:
     from env.dataset import Goal
+    from llm_agents.agents.registry import AgentSettings
     from llm_agents.agents.zero_shot import Decision, StepPrompt
-    from llm_agents.evaluation.config import EvalConfig
 
 __all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
 
@@ -66,7 +66,7 @@ def agent_class(name: str) -> type[Agent]:
     return cls
 
 
-def build_agent(config: EvalConfig) -> Agent:
+def build_agent(config: AgentSettings) -> Agent:
     """The agent `config.agent` names, set up from the run's config."""
     cls: Any = agent_class(config.agent)
     agent: Agent = cls.from_config(config)

@@ -19,7 +19,7 @@ from prompts import render_template
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.evaluation.config import EvalConfig
+    from llm_agents.agents.registry import AgentSettings
 
 CHARS_PER_TOKEN = 4
 TURN_TEMPLATE = "cot_turn"
@@ -44,7 +44,7 @@ class ChainOfThoughtAgent(ZeroShotAgent):
         self._replies: dict[int, list[tuple[int, str]]] = {}
 
     @classmethod
-    def strategy_settings(cls, config: EvalConfig) -> dict[str, Any]:
+    def strategy_settings(cls, config: AgentSettings) -> dict[str, Any]:
         return {"steps": config.cot_steps, "max_tokens": config.cot_max_tokens}
 
     def start_episode(

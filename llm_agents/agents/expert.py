@@ -47,7 +47,7 @@ from textualizer.observation import Observation
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.evaluation.config import EvalConfig
+    from llm_agents.agents.registry import AgentSettings
 
 #: Move action -> (dx, dy) in the observation's axes (+x east, +y north).
 MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN": (0, -1)}
@@ -113,7 +113,7 @@ class ExpertAgent:
         self._episodes: dict[int, _Episode] = {}
 
     @classmethod
-    def from_config(cls, config: EvalConfig) -> ExpertAgent:
+    def from_config(cls, config: AgentSettings) -> ExpertAgent:
         """The expert of an evaluation config (it uses only the variant and renderer)."""
         return cls(config.variant, renderer=config.renderer, fallback_action=config.fallback_action)
 

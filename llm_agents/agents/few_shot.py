@@ -25,7 +25,7 @@ from prompts import render_template
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.evaluation.config import EvalConfig
+    from llm_agents.agents.registry import AgentSettings
 
 TRAINING_CATEGORIES = frozenset({"one", "combo"})
 TEMPLATE = "few_shot"
@@ -156,7 +156,7 @@ class FewShotAgent(ZeroShotAgent):
         self._demos: dict[int, list[Demonstration]] = {}
 
     @classmethod
-    def strategy_settings(cls, config: EvalConfig) -> dict[str, Any]:
+    def strategy_settings(cls, config: AgentSettings) -> dict[str, Any]:
         return {"demos": config.demos, "steps": config.few_shot_steps}
 
     def start_episode(

@@ -1,8 +1,15 @@
-"""Agent strategy names -> the class that plays each, as `"module:Class"` strings.
+"""Agent strategy names -> the class that plays each, as `"module:Class"` strings, and the run
+settings agents are built from.
 
-Plain data, so the config can check an agent name without importing any agent (they import the
-config) and `llm_agents.agents.agent_class` imports only the one a run uses.
+Plain data and a protocol, so the config can check an agent name without importing any agent,
+agents need nothing from the evaluation room above them, and `llm_agents.agents.agent_class`
+imports only the one a run uses.
 """
+
+from typing import Protocol
+
+from env.variant import Variant
+from llm_agents.backends.base import ChoiceRule
 
 AGENTS: dict[str, str] = {
     "zero-shot": "llm_agents.agents.zero_shot:ZeroShotAgent",
@@ -10,3 +17,31 @@ AGENTS: dict[str, str] = {
     "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
     "expert": "llm_agents.agents.expert:ExpertAgent",
 }
+
+
+class AgentSettings(Protocol):
+    """What agents read from a run's settings (`EvalConfig` holds all of it; its docstrings
+    say what each setting means)."""
+
+    @property
+    def agent(self) -> str: ...
+    @property
+    def variant(self) -> Variant: ...
+    @property
+    def renderer(self) -> str: ...
+    @property
+    def choice(self) -> ChoiceRule | None: ...
+    @property
+    def fallback_action(self) -> str: ...
+    @property
+    def history_length(self) -> int: ...
+    @property
+    def templates_dir(self) -> str | None: ...
+    @property
+    def cot_steps(self) -> int: ...
+    @property
+    def cot_max_tokens(self) -> int: ...
+    @property
+    def few_shot_steps(self) -> int: ...
+    @property
+    def demos(self) -> str | None: ...

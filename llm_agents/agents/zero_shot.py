@@ -29,7 +29,7 @@ from prompts import render_template
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from llm_agents.evaluation.config import EvalConfig
+    from llm_agents.agents.registry import AgentSettings
 
 SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"
@@ -219,7 +219,7 @@ class ZeroShotAgent:
         self._episodes: dict[int, _Episode] = {}
 
     @classmethod
-    def from_config(cls, config: EvalConfig) -> Self:
+    def from_config(cls, config: AgentSettings) -> Self:
         """The agent an evaluation config describes."""
         return cls(
             config.variant,
@@ -232,7 +232,7 @@ class ZeroShotAgent:
         )
 
     @classmethod
-    def strategy_settings(cls, config: EvalConfig) -> dict[str, Any]:
+    def strategy_settings(cls, config: AgentSettings) -> dict[str, Any]:
         """Constructor keywords a strategy built on this agent reads from the config."""
         return {}
 
