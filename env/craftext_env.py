@@ -115,7 +115,6 @@ class CrafTextEnv:
         self.params = self.craftax.default_params
         # Compiled once per env and shared by every VectorEnv over it: a fresh jax.jit wrapper
         # would trace and lower the whole game again (seconds) even with a warm compile cache.
-        self.batched_reset = jax.jit(jax.vmap(self.reset))
         self.batched_step = jax.jit(self.masked_batch_step)
         # Donated like place_episode: only the stepped slots' rows are written back.
         self.slots_step = jax.jit(self.step_slots, donate_argnums=0)
@@ -124,7 +123,6 @@ class CrafTextEnv:
         # in place instead of copying every slot's (5x faster on CPU). The masked step is not
         # donated: measured, it then ran slower (10.6 ms vs 6.0 ms for 32 full-Craftax slots).
         self.place_episode = jax.jit(_place_episode, donate_argnums=0)
-        self.place_chosen = jax.jit(_place_chosen, donate_argnums=0)
 
     @property
     def variant(self) -> Variant:
@@ -306,7 +304,6 @@ class VectorEnv:
             raise ValueError("batch_size must be at least 1")
         self.env = env
         self.batch_size = batch_size
-        self._reset = env.batched_reset
         self._reset_one = env.jitted_reset
         self._step = env.batched_step
         self._step_slots = env.slots_step
@@ -315,7 +312,6 @@ class VectorEnv:
         # listed slots 2.8 ms. Small batches, or most slots ready, take the one masked step.
         self._group = min(batch_size, SLOT_GROUP)
         self._place = env.place_episode
-        self._place_chosen = env.place_chosen
         self._state: EpisodeState | None = None
 
     @property
@@ -324,7 +320,19 @@ class VectorEnv:
 
     def reset(self, keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray) -> HostBatch:
         """Start a new episode in every slot."""
-        self._state = self._reset(*self._device_inputs(keys, required, forbidden))
+        keys = np.asarray(keys, dtype=np.uint32).reshape(self.batch_size, 2)
+        required = np.asarray(required, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS)
+        forbidden = np.asarray(forbidden, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS)
+        # One world at a time, with the function refills use: XLA's vectorised world generation
+        # gives slots past the eighth other worlds than generating them alone (measured on CPU),
+        # so a batched reset would make an episode's world depend on the batch size.
+        worlds = [
+            jax.device_get(
+                self._reset_one(jnp.asarray(keys[row]), make_task(required[row], forbidden[row]))
+            )
+            for row in range(self.batch_size)
+        ]
+        self._state = jax.tree.map(lambda *leaves: jnp.asarray(np.stack(leaves)), *worlds)
         return self._fresh_host()
 
     def refill(
@@ -338,21 +346,11 @@ class VectorEnv:
         keys = np.asarray(keys, dtype=np.uint32).reshape(len(slots), 2)
         required = np.asarray(required, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
         forbidden = np.asarray(forbidden, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
-        if 2 * len(slots) > self.batch_size:
-            # Most slots at once (episodes that ended together): one batched reset builds every
-            # slot's world, which costs less than half as many one-at-a-time resets.
-            rows = np.zeros(self.batch_size, dtype=np.int64)
-            rows[list(slots)] = np.arange(len(slots))
-            chosen = np.zeros(self.batch_size, dtype=bool)
-            chosen[list(slots)] = True
-            fresh = self._reset(*self._device_inputs(keys[rows], required[rows], forbidden[rows]))
-            state = self._place_chosen(state, fresh, jnp.asarray(chosen))
-        else:
-            for row, slot in enumerate(slots):
-                fresh = self._reset_one(
-                    jnp.asarray(keys[row]), make_task(required[row], forbidden[row])
-                )
-                state = self._place(state, fresh, jnp.int32(slot))
+        for row, slot in enumerate(slots):
+            fresh = self._reset_one(
+                jnp.asarray(keys[row]), make_task(required[row], forbidden[row])
+            )
+            state = self._place(state, fresh, jnp.int32(slot))
         self._state = state
         return self._fresh_host()
 
@@ -406,16 +404,6 @@ class VectorEnv:
             raise RuntimeError("call reset() before step() or refill()")
         return self._state
 
-    def _device_inputs(
-        self, keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray
-    ) -> tuple[jax.Array, Task]:
-        keys = np.asarray(keys, dtype=np.uint32).reshape(self.batch_size, 2)
-        task = make_task(
-            np.asarray(required, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS),
-            np.asarray(forbidden, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS),
-        )
-        return jnp.asarray(keys), task
-
     @staticmethod
     def _to_host(
         state: EpisodeState,
@@ -436,14 +424,6 @@ class VectorEnv:
             new_achievements=new_np,
             goal_at_game_over=at_game_over,
         )
-
-
-def _place_chosen(state: EpisodeState, fresh: EpisodeState, chosen: jax.Array) -> EpisodeState:
-    def pick(old: jax.Array, new: jax.Array) -> jax.Array:
-        return jnp.where(chosen.reshape(chosen.shape + (1,) * (old.ndim - 1)), new, old)
-
-    result: EpisodeState = jax.tree.map(pick, state, fresh)
-    return result
 
 
 def _place_episode(state: EpisodeState, episode: EpisodeState, slot: jax.Array) -> EpisodeState:

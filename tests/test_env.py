@@ -203,7 +203,24 @@ def test_episode_key_depends_on_every_component() -> None:
     assert all(not np.array_equal(base, v) for v in variants)
 
 
-@pytest.mark.parametrize("refilled", [[1], [0, 2]], ids=["one at a time", "batched"])
+def test_every_slot_gets_the_world_of_its_own_key_whatever_the_batch_size(
+    classic_env: Any,
+) -> None:
+    """Vectorised world generation gave slots past the eighth other worlds (XLA on CPU): an
+    episode's world must not depend on how many episodes are in flight."""
+    batch = 12
+    keys = np.stack([episode_key(5, "goal", 0, i) for i in range(batch)])
+    req, forb = masks(["COLLECT_WOOD"])
+    vector = VectorEnv(classic_env.env, batch)
+    host = vector.reset(keys, np.repeat(req[None], batch, 0), np.repeat(forb[None], batch, 0))
+    for slot in range(batch):
+        alone = classic_env.reset(jnp.asarray(keys[slot]), make_task(req, forb)).game
+        assert _leaves_equal(
+            jax.device_get(alone), jax.tree.map(lambda x, s=slot: x[s], host.game)
+        ), f"slot {slot}"
+
+
+@pytest.mark.parametrize("refilled", [[1], [0, 2]], ids=["one slot", "most slots"])
 def test_refill_restarts_only_the_named_slots(classic_env: Any, refilled: list[int]) -> None:
     batch = 3
     keys = np.stack([episode_key(2, "goal", 0, i) for i in range(batch)])

@@ -247,8 +247,16 @@ class JitteryModel(MockModel):
 
 
 @pytest.mark.parametrize(
-    ("batch_size", "concurrent", "max_concurrency"),
-    [(3, True, 8), (7, True, 2), (4, False, 8), (7, False, 8)],
+    ("batch_size", "concurrent", "max_concurrency", "limit"),
+    [
+        (3, True, 8, 7),
+        (7, True, 2, 7),
+        (4, False, 8, 7),
+        (7, False, 8, 7),
+        # More slots than one group of the env's grouped step: few ready slots are stepped in
+        # groups, most in the masked step, and episodes ending together refill in one reset.
+        pytest.param(12, True, 12, 16, marks=pytest.mark.slow),
+    ],
 )
 def test_episodes_do_not_depend_on_episodes_in_flight_or_answer_timing(
     tmp_path: Path,
@@ -256,14 +264,17 @@ def test_episodes_do_not_depend_on_episodes_in_flight_or_answer_timing(
     batch_size: int,
     concurrent: bool,
     max_concurrency: int,
+    limit: int,
 ) -> None:
     reference = tmp_path / "reference"
     run_eval(
-        config(reference, batch_size=1), MockModel(SCRIPT.removeprefix("mock:")), env=short_env
+        config(reference, batch_size=1, limit=limit),
+        MockModel(SCRIPT.removeprefix("mock:")),
+        env=short_env,
     )
     model = JitteryModel(concurrent, seed=batch_size, max_concurrency=max_concurrency)
     out = tmp_path / "jittery"
-    run_eval(config(out, batch_size=batch_size), model, env=short_env)
+    run_eval(config(out, batch_size=batch_size, limit=limit), model, env=short_env)
 
     assert canonical(out) == canonical(reference)
     if concurrent:
