@@ -17,6 +17,7 @@ import pytest
 from PIL import Image
 
 from env import CrafTextEnv, EnvConfig, Variant
+from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.config import build_config
@@ -33,28 +34,43 @@ SCRIPT = "mock:hash:ACTION: DO|ACTION: LEFT|I go RIGHT|<action>UP</action>|ACTIO
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("run")
-    config = build_config(
+def classic_env() -> CrafTextEnv:
+    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+
+
+def _settings(out: Path, **settings: Any) -> Any:
+    return build_config(
         {
-            "model": SCRIPT,
             "variant": "classic",
             "splits": ["combo", "new_objects"],
             "max_steps": MAX_STEPS,
             "batch_size": 4,
-            "limit": 5,
             "output_dir": str(out),
+            **settings,
         }
     )
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory, classic_env: CrafTextEnv) -> Path:
+    out = tmp_path_factory.mktemp("run")
+    config = _settings(out, model=SCRIPT, limit=5)
     with get_model(config.model, config.generation) as model:
-        run_eval(config, model, env=env)
+        run_eval(config, model, env=classic_env)
     return out
 
 
 @pytest.fixture(scope="module")
-def viewed(run_dir: Path) -> Any:
-    return build_view(run_dir, progress=False)
+def expert_dir(tmp_path_factory: pytest.TempPathFactory, classic_env: CrafTextEnv) -> Path:
+    """The scripted expert on the same dataset, the run the report compares with."""
+    out = tmp_path_factory.mktemp("expert")
+    run_eval(_settings(out, agent="expert", limit=4), NoModel(), env=classic_env)
+    return out
+
+
+@pytest.fixture(scope="module")
+def viewed(run_dir: Path, expert_dir: Path) -> Any:
+    return build_view(run_dir, progress=False, compare=[expert_dir])
 
 
 def _copy_run(run_dir: Path, tmp_path: Path) -> Path:
@@ -266,7 +282,9 @@ def _cell(rate: dict[str, Any]) -> str:
 
 
 @pytest.mark.slow
-def test_run_page_in_chromium_shows_the_results(run_dir: Path, viewed: Any, browser: Any) -> None:
+def test_run_page_in_chromium_shows_the_results(
+    run_dir: Path, expert_dir: Path, viewed: Any, browser: Any
+) -> None:
     summary = json.loads((run_dir / "results.json").read_text())["summary"]
     page, problems = _open(browser, viewed.index)
     header = page.locator("#results-table thead th").all_inner_texts()
@@ -276,6 +294,22 @@ def test_run_page_in_chromium_shows_the_results(run_dir: Path, viewed: Any, brow
     assert shown["New objects"] == _cell(summary["by_category"]["new_objects"])
     assert shown["overall"] == _cell(summary["overall"])
     assert shown["one"] == "-"  # not run
+
+    # The expert's row, as `report --compare` gives it, beside the model's.
+    expert = json.loads((expert_dir / "results.json").read_text())["summary"]
+    compared = page.locator("#results-table tr.compared td").all_inner_texts()
+    assert compared[0] == "expert (scripted, no model)"
+    beside = dict(zip(header[1:], compared[1:], strict=True))
+    assert beside.pop("overall") == _cell(expert["overall"])
+    labels = {"one": "one", "combo": "combo", "New objects": "new_objects"}
+    assert beside == {
+        label: _cell(expert["by_category"][labels[label]])
+        if labels[label] in expert["by_category"]
+        else "-"
+        for label in beside
+    }
+    assert expert["by_category"]  # the row has numbers to check
+    assert page.locator("#compare-note").count() == 0  # same dataset
 
     episodes = read_episodes(run_dir / "episodes.jsonl")
     rows = page.locator("#episodes tbody tr")

@@ -12,7 +12,7 @@ import logging
 import statistics
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,9 +25,12 @@ from llm_agents.metrics import summarize
 from llm_agents.report import (
     CATEGORY_LABELS,
     PUBLISHED,
+    ComparedRun,
     chart_categories,
+    compared_run,
+    comparison_columns,
+    comparison_notes,
     model_name_of,
-    our_cell,
     our_rate,
     paper_differences,
     published_cell,
@@ -76,13 +79,22 @@ class ViewOutcome:
         return {key: s for key, s in self.statuses.items() if s.state == "mismatch"}
 
 
-def build_view(run_dir: str | Path, *, progress: bool = True, batch_size: int = 16) -> ViewOutcome:
+def build_view(
+    run_dir: str | Path,
+    *,
+    progress: bool = True,
+    batch_size: int = 16,
+    compare: Sequence[str | Path] = (),
+) -> ViewOutcome:
     """Replay every episode of `run_dir` and write its HTML report; returns where and how it went.
 
     A replay that does not reproduce its record is logged as a warning and flagged on its page
-    and on the run page.
+    and on the run page. The runs in `compare` (e.g. the expert's) get a row each beside the
+    run's in the results table, as `report --compare` prints them.
     """
     run = load_run(run_dir)
+    # Read before the long rendering, so a wrong path fails at once.
+    compared = [compared_run(other) for other in compare]
     out = run.path / REPORT_DIR
     pages = out / EPISODES_DIR
     try:
@@ -113,7 +125,7 @@ def build_view(run_dir: str | Path, *, progress: bool = True, batch_size: int = 
         if bar is not None:
             bar.close()
     index = out / "index.html"
-    _write(index, templates.get_template("index.html.j2").render(**_run_context(run, statuses)))
+    _write(index, templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)))
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
     return ViewOutcome(
         index=index,
@@ -277,38 +289,41 @@ def _neighbours(episodes: list[EpisodeView]) -> dict[str, tuple[str | None, str 
 # ---------------------------------------------------------------- run page
 
 
-def _run_context(run: LoadedRun, statuses: dict[str, ReplayStatus]) -> dict[str, Any]:
+def _run_context(
+    run: LoadedRun, statuses: dict[str, ReplayStatus], compared: Sequence[ComparedRun] = ()
+) -> dict[str, Any]:
     records = [view.record for view in run.episodes]
     summary = summarize(records)
     results = run.results
     model = model_name_of(results)
     partial = results.status != "complete"
     differences = paper_differences(results, recorded_rule(results))
-    columns = table_columns(summary)
+    ours = ComparedRun(f"{model} (this run{', partial' if partial else ''})", summary, results)
+    # With runs to compare, the columns are the comparison's (`report --compare`'s).
+    columns = comparison_columns([ours, *compared]) if compared else table_columns(summary)
     table = {
         "header": ["Model", *(CATEGORY_LABELS[column] for column in columns)],
-        "ours": [
-            f"{model} (this run{', partial' if partial else ''})",
-            *(our_cell(our_rate(summary, column)) for column in columns),
-        ],
+        "ours": ours.cells(columns),
+        "compared": [other.cells(columns) for other in compared],
+        "compare_notes": comparison_notes([ours, *compared]) if compared else [],
         "published": [
             [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
             for result in PUBLISHED
         ],
         "differences": differences,
     }
-    ours = {category: our_rate(summary, category) for category in chart_categories(summary)}
+    rates = {category: our_rate(summary, category) for category in chart_categories(summary)}
     categories = [
         {
             "label": CATEGORY_LABELS[category],
             "ours": rate,
             "published": [(result.model, result.rate(category)) for result in PUBLISHED],
         }
-        for category, rate in ours.items()
+        for category, rate in rates.items()
     ]
     # The y range of report.plot_success: the tallest interval or published bar, plus headroom.
     tallest = max(
-        [rate.high for rate in ours.values() if rate is not None]
+        [rate.high for rate in rates.values() if rate is not None]
         + [rate for result in PUBLISHED for rate in (result.one, result.combo, result.new_objects)]
     )
     goals = sorted(summary.by_goal.items(), key=lambda item: (-item[1].rate, item[0]))
