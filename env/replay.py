@@ -76,7 +76,10 @@ class Replayer:
             return jnp.clip(jnp.round(render(game)), 0, 255).astype(jnp.uint8)
 
         def reset(keys: jax.Array, task: Any) -> tuple[EpisodeState, jax.Array]:
-            state = jax.vmap(env.reset)(keys, task)
+            # One world at a time, as `env.jitted_reset` makes it: vectorized over a batch,
+            # Craftax's world generation rounds differently in some lanes (seen from lane 8 of
+            # 12 or more on an AVX-512 CPU), and the world would depend on where it was made.
+            state = jax.lax.map(lambda inputs: env.reset(*inputs), (keys, task))
             return state, jax.vmap(draw)(state.game)
 
         def advance(state: EpisodeState, actions: jax.Array) -> tuple[EpisodeState, Any]:

@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 import pytest
 from PIL import Image
@@ -367,3 +368,22 @@ def test_episode_page_in_chromium_steps_through_nonblank_frames(
     assert page.locator("#d-action").inner_text().startswith(steps[1]["action"])
     assert problems == []
     page.close()
+
+
+@pytest.mark.slow
+def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) -> None:
+    # Vectorized over 12 or more worlds, Craftax's world generation rounds differently from
+    # lane 8 on (AVX-512 CPUs): a replay batch must make each world as a lone reset does.
+    from env.craftext_env import make_task
+    from env.replay import Replayer
+
+    replayer = Replayer(classic_env, batch_size=12)
+    keys = np.stack([world_key(0, "goal", 0, repeat) for repeat in range(12)])
+    masks = np.zeros((12, 22), bool)
+    state, _ = replayer._reset(keys, make_task(masks, masks))
+    for lane in (0, 9, 11):
+        alone = classic_env.jitted_reset(keys[lane], make_task(masks[lane], masks[lane]))
+        for batched, single in zip(
+            jax.tree.leaves(state.game), jax.tree.leaves(alone.game), strict=True
+        ):
+            assert np.array_equal(np.asarray(batched)[lane], np.asarray(single))
