@@ -11,8 +11,9 @@ import functools
 import logging
 import statistics
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -125,7 +126,10 @@ def build_view(
         if bar is not None:
             bar.close()
     index = out / "index.html"
-    _write(index, templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)))
+    _write(
+        index,
+        templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)),
+    )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
     return ViewOutcome(
         index=index,
@@ -163,17 +167,32 @@ def _replays(
     playable.sort(key=lambda view: view.record.steps)
     replayer = _replayer(run, batch_size=batch_size)
     replays = replayer.replay([_replay_input(view) for view in playable])
-    for view, replay in zip(playable, replays, strict=True):
-        status = _status(view, replay)
-        if status.state == "mismatch":
-            logger.warning(
-                "the replay of episode %s does not reproduce its record: %s",
-                view.record.episode_id,
-                "; ".join(status.problems),
-            )
-        if bar is not None:
-            bar.update(1)
-        yield view, sprite_sheet(replay.frames), status
+    # Sheets are encoded on worker threads (Pillow lets go of the GIL while it quantizes and
+    # compresses), in order, a batch or so ahead of the pages written from them.
+    encoding: deque[tuple[EpisodeView, ReplayStatus, Future[SpriteSheet]]] = deque()
+    with ThreadPoolExecutor(2, thread_name_prefix="encode") as pool:
+        for view, replay in zip(playable, replays, strict=True):
+            status = _status(view, replay)
+            if status.state == "mismatch":
+                logger.warning(
+                    "the replay of episode %s does not reproduce its record: %s",
+                    view.record.episode_id,
+                    "; ".join(status.problems),
+                )
+            encoding.append((view, status, pool.submit(sprite_sheet, replay.frames)))
+            if len(encoding) > batch_size:
+                yield _encoded(*encoding.popleft(), bar)
+        while encoding:
+            yield _encoded(*encoding.popleft(), bar)
+
+
+def _encoded(
+    view: EpisodeView, status: ReplayStatus, sheet: Future[SpriteSheet], bar: Any
+) -> tuple[EpisodeView, SpriteSheet, ReplayStatus]:
+    done = sheet.result()
+    if bar is not None:
+        bar.update(1)
+    return view, done, status
 
 
 def _replayer(run: LoadedRun, *, batch_size: int) -> Any:
