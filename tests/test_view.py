@@ -208,6 +208,8 @@ def test_mp4_export_without_ffmpeg_is_a_user_error(
     [
         (["--episode", "0"], "--episode and --gif go together"),
         (["--episode", "no/such/0/0", "--gif", "x.gif"], "no finished episode 'no/such/0/0'"),
+        (["--episode", "0", "--gif", "x.gif", "--compare", "."], "it does not go with --gif"),
+        (["--compare", "/no/such/run"], "/no/such/run has no results.json"),
     ],
 )
 def test_view_flag_mistakes_are_one_line_errors(
