@@ -339,7 +339,7 @@ def test_episode_page_in_chromium_steps_through_nonblank_frames(
 ) -> None:
     episode = max(read_episodes(run_dir / "episodes.jsonl"), key=lambda e: len(e.achievements))
     page, problems = _open(browser, viewed.index)
-    page.click(f"#episodes a:text-is('{episode.episode_id}')")
+    page.locator("#episodes").get_by_role("link", name=episode.episode_id, exact=True).click()
     page.wait_for_load_state("load")
     assert page.locator("#instruction").inner_text() == episode.instruction
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import jinja2
+import markupsafe
 import numpy as np
 
 from env.errors import UserError
@@ -277,7 +278,15 @@ def _templates() -> jinja2.Environment:
         lstrip_blocks=True,
     )
     environment.filters["rate"] = lambda value: "-" if value is None else f"{value:.2f}"
+    environment.filters["breakable"] = _breakable
     return environment
+
+
+def _breakable(text: str) -> markupsafe.Markup:
+    """`text`, escaped, with a line-break opportunity after each `/` and `_`: episode ids and goal
+    names are long words that would otherwise widen their table past the page."""
+    escaped = str(markupsafe.escape(text))
+    return markupsafe.Markup(escaped.replace("/", "/<wbr>").replace("_", "_<wbr>"))
 
 
 def _write(path: Path, text: str) -> None:
