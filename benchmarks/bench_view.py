@@ -1,19 +1,25 @@
 """Speed and size of `craftext-llm view`: replaying and rendering a run against playing it.
 
-Plays a run with a zero-latency mock backend (timed), then builds its report (timed) and prints
-render time per episode and per frame, the report's size, and render time over play time (the
-issue's bar: rendering a run must not take longer than playing it with the mock backend).
+For each run size, plays a run with a zero-latency mock backend (timed), then builds its report
+(timed) and prints, side by side: play time, view time, view / play (the issue's bar: rendering a
+run must not take longer than playing it with the mock backend), render time per frame and per
+episode, and the report's size. Wall time is what the bar is about; CPU time (all threads of the
+process) is printed beside it because on a shared machine the wall time follows the others' load.
 Each is measured after a warm-up of the same shapes, so compilation is not counted in either;
 the view's one-off startup (tracing, compiling) is estimated from its warm-up and printed apart.
 
-    python benchmarks/bench_view.py [--episodes 64] [--max-steps 250] [--variant full]
+    python benchmarks/bench_view.py [--episodes 64 256] [--max-steps 250] [--variant full]
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from env import CrafTextEnv, EnvConfig, Variant
@@ -25,7 +31,21 @@ from llm_agents.viewer import build_view
 ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION: DOWN"]
 
 
-def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> float:
+@dataclass
+class Timing:
+    wall: float
+    cpu: float
+
+
+@contextmanager
+def timed() -> Iterator[Timing]:
+    timing = Timing(0.0, 0.0)
+    wall, cpu = time.perf_counter(), time.process_time()
+    yield timing
+    timing.wall, timing.cpu = time.perf_counter() - wall, time.process_time() - cpu
+
+
+def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> Timing:
     config = build_config(
         {
             "model": "mock:cycle:LEFT",
@@ -37,14 +57,14 @@ def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> float:
             "output_dir": str(out),
         }
     )
-    start = time.perf_counter()
-    run_eval(config, MockModel(outputs=ANSWERS), env=env)
-    return time.perf_counter() - start
+    with timed() as timing:
+        run_eval(config, MockModel(outputs=ANSWERS), env=env)
+    return timing
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=64)
+    parser.add_argument("--episodes", type=int, nargs="+", default=[64, 256])
     parser.add_argument("--max-steps", type=int, default=250)
     parser.add_argument("--variant", default="full", choices=["full", "classic"])
     parser.add_argument("--batch-size", type=int, default=32, help="episodes played in lockstep")
@@ -52,48 +72,60 @@ def main() -> None:
     args = parser.parse_args()
 
     env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp)
         warm = workdir / "warm"
         play(env, warm, args.batch_size, args.batch_size)
-        start = time.perf_counter()
-        cold = build_view(warm, progress=False, batch_size=args.replay_batch)
-        cold_seconds = time.perf_counter() - start
+        with timed() as cold_time:
+            cold = build_view(warm, progress=False, batch_size=args.replay_batch)
+        for episodes in args.episodes:
+            run = workdir / f"run-{episodes}"
+            played = play(env, run, episodes, args.batch_size)
+            with timed() as viewed:
+                outcome = build_view(run, progress=False, batch_size=args.replay_batch)
+            rows.append((played, viewed, outcome))
+            shutil.rmtree(run)
 
-        run = workdir / "run"
-        played = play(env, run, args.episodes, args.batch_size)
-        start = time.perf_counter()
-        outcome = build_view(run, progress=False, batch_size=args.replay_batch)
-        rendered = time.perf_counter() - start
-
-    episodes = len(outcome.statuses)
-    mismatches = len(outcome.mismatches)
     print(
-        f"{episodes} episodes, {outcome.frames} frames ({args.variant} Craftax, "
-        f"at most {args.max_steps} steps), mock backend at batch {args.batch_size}, "
-        f"replayed {args.replay_batch} at a time"
+        f"{args.variant} Craftax, at most {args.max_steps} steps; mock backend at batch "
+        f"{args.batch_size}; replayed {args.replay_batch} at a time"
     )
-    print(f"play (mock backend):   {played:8.1f} s")
-    print(
-        f"view (whole command): {rendered:8.1f} s = {rendered / episodes * 1000:.0f} ms per "
-        f"episode, {rendered / outcome.frames * 1000:.2f} ms per frame"
-    )
-    print(
-        f"  of which replay, render, encode and write: {outcome.render_seconds:.1f} s "
-        f"({outcome.render_seconds / outcome.frames * 1000:.2f} ms per frame)"
-    )
-    print(f"view / play:           {rendered / played:8.2f}  (target: <= 1)")
-    startup = cold_seconds - cold.frames * rendered / outcome.frames
+    table = [
+        ["", *(f"{len(outcome.statuses)} episodes" for _, _, outcome in rows)],
+        ["frames", *(str(outcome.frames) for _, _, outcome in rows)],
+        ["play, wall (mock backend)", *(f"{p.wall:.1f} s" for p, _, _ in rows)],
+        ["view, wall (whole command)", *(f"{v.wall:.1f} s" for _, v, _ in rows)],
+        ["view / play, wall (<= 1)", *(f"{v.wall / p.wall:.2f}" for p, v, _ in rows)],
+        ["play, CPU", *(f"{p.cpu:.1f} s" for p, _, _ in rows)],
+        ["view, CPU", *(f"{v.cpu:.1f} s" for _, v, _ in rows)],
+        ["view / play, CPU", *(f"{v.cpu / p.cpu:.2f}" for p, v, _ in rows)],
+        ["view per frame, wall", *(f"{v.wall / o.frames * 1e3:.2f} ms" for _, v, o in rows)],
+        [
+            "view per episode, wall",
+            *(f"{v.wall / len(o.statuses):.3f} s" for _, v, o in rows),
+        ],
+        ["report size", *(f"{o.size_bytes / 1e6:.1f} MB" for _, _, o in rows)],
+        [
+            "report size per episode",
+            *(f"{o.size_bytes / len(o.statuses) / 1e3:.0f} kB" for _, _, o in rows),
+        ],
+        ["replays not reproducing", *(str(len(o.mismatches)) for _, _, o in rows)],
+    ]
+    widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
+    for row in table:
+        print(
+            "  ".join(
+                cell.rjust(w) if i else cell.ljust(w)
+                for i, (cell, w) in enumerate(zip(row, widths, strict=True))
+            )
+        )
+    _, viewed, outcome = rows[-1]
+    startup = cold_time.wall - cold.frames * viewed.wall / outcome.frames
     print(
         f"view startup (trace, compile or load from the compilation cache; once per command): "
         f"about {startup:.1f} s"
     )
-    print(
-        f"report size:           {outcome.size_bytes / 1e6:8.1f} MB = "
-        f"{outcome.size_bytes / episodes / 1e3:.0f} kB per episode, "
-        f"{outcome.size_bytes / outcome.frames:.0f} B per frame"
-    )
-    print(f"replays not reproducing their record: {mismatches}")
 
 
 if __name__ == "__main__":

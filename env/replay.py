@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -77,7 +79,10 @@ class Replayer:
             return jnp.clip(jnp.round(render(game)), 0, 255).astype(jnp.uint8)
 
         def reset(keys: jax.Array, task: Any) -> tuple[EpisodeState, jax.Array]:
-            state = jax.vmap(env.reset)(keys, task)
+            # One world at a time, as `env.jitted_reset` makes it: vectorized over a batch,
+            # Craftax's world generation rounds differently in some lanes (seen from lane 8 of
+            # 12 or more on an AVX-512 CPU), and the world would depend on where it was made.
+            state = jax.lax.map(lambda inputs: env.reset(*inputs), (keys, task))
             return state, jax.vmap(draw)(state.game)
 
         def advance(state: EpisodeState, actions: jax.Array) -> tuple[EpisodeState, Any]:
@@ -97,28 +102,28 @@ class Replayer:
         self._reset = jax.jit(reset)
         self._advance = jax.jit(advance)
 
-    def replay(
-        self, episodes: Sequence[ReplayInput], *, on_batch: Callable[[int], None] | None = None
-    ) -> Iterator[Replay]:
+    def replay(self, episodes: Sequence[ReplayInput], *, workers: int = 2) -> Iterator[Replay]:
         """Replays of `episodes`, in order, computed a batch at a time (memory stays bounded).
 
-        The next batch is computed while the caller handles the current one (JAX dispatches
-        asynchronously), so encoding frames overlaps rendering them. `on_batch(n)` is called
-        after each batch with the number of episodes it held.
+        `workers` batches are computed at once, each from its own thread: XLA runs them in
+        parallel (one batch keeps about one core busy), and the caller handles finished
+        replays meanwhile.
         """
-        pending: tuple[list[ReplayInput], Any] | None = None
-        for start in range(0, len(episodes), self.batch_size):
-            batch = list(episodes[start : start + self.batch_size])
-            launched = (batch, self._launch(batch))
-            if pending is not None:
-                yield from self._collect(*pending)
-                if on_batch is not None:
-                    on_batch(len(pending[0]))
-            pending = launched
-        if pending is not None:
-            yield from self._collect(*pending)
-            if on_batch is not None:
-                on_batch(len(pending[0]))
+        batches = [
+            list(episodes[start : start + self.batch_size])
+            for start in range(0, len(episodes), self.batch_size)
+        ]
+        with ThreadPoolExecutor(max(1, workers), thread_name_prefix="replay") as pool:
+            pending: deque[Future[list[Replay]]] = deque()
+            for batch in batches:
+                pending.append(pool.submit(self._compute, batch))
+                if len(pending) > max(1, workers):
+                    yield from pending.popleft().result()
+            while pending:
+                yield from pending.popleft().result()
+
+    def _compute(self, batch: list[ReplayInput]) -> list[Replay]:
+        return self._collect(batch, self._launch(batch))
 
     def _launch(self, batch: list[ReplayInput]) -> tuple[jax.Array, list[Any]]:
         """Start the batch's computation; returns its (not yet computed) outputs."""

@@ -103,6 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="OUT",
         help="write --episode as an animated GIF (.gif) or MP4 (.mp4, ffmpeg)",
     )
+    view.add_argument(
+        "--compare",
+        metavar="OTHER_RUN",
+        help="another run (e.g. the expert's) whose row is shown beside this run's",
+    )
     view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
     _settings_command(
@@ -238,12 +243,18 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     if (args.episode is None) != (args.gif is None):
         raise UserError("--episode and --gif go together: give both to export one episode")
+    if args.gif is not None and args.compare:
+        raise UserError("--compare adds a row to the HTML report: it does not go with --gif")
     if args.gif is not None:
         status = export_episode(args.run_dir, args.episode, args.gif)
         print(f"wrote {args.gif} ({status.frames} frames)")
         problems = {args.episode: status} if status.state == "mismatch" else {}
     else:
-        outcome = build_view(args.run_dir, progress=not args.no_progress)
+        outcome = build_view(
+            args.run_dir,
+            progress=not args.no_progress,
+            compare=[args.compare] if args.compare else [],
+        )
         print(
             f"wrote {outcome.index} ({len(outcome.statuses)} episodes, {outcome.frames} frames, "
             f"{outcome.size_bytes / 1e6:.1f} MB)"

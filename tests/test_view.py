@@ -12,11 +12,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 import pytest
 from PIL import Image
 
 from env import CrafTextEnv, EnvConfig, Variant
+from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.evaluation.config import build_config
@@ -33,28 +35,43 @@ SCRIPT = "mock:hash:ACTION: DO|ACTION: LEFT|I go RIGHT|<action>UP</action>|ACTIO
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("run")
-    config = build_config(
+def classic_env() -> CrafTextEnv:
+    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+
+
+def _settings(out: Path, **settings: Any) -> Any:
+    return build_config(
         {
-            "model": SCRIPT,
             "variant": "classic",
             "splits": ["combo", "new_objects"],
             "max_steps": MAX_STEPS,
             "batch_size": 4,
-            "limit": 5,
             "output_dir": str(out),
+            **settings,
         }
     )
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory, classic_env: CrafTextEnv) -> Path:
+    out = tmp_path_factory.mktemp("run")
+    config = _settings(out, model=SCRIPT, limit=5)
     with get_model(config.model, config.generation) as model:
-        run_eval(config, model, env=env)
+        run_eval(config, model, env=classic_env)
     return out
 
 
 @pytest.fixture(scope="module")
-def viewed(run_dir: Path) -> Any:
-    return build_view(run_dir, progress=False)
+def expert_dir(tmp_path_factory: pytest.TempPathFactory, classic_env: CrafTextEnv) -> Path:
+    """The scripted expert on the same dataset, the run the report compares with."""
+    out = tmp_path_factory.mktemp("expert")
+    run_eval(_settings(out, agent="expert", limit=4), NoModel(), env=classic_env)
+    return out
+
+
+@pytest.fixture(scope="module")
+def viewed(run_dir: Path, expert_dir: Path) -> Any:
+    return build_view(run_dir, progress=False, compare=[expert_dir])
 
 
 def _copy_run(run_dir: Path, tmp_path: Path) -> Path:
@@ -191,6 +208,8 @@ def test_mp4_export_without_ffmpeg_is_a_user_error(
     [
         (["--episode", "0"], "--episode and --gif go together"),
         (["--episode", "no/such/0/0", "--gif", "x.gif"], "no finished episode 'no/such/0/0'"),
+        (["--episode", "0", "--gif", "x.gif", "--compare", "."], "it does not go with --gif"),
+        (["--compare", "/no/such/run"], "/no/such/run has no results.json"),
     ],
 )
 def test_view_flag_mistakes_are_one_line_errors(
@@ -266,7 +285,9 @@ def _cell(rate: dict[str, Any]) -> str:
 
 
 @pytest.mark.slow
-def test_run_page_in_chromium_shows_the_results(run_dir: Path, viewed: Any, browser: Any) -> None:
+def test_run_page_in_chromium_shows_the_results(
+    run_dir: Path, expert_dir: Path, viewed: Any, browser: Any
+) -> None:
     summary = json.loads((run_dir / "results.json").read_text())["summary"]
     page, problems = _open(browser, viewed.index)
     header = page.locator("#results-table thead th").all_inner_texts()
@@ -276,6 +297,22 @@ def test_run_page_in_chromium_shows_the_results(run_dir: Path, viewed: Any, brow
     assert shown["New objects"] == _cell(summary["by_category"]["new_objects"])
     assert shown["overall"] == _cell(summary["overall"])
     assert shown["one"] == "-"  # not run
+
+    # The expert's row, as `report --compare` gives it, beside the model's.
+    expert = json.loads((expert_dir / "results.json").read_text())["summary"]
+    compared = page.locator("#results-table tr.compared td").all_inner_texts()
+    assert compared[0] == "expert (scripted, no model)"
+    beside = dict(zip(header[1:], compared[1:], strict=True))
+    assert beside.pop("overall") == _cell(expert["overall"])
+    labels = {"one": "one", "combo": "combo", "New objects": "new_objects"}
+    assert beside == {
+        label: _cell(expert["by_category"][labels[label]])
+        if labels[label] in expert["by_category"]
+        else "-"
+        for label in beside
+    }
+    assert expert["by_category"]  # the row has numbers to check
+    assert page.locator("#compare-note").count() == 0  # same dataset
 
     episodes = read_episodes(run_dir / "episodes.jsonl")
     rows = page.locator("#episodes tbody tr")
@@ -302,7 +339,7 @@ def test_episode_page_in_chromium_steps_through_nonblank_frames(
 ) -> None:
     episode = max(read_episodes(run_dir / "episodes.jsonl"), key=lambda e: len(e.achievements))
     page, problems = _open(browser, viewed.index)
-    page.click(f"#episodes a:text-is('{episode.episode_id}')")
+    page.locator("#episodes").get_by_role("link", name=episode.episode_id, exact=True).click()
     page.wait_for_load_state("load")
     assert page.locator("#instruction").inner_text() == episode.instruction
 
@@ -333,3 +370,22 @@ def test_episode_page_in_chromium_steps_through_nonblank_frames(
     assert page.locator("#d-action").inner_text().startswith(steps[1]["action"])
     assert problems == []
     page.close()
+
+
+@pytest.mark.slow
+def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) -> None:
+    # Vectorized over 12 or more worlds, Craftax's world generation rounds differently from
+    # lane 8 on (AVX-512 CPUs): a replay batch must make each world as a lone reset does.
+    from env.craftext_env import make_task
+    from env.replay import Replayer
+
+    replayer = Replayer(classic_env, batch_size=12)
+    keys = np.stack([world_key(0, "goal", 0, repeat) for repeat in range(12)])
+    masks = np.zeros((12, 22), bool)
+    state, _ = replayer._reset(keys, make_task(masks, masks))
+    for lane in (0, 9, 11):
+        alone = classic_env.jitted_reset(keys[lane], make_task(masks[lane], masks[lane]))
+        for batched, single in zip(
+            jax.tree.leaves(state.game), jax.tree.leaves(alone.game), strict=True
+        ):
+            assert np.array_equal(np.asarray(batched)[lane], np.asarray(single))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
@@ -31,8 +32,12 @@ from llm_agents.run_data.store import (
 
 __all__ = [
     "PUBLISHED",
+    "ComparedRun",
     "PublishedResult",
     "compare_runs",
+    "compared_run",
+    "comparison_columns",
+    "comparison_notes",
     "format_table",
     "paper_differences",
     "plot_success",
@@ -406,7 +411,22 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
     return f"{table}\n{run_status(results)}"
 
 
-def _run_row(run_dir: Path) -> tuple[str, Summary, RunResults]:
+@dataclass(frozen=True)
+class ComparedRun:
+    """A run shown as one row of a comparison: its label, its summary and its results."""
+
+    label: str
+    summary: Summary
+    results: RunResults
+
+    def cells(self, columns: Sequence[str]) -> list[str]:
+        """The row's cells under `columns`, label first."""
+        return [self.label, *(our_cell(our_rate(self.summary, c)) for c in columns)]
+
+
+def compared_run(run_dir: str | Path) -> ComparedRun:
+    """A run directory's row for `--compare`: labelled with its model and agent strategy."""
+    run_dir = Path(run_dir)
     if not (run_dir / RESULTS_FILE).is_file():
         raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
     results = read_results(run_dir / RESULTS_FILE)
@@ -418,32 +438,36 @@ def _run_row(run_dir: Path) -> tuple[str, Summary, RunResults]:
     label = name if agent == "expert" else f"{name} ({agent})"
     partial = results.status != "complete"
     summary = run_summary(results, episodes, recorded_rule(results))
-    return f"{label}{', partial' if partial else ''}", summary, results
+    return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results)
+
+
+def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
+    """The columns of a comparison: the paper's categories, `paraphrased` when a run has it,
+    and the overall rate."""
+    categories = {c for run in runs for c in run.summary.by_category}
+    columns: list[str] = [
+        c for c in (*_PAPER_CATEGORIES, "paraphrased") if c in categories or c in _PAPER_CATEGORIES
+    ]
+    return [*columns, "overall"]
+
+
+def comparison_notes(runs: Sequence[ComparedRun]) -> list[str]:
+    """What a reader of the comparison must know: the runs read different datasets."""
+    if len({run.results.dataset.get("sha256") for run in runs}) > 1:
+        return ["Note: the compared runs read different datasets (or one is unknown)."]
+    return []
 
 
 def compare_runs(run_dir: str | Path, other_dir: str | Path) -> str:
     """A run's table with another run's row beside it (e.g. the expert's on the same dataset),
     and the published rows; says so when the two runs read different datasets."""
-    rows_data = [_run_row(Path(run_dir)), _run_row(Path(other_dir))]
-    categories = {c for _, summary, _ in rows_data for c in summary.by_category}
-    columns: list[str] = [
-        c for c in (*_PAPER_CATEGORIES, "paraphrased") if c in categories or c in _PAPER_CATEGORIES
-    ]
-    columns.append("overall")
+    runs = [compared_run(run_dir), compared_run(other_dir)]
+    columns = comparison_columns(runs)
     rows = [["Run", *(CATEGORY_LABELS[c] for c in columns)]]
-    rows += [[label, *(our_cell(our_rate(s, c)) for c in columns)] for label, s, _ in rows_data]
+    rows += [run.cells(columns) for run in runs]
     rows += [
         [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
         for result in PUBLISHED
     ]
-    widths = [max(len(row[i]) for row in rows) for i in range(len(columns) + 1)]
-    lines = [
-        " | ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
-        for row in rows
-    ]
-    lines.insert(1, "-+-".join("-" * w for w in widths))
     notes = ["", "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split."]
-    datasets = [r.dataset.get("sha256") for _, _, r in rows_data]
-    if datasets[0] != datasets[1]:
-        notes.append("Note: the two runs read different datasets (or one is unknown).")
-    return "\n".join(lines + notes)
+    return "\n".join(_render(rows) + notes + comparison_notes(runs))

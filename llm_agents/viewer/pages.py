@@ -11,29 +11,34 @@ import functools
 import logging
 import statistics
 import time
-from collections import Counter
-from collections.abc import Iterator
+from collections import Counter, deque
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import jinja2
+import markupsafe
 import numpy as np
 
 from env.errors import UserError
 from llm_agents.evaluation.report import (
     CATEGORY_LABELS,
     PUBLISHED,
+    ComparedRun,
     chart_categories,
+    compared_run,
+    comparison_columns,
+    comparison_notes,
     model_name_of,
-    our_cell,
     our_rate,
     paper_differences,
     published_cell,
     recorded_rule,
+    run_summary,
     table_columns,
 )
-from llm_agents.run_data.metrics import summarize
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
@@ -76,13 +81,22 @@ class ViewOutcome:
         return {key: s for key, s in self.statuses.items() if s.state == "mismatch"}
 
 
-def build_view(run_dir: str | Path, *, progress: bool = True, batch_size: int = 16) -> ViewOutcome:
+def build_view(
+    run_dir: str | Path,
+    *,
+    progress: bool = True,
+    batch_size: int = 16,
+    compare: Sequence[str | Path] = (),
+) -> ViewOutcome:
     """Replay every episode of `run_dir` and write its HTML report; returns where and how it went.
 
     A replay that does not reproduce its record is logged as a warning and flagged on its page
-    and on the run page.
+    and on the run page. The runs in `compare` (e.g. the expert's) get a row each beside the
+    run's in the results table, as `report --compare` prints them.
     """
     run = load_run(run_dir)
+    # Read before the long rendering, so a wrong path fails at once.
+    compared = [compared_run(other) for other in compare]
     out = run.path / REPORT_DIR
     pages = out / EPISODES_DIR
     try:
@@ -113,7 +127,10 @@ def build_view(run_dir: str | Path, *, progress: bool = True, batch_size: int = 
         if bar is not None:
             bar.close()
     index = out / "index.html"
-    _write(index, templates.get_template("index.html.j2").render(**_run_context(run, statuses)))
+    _write(
+        index,
+        templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)),
+    )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
     return ViewOutcome(
         index=index,
@@ -151,17 +168,32 @@ def _replays(
     playable.sort(key=lambda view: view.record.steps)
     replayer = _replayer(run, batch_size=batch_size)
     replays = replayer.replay([_replay_input(view) for view in playable])
-    for view, replay in zip(playable, replays, strict=True):
-        status = _status(view, replay)
-        if status.state == "mismatch":
-            logger.warning(
-                "the replay of episode %s does not reproduce its record: %s",
-                view.record.episode_id,
-                "; ".join(status.problems),
-            )
-        if bar is not None:
-            bar.update(1)
-        yield view, sprite_sheet(replay.frames), status
+    # Sheets are encoded on worker threads (Pillow lets go of the GIL while it quantizes and
+    # compresses), in order, a batch or so ahead of the pages written from them.
+    encoding: deque[tuple[EpisodeView, ReplayStatus, Future[SpriteSheet]]] = deque()
+    with ThreadPoolExecutor(2, thread_name_prefix="encode") as pool:
+        for view, replay in zip(playable, replays, strict=True):
+            status = _status(view, replay)
+            if status.state == "mismatch":
+                logger.warning(
+                    "the replay of episode %s does not reproduce its record: %s",
+                    view.record.episode_id,
+                    "; ".join(status.problems),
+                )
+            encoding.append((view, status, pool.submit(sprite_sheet, replay.frames)))
+            if len(encoding) > batch_size:
+                yield _encoded(*encoding.popleft(), bar)
+        while encoding:
+            yield _encoded(*encoding.popleft(), bar)
+
+
+def _encoded(
+    view: EpisodeView, status: ReplayStatus, sheet: Future[SpriteSheet], bar: Any
+) -> tuple[EpisodeView, SpriteSheet, ReplayStatus]:
+    done = sheet.result()
+    if bar is not None:
+        bar.update(1)
+    return view, done, status
 
 
 def _replayer(run: LoadedRun, *, batch_size: int) -> Any:
@@ -246,7 +278,15 @@ def _templates() -> jinja2.Environment:
         lstrip_blocks=True,
     )
     environment.filters["rate"] = lambda value: "-" if value is None else f"{value:.2f}"
+    environment.filters["breakable"] = _breakable
     return environment
+
+
+def _breakable(text: str) -> markupsafe.Markup:
+    """`text`, escaped, with a line-break opportunity after each `/` and `_`: episode ids and goal
+    names are long words that would otherwise widen their table past the page."""
+    escaped = str(markupsafe.escape(text))
+    return markupsafe.Markup(escaped.replace("/", "/<wbr>").replace("_", "_<wbr>"))
 
 
 def _write(path: Path, text: str) -> None:
@@ -277,38 +317,41 @@ def _neighbours(episodes: list[EpisodeView]) -> dict[str, tuple[str | None, str 
 # ---------------------------------------------------------------- run page
 
 
-def _run_context(run: LoadedRun, statuses: dict[str, ReplayStatus]) -> dict[str, Any]:
+def _run_context(
+    run: LoadedRun, statuses: dict[str, ReplayStatus], compared: Sequence[ComparedRun] = ()
+) -> dict[str, Any]:
     records = [view.record for view in run.episodes]
-    summary = summarize(records)
     results = run.results
+    summary = run_summary(results, records, recorded_rule(results))
     model = model_name_of(results)
     partial = results.status != "complete"
     differences = paper_differences(results, recorded_rule(results))
-    columns = table_columns(summary)
+    ours = ComparedRun(f"{model} (this run{', partial' if partial else ''})", summary, results)
+    # With runs to compare, the columns are the comparison's (`report --compare`'s).
+    columns = comparison_columns([ours, *compared]) if compared else table_columns(summary)
     table = {
         "header": ["Model", *(CATEGORY_LABELS[column] for column in columns)],
-        "ours": [
-            f"{model} (this run{', partial' if partial else ''})",
-            *(our_cell(our_rate(summary, column)) for column in columns),
-        ],
+        "ours": ours.cells(columns),
+        "compared": [other.cells(columns) for other in compared],
+        "compare_notes": comparison_notes([ours, *compared]) if compared else [],
         "published": [
             [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
             for result in PUBLISHED
         ],
         "differences": differences,
     }
-    ours = {category: our_rate(summary, category) for category in chart_categories(summary)}
+    rates = {category: our_rate(summary, category) for category in chart_categories(summary)}
     categories = [
         {
             "label": CATEGORY_LABELS[category],
             "ours": rate,
             "published": [(result.model, result.rate(category)) for result in PUBLISHED],
         }
-        for category, rate in ours.items()
+        for category, rate in rates.items()
     ]
     # The y range of report.plot_success: the tallest interval or published bar, plus headroom.
     tallest = max(
-        [rate.high for rate in ours.values() if rate is not None]
+        [rate.high for rate in rates.values() if rate is not None]
         + [rate for result in PUBLISHED for rate in (result.one, result.combo, result.new_objects)]
     )
     goals = sorted(summary.by_goal.items(), key=lambda item: (-item[1].rate, item[0]))
