@@ -1,0 +1,98 @@
+"""The dispatcher: every model request of a run goes through it, and answers come back as they
+arrive, so each episode can step as soon as its own answer is in."""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+from llm_agents.agents.zero_shot import StepPrompt
+from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
+
+Answer = tuple[StepPrompt, ModelOutput]
+
+
+class Dispatcher:
+    """Every model request of a run goes through here; answers come back as they arrive.
+
+    A backend with `concurrent_requests` (an HTTP server) gets up to `max_concurrency`
+    one-conversation calls in flight, from as many threads; any other (an in-process engine)
+    gets one call at a time holding every prompt that is ready, so its own batching does the
+    rest. Worker threads are daemons: an interrupted run does not wait for a slow answer.
+    """
+
+    def __init__(self, model: ModelAPI, choices: ChoiceSet | None):
+        self.model = model
+        self.choices = choices
+        self._requests: queue.SimpleQueue[list[StepPrompt] | None] = queue.SimpleQueue()
+        self._answers: queue.SimpleQueue[list[Answer] | BaseException] = queue.SimpleQueue()
+        self.in_flight = 0
+        self._workers = model.config.max_concurrency if model.concurrent_requests else 1
+        serve = self._serve_one_by_one if model.concurrent_requests else self._serve_batches
+        for index in range(self._workers):
+            threading.Thread(target=serve, name=f"dispatch-{index}", daemon=True).start()
+
+    def submit(self, prompts: list[StepPrompt]) -> None:
+        """Queue prompts; an engine gets them in one call (with whatever else is waiting)."""
+        if not prompts:
+            return
+        self.in_flight += len(prompts)
+        if self.model.concurrent_requests:
+            for prompt in prompts:
+                self._requests.put([prompt])
+        else:
+            self._requests.put(prompts)
+
+    def wait(self) -> list[Answer]:
+        """Block until at least one answer arrives; return every answer that has."""
+        got = [self._answers.get()]
+        while True:
+            try:
+                got.append(self._answers.get_nowait())
+            except queue.Empty:
+                break
+        answers: list[Answer] = []
+        for item in got:
+            if isinstance(item, BaseException):
+                raise item
+            answers.extend(item)
+        self.in_flight -= len(answers)
+        return answers
+
+    def close(self) -> None:
+        for _ in range(self._workers):
+            self._requests.put(None)
+
+    def _serve_one_by_one(self) -> None:
+        while (item := self._requests.get()) is not None:
+            self._answer(item)
+
+    def _serve_batches(self) -> None:
+        while (item := self._requests.get()) is not None:
+            batch = list(item)
+            closing = False
+            while True:
+                try:
+                    more = self._requests.get_nowait()
+                except queue.Empty:
+                    break
+                if more is None:
+                    closing = True
+                    break
+                batch.extend(more)
+            self._answer(batch)
+            if closing:
+                return
+
+    def _answer(self, prompts: list[StepPrompt]) -> None:
+        try:
+            outputs = self.model.generate([p.messages for p in prompts], choices=self.choices)
+            if len(outputs) != len(prompts):
+                raise RuntimeError(
+                    f"backend {self.model.backend_name} returned {len(outputs)} outputs "
+                    f"for {len(prompts)} conversations"
+                )
+        except BaseException as err:  # handed to the scheduler thread, which raises it
+            self._answers.put(err)
+            return
+        self._answers.put(list(zip(prompts, outputs, strict=True)))
