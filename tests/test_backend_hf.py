@@ -16,7 +16,7 @@ import torch
 
 from env.errors import UserError
 from llm_agents.backends import embedded, hf
-from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, local_model_path
 from llm_agents.backends.hf import (
     CandidateTrie,
     HFModel,
@@ -24,7 +24,6 @@ from llm_agents.backends.hf import (
     _attend,
     _SharedPrefixAttention,
     _split_attention_forward,
-    resolve_model_path,
 )
 
 FRANCE = [
@@ -349,12 +348,13 @@ def test_thinking_budget_forces_the_closing_tag() -> None:
     assert torch.equal(under_budget, torch.zeros(1, 10))
 
 
-def test_missing_model_folder_is_a_user_error(tmp_path: Path) -> None:
-    with pytest.raises(UserError, match="does not exist"):
-        resolve_model_path(str(tmp_path / "nope"))
-    assert resolve_model_path(str(tmp_path)) == tmp_path
-    assert resolve_model_path("someone/some-model") is None
-    assert resolve_model_path("Qwen/Qwen2.5-0.5B-Instruct") is None
+@pytest.mark.parametrize("backend", ["hf", "vllm"])
+def test_missing_model_folder_is_a_user_error(tmp_path: Path, backend: str) -> None:
+    with pytest.raises(UserError, match=f"{backend} model folder .* does not exist"):
+        local_model_path(backend, str(tmp_path / "nope"))
+    assert local_model_path(backend, str(tmp_path)) == tmp_path
+    assert local_model_path(backend, "someone/some-model") is None
+    assert local_model_path(backend, "Qwen/Qwen2.5-0.5B-Instruct") is None
 
 
 def test_uncached_hub_model_is_a_user_error_not_a_hang() -> None:

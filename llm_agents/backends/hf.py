@@ -27,7 +27,6 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from env.errors import UserError
@@ -41,9 +40,10 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    local_model_path,
     ranked_choices,
 )
-from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
+from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME
 from llm_agents.backends.reasoning import (
     THINK_CLOSE,
     THINK_OPEN,
@@ -69,9 +69,6 @@ except ModuleNotFoundError as err:
     raise ModuleNotFoundError(
         f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
     ) from err
-
-#: Short model names -> how to find their folder.
-SHORT_NAMES = {EMBEDDED_MODEL_NAME: embedded_model_dir}
 
 ChoiceScoring = Literal["sum", "mean"]
 
@@ -121,7 +118,7 @@ class HFModel(ModelAPI):
         self.choice_scoring: ChoiceScoring = choice_scoring
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.dtype = _torch_dtype(dtype, self.device)
-        self.model_path = resolve_model_path(model_name)
+        self.model_path = local_model_path("hf", model_name)
         source = str(self.model_path) if self.model_path is not None else model_name
         try:
             self.tokenizer = AutoTokenizer.from_pretrained(source, local_files_only=True)
@@ -771,18 +768,6 @@ class ThinkingBudget(LogitsProcessor):
             if thought[-done:] == self.close_ids[:done]:
                 return self.close_ids[done]
         return self.close_ids[0]
-
-
-def resolve_model_path(model_name: str) -> Path | None:
-    """The local folder a model name means, or None for a hub id (loaded from the hub cache)."""
-    if model_name in SHORT_NAMES:
-        return SHORT_NAMES[model_name]()
-    path = Path(model_name).expanduser()
-    if path.is_dir():
-        return path
-    if model_name.startswith((".", "/", "~")):
-        raise UserError(f"hf model folder {model_name!r} does not exist")
-    return None
 
 
 def _common_prefix_length(sequences: list[list[int]], keep_own: int = 1) -> int:
