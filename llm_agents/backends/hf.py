@@ -9,12 +9,16 @@ once (left padding). Choices follow the `loglik` rule only (`guided` is refused)
 candidate is scored by its log-likelihood after the prompt, with one prompt pass per batch: all
 candidates then go through a single pass over the prompt's cached keys and values, side by side
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
-attention mask). The answer is always one of the choices. In bfloat16 and float16 the split
-path's attention runs in float32 and rounds once, so its scores differ from a plain forward
-pass in that dtype about as much as two plain passes with different attention kernels differ
-from each other (float16: hundredths of a nat; bfloat16: most of a nat on the embedded model,
-whose choice scores still lie nearer the float32 ones than its plain bfloat16 pass does;
-benchmarks/bench_choice_dtypes.py measures it).
+attention mask). The answer is always one of the choices.
+
+`loglik` scores equal a plain forward pass over prompt + option in float32 (to float rounding)
+and in float16 (to hundredths of a nat: the split path's attention runs in float32 and rounds
+once). bfloat16 is refused for `loglik`: its rounding alone moves a score by most of a nat
+(two plain bfloat16 passes that differ only in their attention kernel, or only in batch size,
+disagree that much on the embedded model), so no batched or cached scorer can match the plain
+pass within 0.1 nats, and rankings would follow the rounding. Left unset, the dtype is
+float32 for `loglik` on a GPU too (bfloat16 otherwise); benchmarks/bench_choice_dtypes.py
+measures every dtype and path.
 
 Reasoning models: the thinking is split from the answer (`reasoning.py`). With
 `reasoning_budget` set, a row that has thought for that many tokens has its closing tag forced,
@@ -24,6 +28,7 @@ answer still cut off gets one "answer only" follow-up.
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -57,6 +62,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 try:
     import torch
     from transformers import (
+        AutoConfig,
         AutoModelForCausalLM,
         AutoTokenizer,
         DynamicCache,
@@ -72,12 +78,22 @@ except ModuleNotFoundError as err:
 
 ChoiceScoring = Literal["sum", "mean"]
 
+logger = logging.getLogger(__name__)
+
+#: Why `loglik` refuses a bfloat16 model, and what to use instead.
+LOGLIK_BFLOAT16 = (
+    "hf loglik choices cannot be scored in bfloat16: its rounding alone moves a score by most "
+    "of a nat, so rankings would follow the rounding; set dtype=float32 (exact) or "
+    "dtype=float16 (--backend-option dtype=float32), or leave dtype unset"
+)
+
 
 class HFModel(ModelAPI):
     """A transformers causal LM answering batches of chat conversations.
 
     Options: `device` ("cpu", "cuda", ...; default: cuda when available), `dtype` ("float32",
-    "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU), `threads` (torch CPU
+    "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU except float32 for `loglik`
+    choices, which refuse bfloat16: see the module docstring), `threads` (torch CPU
     threads; default: torch's own choice), `batch_size` (conversations per forward batch),
     `choice_scoring` ("sum": total log-likelihood; "mean": per token, which favours long
     candidates less).
@@ -91,7 +107,7 @@ class HFModel(ModelAPI):
         "the vllm or openai backend"
     }
     # transformers' own annotations of its model classes do not type-check cleanly.
-    model: Any
+    _model: Any = None
 
     def __init__(
         self,
@@ -118,22 +134,16 @@ class HFModel(ModelAPI):
         self.choice_scoring: ChoiceScoring = choice_scoring
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.dtype = _torch_dtype(dtype, self.device)
+        self.dtype_given = dtype is not None
         self.model_path = local_model_path("hf", model_name)
-        source = str(self.model_path) if self.model_path is not None else model_name
+        self._source = str(self.model_path) if self.model_path is not None else model_name
         try:
-            self.tokenizer = AutoTokenizer.from_pretrained(source, local_files_only=True)
-            self.model = AutoModelForCausalLM.from_pretrained(
-                source, local_files_only=True, dtype=self.dtype
-            )
+            self.tokenizer = AutoTokenizer.from_pretrained(self._source, local_files_only=True)
+            model_config = AutoConfig.from_pretrained(self._source, local_files_only=True)
         except OSError as err:
-            raise UserError(
-                f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
-                f"(hf:/path/to/model), hf:{EMBEDDED_MODEL_NAME}, or a hub id already in the "
-                "local hub cache"
-            ) from err
+            raise _load_error(model_name, err) from err
         if not self.tokenizer.chat_template:
             raise UserError(f"hf model {model_name!r} has no chat template in its tokenizer")
-        self.model.to(self.device).eval()
         self.tokenizer.padding_side = "left"
         if self.tokenizer.pad_token_id is None:
             self.tokenizer.pad_token = self.tokenizer.eos_token
@@ -142,7 +152,39 @@ class HFModel(ModelAPI):
         self._prefix_ids: list[int] = []
         self._prefix_states: list[tuple[torch.Tensor, torch.Tensor]] = []
         # Choice mode's own attention (see _SharedPrefixAttention) where the model allows it.
-        self.split_attention = _supports_split_attention(self.model)
+        self.split_attention = _supports_split_attention(model_config)
+
+    @property
+    def model(self) -> Any:
+        """The transformers model in `self.dtype`, loaded on first use: the choice rule, known
+        only after construction (`check_choice_rule`), may still change the default dtype."""
+        if self._model is None:
+            try:
+                model: Any = AutoModelForCausalLM.from_pretrained(
+                    self._source, local_files_only=True, dtype=self.dtype
+                )
+            except OSError as err:
+                raise _load_error(self.model_name, err) from err
+            self._model = model.to(self.device).eval()
+        return self._model
+
+    def check_choice_rule(self, rule: ChoiceRule) -> None:
+        """As `ModelAPI.check_choice_rule`; `loglik` also refuses a bfloat16 the user set and
+        replaces a defaulted one by float32 (see the module docstring)."""
+        super().check_choice_rule(rule)
+        if rule != "loglik" or self.dtype != torch.bfloat16:
+            return
+        if self.dtype_given:
+            raise UserError(LOGLIK_BFLOAT16)
+        logger.info("hf: loglik choices score in float32 (bfloat16 cannot score them exactly)")
+        self.dtype = torch.float32
+        if self._model is not None:
+            # Loaded by free generation before the first choice; reloaded from the checkpoint
+            # rather than upcast, so the weights are those a float32 load gives.
+            self._model = None
+            self._prefix_ids, self._prefix_states = [], []
+            if self.device.type == "cuda":
+                torch.cuda.empty_cache()
 
     def info(self) -> dict[str, str]:
         import transformers
@@ -182,6 +224,7 @@ class HFModel(ModelAPI):
         self, conversations: Sequence[Conversation], choices: Sequence[str]
     ) -> list[list[float]]:
         """Log-likelihood (summed over tokens) of each choice after each conversation's prompt."""
+        self.check_choice_rule("loglik")
         prompts = [self._encode(self._render(conversation)) for conversation in conversations]
         candidates = [self._encode(choice) for choice in choices]
         with torch.inference_mode():
@@ -538,8 +581,7 @@ SPLIT_ATTENTION = "craftext_split_prefix"
 CPU_FLASH_KERNEL = True
 
 
-def _supports_split_attention(model: Any) -> bool:
-    config = model.config
+def _supports_split_attention(config: Any) -> bool:
     if config.model_type not in SPLIT_ATTENTION_MODELS:
         return False
     window = getattr(config, "sliding_window", None)
@@ -793,6 +835,14 @@ def _cut_at_stop(text: str, stops: list[str]) -> tuple[bool, str]:
     if not positions:
         return False, text
     return True, text[: min(positions)]
+
+
+def _load_error(model_name: str, err: OSError) -> UserError:
+    return UserError(
+        f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
+        f"(hf:/path/to/model), hf:{EMBEDDED_MODEL_NAME}, or a hub id already in the local hub "
+        "cache"
+    )
 
 
 def _torch_dtype(name: str | None, device: torch.device) -> torch.dtype:
