@@ -7,6 +7,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 pytest.importorskip("torch")
@@ -40,6 +41,23 @@ GREETINGS = [
     ],
     FRANCE,
 ]
+
+
+SNAPSHOTS = Path(__file__).parent / "snapshots"
+
+
+def snapshot_conversation(name: str) -> list[ChatMessage]:
+    """A real agent conversation, from the prompt snapshots the agent tests keep."""
+    messages: list[ChatMessage] = []
+    for part in (SNAPSHOTS / name).read_text(encoding="utf-8").split("=== ")[1:]:
+        role, _, content = part.partition(" ===\n")
+        messages.append(ChatMessage.model_validate({"role": role, "content": content[:-1]}))
+    return messages
+
+
+#: Real prompts: zero-shot (classic and full, choice and free), cot with earlier replies,
+#: few-shot with demonstrations, plan-conditioned.
+REAL = [snapshot_conversation(path.name) for path in sorted(SNAPSHOTS.glob("prompt_*.txt"))]
 
 
 @pytest.fixture(scope="module")
@@ -275,6 +293,66 @@ def test_cuda_loglik_defaults_to_float32_and_refuses_bfloat16() -> None:
     refusing = HFModel("smollm2-135m", GenerateConfig(), device="cuda", dtype="bfloat16")
     with pytest.raises(UserError, match="bfloat16"):
         refusing.check_choice_rule("loglik")
+
+
+def test_prompt_tokens_equal_encoding_each_prompt_whole(model: HFModel) -> None:
+    # Same system prompt, other steps; no system message; a conversation of only a system one.
+    later_steps = [
+        [conversation[0], ChatMessage(role="user", content=f"Step {n}: you see a tree.")]
+        for n, conversation in enumerate(REAL)
+    ]
+    alone = [REAL[0][:1]]
+    batches = [REAL, later_steps, GREETINGS, alone, [*REAL[:2], *GREETINGS, *later_steps[:2]]]
+    for conversations in batches * 2:
+        got = model._prompt_ids(conversations)
+        want = [model._encode(model._render(conversation)) for conversation in conversations]
+        assert [ids.tolist() for ids in got] == want
+    # The system prompts' tokens really were kept (the equality above is not the fallback's).
+    kept = {system for system, head in model._heads.items() if head is not None}
+    assert {conversation[0].content for conversation in REAL} <= kept
+    assert all(len(model._heads[c[0].content][1]) > 500 for c in REAL)  # type: ignore[index]
+
+
+def test_common_prefix_length_over_token_arrays() -> None:
+    sequences = [np.array([1, 2, 3, 4, 5]), np.array([1, 2, 3, 9, 5, 6]), np.array([1, 2, 8, 4])]
+    assert hf._common_prefix_length(sequences) == 2
+    assert hf._common_prefix_length(sequences[:2]) == 3
+    # Each sequence keeps `keep_own` tokens of its own.
+    assert hf._common_prefix_length([np.array([1, 2, 3]), np.array([1, 2, 3, 4])]) == 2
+    assert hf._common_prefix_length([np.array([1, 2, 3]), np.array([1, 2, 3])], keep_own=0) == 3
+    assert hf._common_prefix_length([np.array([1]), np.array([1, 2])]) == 0
+
+
+def test_a_cut_that_would_change_the_tokens_is_never_used() -> None:
+    tokenizing = HFModel("smollm2-135m", GenerateConfig(), threads=1)
+    # Cutting before a letter splits words: each such head fails its check against the whole.
+    tokenizing._cut_markers = ("e",)
+    got = tokenizing._prompt_ids(REAL)
+    assert [ids.tolist() for ids in got] == [
+        tokenizing._encode(tokenizing._render(conversation)) for conversation in REAL
+    ]
+    assert set(tokenizing._heads.values()) == {None}
+    assert tokenizing._model is None
+
+
+@pytest.mark.slow
+def test_reusing_prompt_tokens_changes_no_answer(model: HFModel) -> None:
+    from llm_agents.actions import action_names
+
+    choices = ChoiceSet(options=tuple(action_names("classic")), rule="loglik")
+    real = REAL
+    answers = {}
+    for reuse in (True, False):
+        model.reuse_prompt_tokens = reuse
+        try:
+            chosen = model.generate(real, choices=choices)
+            free = model.generate(GREETINGS + real[:2])
+        finally:
+            model.reuse_prompt_tokens = True
+        answers[reuse] = [(o.text, o.prompt_tokens, o.finish_reason) for o in chosen + free]
+    assert answers[True] == answers[False]
+    assert len({text for text, _, _ in answers[True][: len(real)]}) > 1
+    assert all(reason != "error" for _, _, reason in answers[True])
 
 
 class _Layer(torch.nn.Module):

@@ -11,7 +11,7 @@ import abc
 import difflib
 import inspect
 import logging
-from collections.abc import Sequence
+from collections.abc import Sequence, Sized
 from pathlib import Path
 from typing import Any, ClassVar, Literal, Self
 
@@ -126,8 +126,8 @@ class ModelOutput(BaseModel):
 
 def ranked_choices(
     options: Sequence[str],
-    prompts: Sequence[Sequence[int]],
-    candidates: Sequence[Sequence[int]],
+    prompts: Sequence[Sized],
+    candidates: Sequence[Sized],
     scores: Sequence[Sequence[float]],
     latency_s: float,
 ) -> list[ModelOutput]:

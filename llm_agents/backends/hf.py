@@ -34,6 +34,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
+import numpy as np
+
 from env.errors import UserError
 from llm_agents.backends.base import (
     ANSWER_FIELDS,
@@ -61,6 +63,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 try:
     import torch
+    from jinja2 import TemplateError
     from transformers import (
         AutoConfig,
         AutoModelForCausalLM,
@@ -148,8 +151,19 @@ class HFModel(ModelAPI):
         if self.tokenizer.pad_token_id is None:
             self.tokenizer.pad_token = self.tokenizer.eos_token
         self._think_close_ids: list[int] = self._encode(THINK_CLOSE)
+        # Special tokens a text may be cut before without changing its tokens (see _head).
+        self._cut_markers = tuple(
+            token.content
+            for token in self.tokenizer.added_tokens_decoder.values()
+            if token.special and not token.lstrip and not token.normalized
+        )
+        # System message -> its rendered text and token ids, or None where it cannot be cut off.
+        self._heads: dict[str, tuple[str, np.ndarray] | None] = {}
+        #: Whether prompts reuse their system message's tokens (`_encode_prompts`); False
+        #: encodes every prompt whole (the benchmarks compare the two).
+        self.reuse_prompt_tokens = True
         # Key/value states of the last choice-mode prompt prefix, per layer (see _prefix_cache).
-        self._prefix_ids: list[int] = []
+        self._prefix_ids = np.zeros(0, dtype=np.int64)
         self._prefix_states: list[tuple[torch.Tensor, torch.Tensor]] = []
         # Choice mode's own attention (see _SharedPrefixAttention) where the model allows it.
         self.split_attention = _supports_split_attention(model_config)
@@ -182,7 +196,7 @@ class HFModel(ModelAPI):
             # Loaded by free generation before the first choice; reloaded from the checkpoint
             # rather than upcast, so the weights are those a float32 load gives.
             self._model = None
-            self._prefix_ids, self._prefix_states = [], []
+            self._prefix_ids, self._prefix_states = np.zeros(0, dtype=np.int64), []
             if self.device.type == "cuda":
                 torch.cuda.empty_cache()
 
@@ -225,7 +239,7 @@ class HFModel(ModelAPI):
     ) -> list[list[float]]:
         """Log-likelihood (summed over tokens) of each choice after each conversation's prompt."""
         self.check_choice_rule("loglik")
-        prompts = [self._encode(self._render(conversation)) for conversation in conversations]
+        prompts = self._prompt_ids(conversations)
         candidates = [self._encode(choice) for choice in choices]
         with torch.inference_mode():
             return self._candidate_log_likelihoods(prompts, candidates)
@@ -233,22 +247,22 @@ class HFModel(ModelAPI):
     # -- free generation ----------------------------------------------------------------------
 
     def _generate_split(self, conversations: Sequence[Conversation]) -> list[ModelOutput]:
-        prompts = [self._render(conversation) for conversation in conversations]
+        texts = [self._render(conversation) for conversation in conversations]
         # Templates that open the thinking block themselves make the completion start inside it.
-        opened = [prompt.rstrip().endswith(THINK_OPEN) for prompt in prompts]
-        raw = self._generate_raw(prompts, opened)
+        opened = [text.rstrip().endswith(THINK_OPEN) for text in texts]
+        raw = self._generate_raw(self._encode_prompts(conversations, texts), opened)
         return [
             with_reasoning_split(output, thinking_open_in_prompt=was_opened)
             for output, was_opened in zip(raw, opened, strict=True)
         ]
 
-    def _generate_raw(self, prompts: list[str], opened: list[bool]) -> list[ModelOutput]:
+    def _generate_raw(self, prompts: list[np.ndarray], opened: list[bool]) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
-        encoded = self.tokenizer(
-            prompts, return_tensors="pt", padding=True, add_special_tokens=False
-        ).to(self.device)
-        prompt_len = encoded.input_ids.shape[1]
+        # Left padding, as the tokenizer pads a batch for generation.
+        ids, mask = _padded(prompts, self.tokenizer.pad_token_id, left=True)
+        input_ids, attention_mask = _to_torch(ids, self.device), _to_torch(mask, self.device)
+        prompt_len = input_ids.shape[1]
         max_new = config.max_tokens
         processors = []
         if config.reasoning_budget is not None and self._think_close_ids:
@@ -270,7 +284,8 @@ class HFModel(ModelAPI):
                 torch.manual_seed(config.sampling_seed)
         with torch.inference_mode():
             generated = self.model.generate(
-                **encoded,
+                input_ids=input_ids,
+                attention_mask=attention_mask,
                 max_new_tokens=max_new,
                 pad_token_id=self.tokenizer.pad_token_id,
                 logits_processor=LogitsProcessorList(processors),
@@ -281,7 +296,7 @@ class HFModel(ModelAPI):
         latency = time.perf_counter() - start
         eos_ids = self._eos_ids()
         outputs = []
-        for row, prompt_mask in zip(generated[:, prompt_len:], encoded.attention_mask, strict=True):
+        for row, prompt in zip(generated[:, prompt_len:], prompts, strict=True):
             tokens = row.tolist()
             ended = next((i for i, tok in enumerate(tokens) if tok in eos_ids), None)
             if ended is not None:
@@ -292,7 +307,7 @@ class HFModel(ModelAPI):
             outputs.append(
                 ModelOutput(
                     text=text,
-                    prompt_tokens=int(prompt_mask.sum()),
+                    prompt_tokens=len(prompt),
                     completion_tokens=len(tokens) + (ended is not None),
                     latency_s=latency,
                     finish_reason=finish,
@@ -306,7 +321,7 @@ class HFModel(ModelAPI):
         self, conversations: Sequence[Conversation], choices: list[str], candidates: list[list[int]]
     ) -> list[ModelOutput]:
         start = time.perf_counter()
-        prompts = [self._encode(self._render(conversation)) for conversation in conversations]
+        prompts = self._prompt_ids(conversations)
         with torch.inference_mode():
             scores = self._candidate_log_likelihoods(prompts, candidates)
         if self.choice_scoring == "mean":
@@ -317,7 +332,7 @@ class HFModel(ModelAPI):
         return ranked_choices(choices, prompts, candidates, scores, time.perf_counter() - start)
 
     def _candidate_log_likelihoods(
-        self, prompts: list[list[int]], candidates: list[list[int]]
+        self, prompts: list[np.ndarray], candidates: list[list[int]]
     ) -> list[list[float]]:
         """Summed log-probability of every candidate after every prompt.
 
@@ -336,13 +351,9 @@ class HFModel(ModelAPI):
         if shared:
             cache = self._prefix_cache(prompts[0][:shared])
             cache.batch_repeat_interleave(batch)
-        rests = [p[shared:] for p in prompts]
-        width = max(len(rest) for rest in rests)
         # Left padding (after the shared prefix) puts every prompt's last token in one column.
-        rest_ids = torch.tensor([[pad] * (width - len(r)) + r for r in rests], device=device)
-        rest_mask = torch.tensor(
-            [[0] * (width - len(r)) + [1] * len(r) for r in rests], device=device
-        )
+        padded_ids, padded_mask = _padded([p[shared:] for p in prompts], pad, left=True)
+        rest_ids, rest_mask = _to_torch(padded_ids, device), _to_torch(padded_mask, device)
         prompt_mask = torch.cat(
             [torch.ones(batch, shared, dtype=rest_mask.dtype, device=device), rest_mask], dim=-1
         )
@@ -369,7 +380,7 @@ class HFModel(ModelAPI):
             scores = scores.index_add(1, owners, later[:, rows, targets])
         return [[float(score) for score in row] for row in scores]
 
-    def _prefix_cache(self, prefix: list[int]) -> Any:
+    def _prefix_cache(self, prefix: np.ndarray) -> Any:
         """A batch-1 cache of `prefix`, starting from the previous call's prefix where they agree.
 
         Successive agent steps share their system prompt, so most of it is encoded only once.
@@ -381,7 +392,7 @@ class HFModel(ModelAPI):
                 cache.update(keys[:, :, :reuse], values[:, :, :reuse], index)
         if reuse < len(prefix):
             self.model(
-                input_ids=torch.tensor([prefix[reuse:]], device=self.device),
+                input_ids=_to_torch(prefix[None, reuse:], self.device),
                 past_key_values=cache,
                 use_cache=True,
                 logits_to_keep=1,
@@ -438,7 +449,7 @@ class HFModel(ModelAPI):
     # -- choice mode with split attention -----------------------------------------------------
 
     def _split_log_likelihoods(
-        self, prompts: list[list[int]], candidates: list[list[int]]
+        self, prompts: list[np.ndarray], candidates: list[list[int]]
     ) -> list[list[float]]:
         """`_candidate_log_likelihoods` without copying the shared prefix per prompt.
 
@@ -453,10 +464,10 @@ class HFModel(ModelAPI):
         batch = len(prompts)
         shared = _common_prefix_length(prompts)
         prefix = self._split_prefix(prompts[0][:shared]) if shared else None
-        rests = [p[shared:] for p in prompts]
-        lengths = torch.tensor([len(rest) for rest in rests], device=device)
-        width = max(len(rest) for rest in rests)
-        rest_ids = torch.tensor([r + [pad] * (width - len(r)) for r in rests], device=device)
+        padded_ids, padded_mask = _padded([p[shared:] for p in prompts], pad, left=False)
+        rest_ids = _to_torch(padded_ids, device)
+        lengths = _to_torch(padded_mask.sum(1), device)
+        width = rest_ids.shape[1]
         positions = shared + torch.arange(width, device=device)
         rest_plan = _SharedPrefixAttention(prefix, store=True)
         hidden = self._hidden_states(rest_ids, positions.expand(batch, width), rest_plan)
@@ -492,14 +503,14 @@ class HFModel(ModelAPI):
             scores = scores.index_add(1, owners, later[:, rows, targets])
         return [[float(score) for score in row] for row in scores]
 
-    def _split_prefix(self, prefix: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    def _split_prefix(self, prefix: np.ndarray) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Keys and values (batch 1, per layer) of `prefix`, reusing the previous call's."""
         reuse = _common_prefix_length([self._prefix_ids, prefix], keep_own=0)
         kept = [(keys[:, :, :reuse], values[:, :, :reuse]) for keys, values in self._prefix_states]
         states = kept
         if reuse < len(prefix):
             plan = _SharedPrefixAttention(kept if reuse else None, store=True)
-            ids = torch.tensor([prefix[reuse:]], device=self.device)
+            ids = _to_torch(prefix[None, reuse:], self.device)
             positions = torch.arange(reuse, len(prefix), device=self.device)[None]
             self._hidden_states(ids, positions, plan)
             new = [plan.stored[layer] for layer in range(len(plan.stored))]
@@ -566,6 +577,82 @@ class HFModel(ModelAPI):
     def _encode(self, text: str) -> list[int]:
         return list(self.tokenizer(text, add_special_tokens=False).input_ids)
 
+    def _prompt_ids(self, conversations: Sequence[Conversation]) -> list[np.ndarray]:
+        """Each conversation's prompt tokens (chat template, generation prompt added)."""
+        texts = [self._render(conversation) for conversation in conversations]
+        return self._encode_prompts(conversations, texts)
+
+    def _encode_prompts(
+        self, conversations: Sequence[Conversation], texts: list[str]
+    ) -> list[np.ndarray]:
+        """The token ids of each conversation's rendered `texts`, equal to encoding each whole.
+
+        A system message (an agent's is the same every step, and most of every prompt) is
+        encoded once and its tokens kept (`_head`); each call encodes only the rest of every
+        text, all in one batched tokenizer call.
+        """
+        heads = [
+            self._head(conversation, text) if self.reuse_prompt_tokens else None
+            for conversation, text in zip(conversations, texts, strict=True)
+        ]
+        rests = [
+            text[len(head[0]) :] if head else text for head, text in zip(heads, texts, strict=True)
+        ]
+        encoded = self.tokenizer(rests, add_special_tokens=False).input_ids
+        return [
+            np.concatenate([head[1], np.asarray(ids, dtype=np.int64)])
+            if head
+            else np.asarray(ids, dtype=np.int64)
+            for head, ids in zip(heads, encoded, strict=True)
+        ]
+
+    def _head(self, conversation: Conversation, text: str) -> tuple[str, np.ndarray] | None:
+        """The start of `text` whose tokens are kept for its system message, with the tokens.
+
+        The cut lies where a special token begins (the template's next turn marker):
+        tokenizers split a text at special tokens before anything else, so the two sides
+        encode as they do inside the whole text. Each new head is checked once against the
+        whole text's encoding, and not used where they differ.
+        """
+        if not conversation or conversation[0].role != "system":
+            return None
+        system = conversation[0].content
+        if system not in self._heads:
+            if len(self._heads) >= MAX_KEPT_HEADS:
+                del self._heads[next(iter(self._heads))]
+            self._heads[system] = self._new_head(system, text)
+        head = self._heads[system]
+        if head is None or not text.startswith(head[0]):
+            return None
+        if not text.startswith(self._cut_markers, len(head[0])):
+            return None
+        return head
+
+    def _new_head(self, system: str, text: str) -> tuple[str, np.ndarray] | None:
+        try:
+            alone = str(
+                self.tokenizer.apply_chat_template(
+                    [{"role": "system", "content": system}], tokenize=False
+                )
+            )
+        except (TemplateError, ValueError):
+            # Some templates refuse a lone system message (or one that is not first).
+            return None
+        agreed = next(
+            (i for i, (a, b) in enumerate(zip(alone, text, strict=False)) if a != b),
+            min(len(alone), len(text)),
+        )
+        cut = max(
+            (text.rfind(marker, 0, agreed + len(marker)) for marker in self._cut_markers),
+            default=-1,
+        )
+        if cut <= 0:
+            return None
+        ids = self._encode(text[:cut])
+        if ids + self._encode(text[cut:]) != self._encode(text):
+            return None
+        return text[:cut], np.asarray(ids, dtype=np.int64)
+
     def _eos_ids(self) -> set[int]:
         configured = self.model.generation_config.eos_token_id
         ids = configured if isinstance(configured, list) else [configured]
@@ -576,6 +663,8 @@ class HFModel(ModelAPI):
 #: with every layer attending to all earlier tokens (no sliding window, no soft-capping).
 SPLIT_ATTENTION_MODELS = frozenset({"llama", "mistral", "qwen2", "qwen3"})
 SPLIT_ATTENTION = "craftext_split_prefix"
+#: Distinct system messages whose tokens are kept at once (an agent run has one or a few).
+MAX_KEPT_HEADS = 16
 #: Whether split attention on CPU uses torch's CPU flash kernel; off, it runs the matrix-product
 #: code that other devices run (tests use this to check that code's arithmetic on CPU).
 CPU_FLASH_KERNEL = True
@@ -812,14 +901,33 @@ class ThinkingBudget(LogitsProcessor):
         return self.close_ids[0]
 
 
-def _common_prefix_length(sequences: list[list[int]], keep_own: int = 1) -> int:
+def _common_prefix_length(sequences: Sequence[np.ndarray], keep_own: int = 1) -> int:
     """Tokens all sequences start with, leaving each at least `keep_own` tokens of its own."""
     limit = min(len(sequence) for sequence in sequences) - keep_own
+    if limit <= 0:
+        return 0
     first = sequences[0]
-    for index in range(limit):
-        if any(sequence[index] != first[index] for sequence in sequences):
-            return index
-    return max(limit, 0)
+    for sequence in sequences[1:]:
+        differ = np.flatnonzero(sequence[:limit] != first[:limit])
+        if differ.size:
+            limit = int(differ[0])
+    return limit
+
+
+def _padded(rows: Sequence[np.ndarray], pad: int, *, left: bool) -> tuple[np.ndarray, np.ndarray]:
+    """`rows` as one (rows, longest) id matrix padded with `pad`, and its mask of real tokens."""
+    width = max(len(row) for row in rows)
+    ids = np.full((len(rows), width), pad, dtype=np.int64)
+    mask = np.zeros((len(rows), width), dtype=np.int64)
+    for index, row in enumerate(rows):
+        begin = width - len(row) if left else 0
+        ids[index, begin : begin + len(row)] = row
+        mask[index, begin : begin + len(row)] = 1
+    return ids, mask
+
+
+def _to_torch(array: np.ndarray, device: torch.device) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(array)).to(device)
 
 
 def _find(tokens: list[int], pattern: list[int]) -> int | None:
