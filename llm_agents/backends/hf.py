@@ -332,13 +332,14 @@ class HFModel(ModelAPI):
         return ranked_choices(choices, prompts, candidates, scores, time.perf_counter() - start)
 
     def _candidate_log_likelihoods(
-        self, prompts: list[np.ndarray], candidates: list[list[int]]
+        self, token_ids: Sequence[np.ndarray | Sequence[int]], candidates: list[list[int]]
     ) -> list[list[float]]:
-        """Summed log-probability of every candidate after every prompt.
+        """Summed log-probability of every candidate after every prompt (token ids).
 
         The prompts' common prefix (in an agent, the system prompt) is encoded once and shared
         by the batch; then one pass over the rest of every prompt, one over the candidates.
         """
+        prompts = [np.asarray(ids, dtype=np.int64) for ids in token_ids]
         if self.split_attention:
             return self._split_log_likelihoods(prompts, candidates)
         device = self.device
