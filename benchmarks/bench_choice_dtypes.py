@@ -5,10 +5,12 @@ For each dtype, the embedded model (SmolLM2-135M) scores action names after the 
 conversations twice: by the split-attention path and by the padded (prefix-copying) path,
 each first with a fresh prompt prefix (step 1's conversations) and then with the prefix kept
 from that call (step 2's conversations). Every score is compared with one plain forward pass
-over prompt + action name in the same dtype (the model's default attention, sdpa). Two
+over prompt + action name in the same dtype (the model's default attention, sdpa). Three
 yardsticks of the dtype's own rounding come with it: the same plain pass with eager attention
-(another, equally valid kernel), and the plain pass in float32, which the choice scores are
-also compared with.
+(another, equally valid kernel), the same plain pass run as one batch over all the options
+(the same kernels, another batch size), and the plain pass in float32, which the choice scores
+are also compared with. A dtype the backend refuses for `loglik` (bfloat16) is still measured,
+by calling the scorer past the refusal, and marked `refused`.
 
     python benchmarks/bench_choice_dtypes.py [--device cpu] [--dtypes float32 bfloat16 float16]
         [--slots 1] [--options 6] [--threads 2]
@@ -20,6 +22,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -28,6 +31,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 import torch  # noqa: E402
 from bench_backends import build_realistic_steps  # noqa: E402
 
+from env.errors import UserError  # noqa: E402
 from llm_agents.backends.base import ChatMessage, GenerateConfig  # noqa: E402
 from llm_agents.backends.hf import HFModel  # noqa: E402
 
@@ -63,6 +67,31 @@ def plain_scores(
     finally:
         config._attn_implementation = default
     return scores
+
+
+def batched_plain_scores(
+    model: HFModel, conversation: list[ChatMessage], options: list[str]
+) -> list[float]:
+    """`plain_scores` (sdpa) with every option in one right-padded batch: no cache, no mask."""
+    prompt = model._encode(model._render(conversation))
+    candidates = [model._encode(option) for option in options]
+    width = max(len(ids) for ids in candidates)
+    rows = [prompt + ids + [ids[-1]] * (width - len(ids)) for ids in candidates]
+    with torch.inference_mode():
+        logits = model.model(input_ids=torch.tensor(rows, device=model.device)).logits
+    log_probs = logits.float().log_softmax(-1)
+    return [
+        sum(float(log_probs[k, len(prompt) - 1 + j, t]) for j, t in enumerate(ids))
+        for k, ids in enumerate(candidates)
+    ]
+
+
+def scorer(model: HFModel, conversations: list[list[ChatMessage]], options: list[str]) -> Any:
+    """`choice_scores` without the dtype check, so a refused dtype can be measured too."""
+    prompts = model._prompt_ids(conversations)
+    candidates = [model._encode(option) for option in options]
+    with torch.inference_mode():
+        return model._candidate_log_likelihoods(prompts, candidates)
 
 
 def largest_gap(a: list[list[float]], b: list[list[float]]) -> float:
@@ -101,18 +130,26 @@ def main() -> None:
         )
         plain = [plain_scores(model, c, options, "sdpa") for c in conversations]
         eager = [plain_scores(model, c, options, "eager") for c in conversations]
+        batched = [batched_plain_scores(model, c, options) for c in conversations]
+        try:
+            model.check_choice_rule("loglik")
+            accepted = "yes"
+        except UserError:
+            accepted = "refused"
         for split in (True, False):
             model.split_attention = split
-            model._prefix_ids, model._prefix_states = [], []
-            fresh = model.choice_scores(steps[0], options)
-            reused = model.choice_scores(steps[1], options)
+            model._prefix_ids, model._prefix_states = model._prefix_ids[:0], []
+            fresh = scorer(model, steps[0], options)
+            reused = scorer(model, steps[1], options)
             rows.append(
                 (
                     dtype,
                     "split" if split else "padded",
+                    accepted,
                     largest_gap(fresh, plain[: args.slots]),
                     largest_gap(reused, plain[args.slots :]),
                     largest_gap(eager, plain),
+                    largest_gap(batched, plain),
                     largest_gap(float32, plain),
                     largest_gap(float32, fresh + reused),
                 )
@@ -123,13 +160,14 @@ def main() -> None:
         f"{len(options)} options; largest |difference| in nats"
     )
     print(
-        f"{'dtype':<10}{'path':<8}{'vs plain (fresh)':>18}{'vs plain (reused)':>19}"
-        f"{'plain: eager vs sdpa':>22}{'plain: vs float32':>19}{'choice: vs float32':>20}"
+        f"{'dtype':<10}{'path':<8}{'loglik':>8}{'vs plain (fresh)':>18}{'vs plain (reused)':>19}"
+        f"{'plain: eager vs sdpa':>22}{'plain: batch n vs 1':>21}{'plain: vs float32':>19}"
+        f"{'choice: vs float32':>20}"
     )
-    for dtype, path, fresh_gap, reused_gap, spread, drift, choice_drift in rows:
+    for dtype, path, accepted, fresh_gap, reused_gap, spread, batch_gap, drift, choice in rows:
         print(
-            f"{dtype:<10}{path:<8}{fresh_gap:>18.4f}{reused_gap:>19.4f}{spread:>22.4f}"
-            f"{drift:>19.4f}{choice_drift:>20.4f}"
+            f"{dtype:<10}{path:<8}{accepted:>8}{fresh_gap:>18.4f}{reused_gap:>19.4f}"
+            f"{spread:>22.4f}{batch_gap:>21.4f}{drift:>19.4f}{choice:>20.4f}"
         )
 
 

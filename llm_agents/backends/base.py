@@ -11,12 +11,14 @@ import abc
 import difflib
 import inspect
 import logging
-from collections.abc import Sequence
+from collections.abc import Sequence, Sized
+from pathlib import Path
 from typing import Any, ClassVar, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from env.errors import UserError
+from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
 from llm_agents.backends.endpoints import EndpointStats
 
 logger = logging.getLogger(__name__)
@@ -125,8 +127,8 @@ class ModelOutput(BaseModel):
 
 def ranked_choices(
     options: Sequence[str],
-    prompts: Sequence[Sequence[int]],
-    candidates: Sequence[Sequence[int]],
+    prompts: Sequence[Sized],
+    candidates: Sequence[Sized],
     scores: Sequence[Sequence[float]],
     latency_s: float,
 ) -> list[ModelOutput]:
@@ -144,6 +146,24 @@ def ranked_choices(
             )
         )
     return outputs
+
+
+def local_model_path(backend: str, model_name: str) -> Path | None:
+    """The local folder a model name means, or None for a hub id (the backend loads that from
+    the local hub cache).
+
+    `smollm2-135m` is the embedded model (fetched and converted on first use); an existing
+    folder is itself; a name written as a path (starting with `.`, `/` or `~`) that is no
+    folder is a `UserError` rather than a hub lookup.
+    """
+    if model_name == EMBEDDED_MODEL_NAME:
+        return embedded_model_dir()
+    path = Path(model_name).expanduser()
+    if path.is_dir():
+        return path
+    if model_name.startswith((".", "/", "~")):
+        raise UserError(f"{backend} model folder {model_name!r} does not exist")
+    return None
 
 
 def bad_options(backend: str, err: ValidationError) -> UserError:

@@ -9,12 +9,16 @@ once (left padding). Choices follow the `loglik` rule only (`guided` is refused)
 candidate is scored by its log-likelihood after the prompt, with one prompt pass per batch: all
 candidates then go through a single pass over the prompt's cached keys and values, side by side
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
-attention mask). The answer is always one of the choices. In bfloat16 and float16 the split
-path's attention runs in float32 and rounds once, so its scores differ from a plain forward
-pass in that dtype about as much as two plain passes with different attention kernels differ
-from each other (float16: hundredths of a nat; bfloat16: most of a nat on the embedded model,
-whose choice scores still lie nearer the float32 ones than its plain bfloat16 pass does;
-benchmarks/bench_choice_dtypes.py measures it).
+attention mask). The answer is always one of the choices.
+
+`loglik` scores equal a plain forward pass over prompt + option in float32 (to float rounding)
+and in float16 (to hundredths of a nat: the split path's attention runs in float32 and rounds
+once). bfloat16 is refused for `loglik`: its rounding alone moves a score by most of a nat
+(two plain bfloat16 passes that differ only in their attention kernel, or only in batch size,
+disagree that much on the embedded model), so no batched or cached scorer can match the plain
+pass within 0.1 nats, and rankings would follow the rounding. Left unset, the dtype is
+float32 for `loglik` on a GPU too (bfloat16 otherwise); benchmarks/bench_choice_dtypes.py
+measures every dtype and path.
 
 Reasoning models: the thinking is split from the answer (`reasoning.py`). With
 `reasoning_budget` set, a row that has thought for that many tokens has its closing tag forced,
@@ -24,11 +28,13 @@ answer still cut off gets one "answer only" follow-up.
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any, ClassVar, Literal
+
+import numpy as np
 
 from env.errors import UserError
 from llm_agents.backends.base import (
@@ -41,9 +47,10 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    local_model_path,
     ranked_choices,
 )
-from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
+from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME
 from llm_agents.backends.reasoning import (
     THINK_CLOSE,
     THINK_OPEN,
@@ -56,7 +63,9 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 try:
     import torch
+    from jinja2 import TemplateError
     from transformers import (
+        AutoConfig,
         AutoModelForCausalLM,
         AutoTokenizer,
         DynamicCache,
@@ -70,17 +79,24 @@ except ModuleNotFoundError as err:
         f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
     ) from err
 
-#: Short model names -> how to find their folder.
-SHORT_NAMES = {EMBEDDED_MODEL_NAME: embedded_model_dir}
-
 ChoiceScoring = Literal["sum", "mean"]
+
+logger = logging.getLogger(__name__)
+
+#: Why `loglik` refuses a bfloat16 model, and what to use instead.
+LOGLIK_BFLOAT16 = (
+    "hf loglik choices cannot be scored in bfloat16: its rounding alone moves a score by most "
+    "of a nat, so rankings would follow the rounding; set dtype=float32 (exact) or "
+    "dtype=float16 (--backend-option dtype=float32), or leave dtype unset"
+)
 
 
 class HFModel(ModelAPI):
     """A transformers causal LM answering batches of chat conversations.
 
     Options: `device` ("cpu", "cuda", ...; default: cuda when available), `dtype` ("float32",
-    "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU), `threads` (torch CPU
+    "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU except float32 for `loglik`
+    choices, which refuse bfloat16: see the module docstring), `threads` (torch CPU
     threads; default: torch's own choice), `batch_size` (conversations per forward batch),
     `choice_scoring` ("sum": total log-likelihood; "mean": per token, which favours long
     candidates less).
@@ -94,7 +110,7 @@ class HFModel(ModelAPI):
         "the vllm or openai backend"
     }
     # transformers' own annotations of its model classes do not type-check cleanly.
-    model: Any
+    _model: Any = None
 
     def __init__(
         self,
@@ -121,31 +137,68 @@ class HFModel(ModelAPI):
         self.choice_scoring: ChoiceScoring = choice_scoring
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.dtype = _torch_dtype(dtype, self.device)
-        self.model_path = resolve_model_path(model_name)
-        source = str(self.model_path) if self.model_path is not None else model_name
+        self.dtype_given = dtype is not None
+        self.model_path = local_model_path("hf", model_name)
+        self._source = str(self.model_path) if self.model_path is not None else model_name
         try:
-            self.tokenizer = AutoTokenizer.from_pretrained(source, local_files_only=True)
-            self.model = AutoModelForCausalLM.from_pretrained(
-                source, local_files_only=True, dtype=self.dtype
-            )
+            self.tokenizer = AutoTokenizer.from_pretrained(self._source, local_files_only=True)
+            model_config = AutoConfig.from_pretrained(self._source, local_files_only=True)
         except OSError as err:
-            raise UserError(
-                f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
-                f"(hf:/path/to/model), hf:{EMBEDDED_MODEL_NAME}, or a hub id already in the "
-                "local hub cache"
-            ) from err
+            raise _load_error(model_name, err) from err
         if not self.tokenizer.chat_template:
             raise UserError(f"hf model {model_name!r} has no chat template in its tokenizer")
-        self.model.to(self.device).eval()
         self.tokenizer.padding_side = "left"
         if self.tokenizer.pad_token_id is None:
             self.tokenizer.pad_token = self.tokenizer.eos_token
         self._think_close_ids: list[int] = self._encode(THINK_CLOSE)
+        # Special tokens a text may be cut before without changing its tokens (see _head).
+        self._cut_markers = tuple(
+            token.content
+            for token in self.tokenizer.added_tokens_decoder.values()
+            if token.special and not token.lstrip and not token.normalized
+        )
+        # System message -> its rendered text and token ids, or None where it cannot be cut off.
+        self._heads: dict[str, tuple[str, np.ndarray] | None] = {}
+        #: Whether prompts reuse their system message's tokens (`_encode_prompts`); False
+        #: encodes every prompt whole (the benchmarks compare the two).
+        self.reuse_prompt_tokens = True
         # Key/value states of the last choice-mode prompt prefix, per layer (see _prefix_cache).
-        self._prefix_ids: list[int] = []
+        self._prefix_ids = np.zeros(0, dtype=np.int64)
         self._prefix_states: list[tuple[torch.Tensor, torch.Tensor]] = []
         # Choice mode's own attention (see _SharedPrefixAttention) where the model allows it.
-        self.split_attention = _supports_split_attention(self.model)
+        self.split_attention = _supports_split_attention(model_config)
+
+    @property
+    def model(self) -> Any:
+        """The transformers model in `self.dtype`, loaded on first use: the choice rule, known
+        only after construction (`check_choice_rule`), may still change the default dtype."""
+        if self._model is None:
+            try:
+                model: Any = AutoModelForCausalLM.from_pretrained(
+                    self._source, local_files_only=True, dtype=self.dtype
+                )
+            except OSError as err:
+                raise _load_error(self.model_name, err) from err
+            self._model = model.to(self.device).eval()
+        return self._model
+
+    def check_choice_rule(self, rule: ChoiceRule) -> None:
+        """As `ModelAPI.check_choice_rule`; `loglik` also refuses a bfloat16 the user set and
+        replaces a defaulted one by float32 (see the module docstring)."""
+        super().check_choice_rule(rule)
+        if rule != "loglik" or self.dtype != torch.bfloat16:
+            return
+        if self.dtype_given:
+            raise UserError(LOGLIK_BFLOAT16)
+        logger.info("hf: loglik choices score in float32 (bfloat16 cannot score them exactly)")
+        self.dtype = torch.float32
+        if self._model is not None:
+            # Loaded by free generation before the first choice; reloaded from the checkpoint
+            # rather than upcast, so the weights are those a float32 load gives.
+            self._model = None
+            self._prefix_ids, self._prefix_states = np.zeros(0, dtype=np.int64), []
+            if self.device.type == "cuda":
+                torch.cuda.empty_cache()
 
     def info(self) -> dict[str, str]:
         import transformers
@@ -185,7 +238,8 @@ class HFModel(ModelAPI):
         self, conversations: Sequence[Conversation], choices: Sequence[str]
     ) -> list[list[float]]:
         """Log-likelihood (summed over tokens) of each choice after each conversation's prompt."""
-        prompts = [self._encode(self._render(conversation)) for conversation in conversations]
+        self.check_choice_rule("loglik")
+        prompts = self._prompt_ids(conversations)
         candidates = [self._encode(choice) for choice in choices]
         with torch.inference_mode():
             return self._candidate_log_likelihoods(prompts, candidates)
@@ -193,22 +247,22 @@ class HFModel(ModelAPI):
     # -- free generation ----------------------------------------------------------------------
 
     def _generate_split(self, conversations: Sequence[Conversation]) -> list[ModelOutput]:
-        prompts = [self._render(conversation) for conversation in conversations]
+        texts = [self._render(conversation) for conversation in conversations]
         # Templates that open the thinking block themselves make the completion start inside it.
-        opened = [prompt.rstrip().endswith(THINK_OPEN) for prompt in prompts]
-        raw = self._generate_raw(prompts, opened)
+        opened = [text.rstrip().endswith(THINK_OPEN) for text in texts]
+        raw = self._generate_raw(self._encode_prompts(conversations, texts), opened)
         return [
             with_reasoning_split(output, thinking_open_in_prompt=was_opened)
             for output, was_opened in zip(raw, opened, strict=True)
         ]
 
-    def _generate_raw(self, prompts: list[str], opened: list[bool]) -> list[ModelOutput]:
+    def _generate_raw(self, prompts: list[np.ndarray], opened: list[bool]) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
-        encoded = self.tokenizer(
-            prompts, return_tensors="pt", padding=True, add_special_tokens=False
-        ).to(self.device)
-        prompt_len = encoded.input_ids.shape[1]
+        # Left padding, as the tokenizer pads a batch for generation.
+        ids, mask = _padded(prompts, self.tokenizer.pad_token_id, left=True)
+        input_ids, attention_mask = _to_torch(ids, self.device), _to_torch(mask, self.device)
+        prompt_len = input_ids.shape[1]
         max_new = config.max_tokens
         processors = []
         if config.reasoning_budget is not None and self._think_close_ids:
@@ -230,7 +284,8 @@ class HFModel(ModelAPI):
                 torch.manual_seed(config.sampling_seed)
         with torch.inference_mode():
             generated = self.model.generate(
-                **encoded,
+                input_ids=input_ids,
+                attention_mask=attention_mask,
                 max_new_tokens=max_new,
                 pad_token_id=self.tokenizer.pad_token_id,
                 logits_processor=LogitsProcessorList(processors),
@@ -241,7 +296,7 @@ class HFModel(ModelAPI):
         latency = time.perf_counter() - start
         eos_ids = self._eos_ids()
         outputs = []
-        for row, prompt_mask in zip(generated[:, prompt_len:], encoded.attention_mask, strict=True):
+        for row, prompt in zip(generated[:, prompt_len:], prompts, strict=True):
             tokens = row.tolist()
             ended = next((i for i, tok in enumerate(tokens) if tok in eos_ids), None)
             if ended is not None:
@@ -252,7 +307,7 @@ class HFModel(ModelAPI):
             outputs.append(
                 ModelOutput(
                     text=text,
-                    prompt_tokens=int(prompt_mask.sum()),
+                    prompt_tokens=len(prompt),
                     completion_tokens=len(tokens) + (ended is not None),
                     latency_s=latency,
                     finish_reason=finish,
@@ -266,7 +321,7 @@ class HFModel(ModelAPI):
         self, conversations: Sequence[Conversation], choices: list[str], candidates: list[list[int]]
     ) -> list[ModelOutput]:
         start = time.perf_counter()
-        prompts = [self._encode(self._render(conversation)) for conversation in conversations]
+        prompts = self._prompt_ids(conversations)
         with torch.inference_mode():
             scores = self._candidate_log_likelihoods(prompts, candidates)
         if self.choice_scoring == "mean":
@@ -277,13 +332,14 @@ class HFModel(ModelAPI):
         return ranked_choices(choices, prompts, candidates, scores, time.perf_counter() - start)
 
     def _candidate_log_likelihoods(
-        self, prompts: list[list[int]], candidates: list[list[int]]
+        self, token_ids: Sequence[np.ndarray | Sequence[int]], candidates: list[list[int]]
     ) -> list[list[float]]:
-        """Summed log-probability of every candidate after every prompt.
+        """Summed log-probability of every candidate after every prompt (token ids).
 
         The prompts' common prefix (in an agent, the system prompt) is encoded once and shared
         by the batch; then one pass over the rest of every prompt, one over the candidates.
         """
+        prompts = [np.asarray(ids, dtype=np.int64) for ids in token_ids]
         if self.split_attention:
             return self._split_log_likelihoods(prompts, candidates)
         device = self.device
@@ -296,13 +352,9 @@ class HFModel(ModelAPI):
         if shared:
             cache = self._prefix_cache(prompts[0][:shared])
             cache.batch_repeat_interleave(batch)
-        rests = [p[shared:] for p in prompts]
-        width = max(len(rest) for rest in rests)
         # Left padding (after the shared prefix) puts every prompt's last token in one column.
-        rest_ids = torch.tensor([[pad] * (width - len(r)) + r for r in rests], device=device)
-        rest_mask = torch.tensor(
-            [[0] * (width - len(r)) + [1] * len(r) for r in rests], device=device
-        )
+        padded_ids, padded_mask = _padded([p[shared:] for p in prompts], pad, left=True)
+        rest_ids, rest_mask = _to_torch(padded_ids, device), _to_torch(padded_mask, device)
         prompt_mask = torch.cat(
             [torch.ones(batch, shared, dtype=rest_mask.dtype, device=device), rest_mask], dim=-1
         )
@@ -329,7 +381,7 @@ class HFModel(ModelAPI):
             scores = scores.index_add(1, owners, later[:, rows, targets])
         return [[float(score) for score in row] for row in scores]
 
-    def _prefix_cache(self, prefix: list[int]) -> Any:
+    def _prefix_cache(self, prefix: np.ndarray) -> Any:
         """A batch-1 cache of `prefix`, starting from the previous call's prefix where they agree.
 
         Successive agent steps share their system prompt, so most of it is encoded only once.
@@ -341,7 +393,7 @@ class HFModel(ModelAPI):
                 cache.update(keys[:, :, :reuse], values[:, :, :reuse], index)
         if reuse < len(prefix):
             self.model(
-                input_ids=torch.tensor([prefix[reuse:]], device=self.device),
+                input_ids=_to_torch(prefix[None, reuse:], self.device),
                 past_key_values=cache,
                 use_cache=True,
                 logits_to_keep=1,
@@ -398,7 +450,7 @@ class HFModel(ModelAPI):
     # -- choice mode with split attention -----------------------------------------------------
 
     def _split_log_likelihoods(
-        self, prompts: list[list[int]], candidates: list[list[int]]
+        self, prompts: list[np.ndarray], candidates: list[list[int]]
     ) -> list[list[float]]:
         """`_candidate_log_likelihoods` without copying the shared prefix per prompt.
 
@@ -413,10 +465,10 @@ class HFModel(ModelAPI):
         batch = len(prompts)
         shared = _common_prefix_length(prompts)
         prefix = self._split_prefix(prompts[0][:shared]) if shared else None
-        rests = [p[shared:] for p in prompts]
-        lengths = torch.tensor([len(rest) for rest in rests], device=device)
-        width = max(len(rest) for rest in rests)
-        rest_ids = torch.tensor([r + [pad] * (width - len(r)) for r in rests], device=device)
+        padded_ids, padded_mask = _padded([p[shared:] for p in prompts], pad, left=False)
+        rest_ids = _to_torch(padded_ids, device)
+        lengths = _to_torch(padded_mask.sum(1), device)
+        width = rest_ids.shape[1]
         positions = shared + torch.arange(width, device=device)
         rest_plan = _SharedPrefixAttention(prefix, store=True)
         hidden = self._hidden_states(rest_ids, positions.expand(batch, width), rest_plan)
@@ -452,14 +504,14 @@ class HFModel(ModelAPI):
             scores = scores.index_add(1, owners, later[:, rows, targets])
         return [[float(score) for score in row] for row in scores]
 
-    def _split_prefix(self, prefix: list[int]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    def _split_prefix(self, prefix: np.ndarray) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Keys and values (batch 1, per layer) of `prefix`, reusing the previous call's."""
         reuse = _common_prefix_length([self._prefix_ids, prefix], keep_own=0)
         kept = [(keys[:, :, :reuse], values[:, :, :reuse]) for keys, values in self._prefix_states]
         states = kept
         if reuse < len(prefix):
             plan = _SharedPrefixAttention(kept if reuse else None, store=True)
-            ids = torch.tensor([prefix[reuse:]], device=self.device)
+            ids = _to_torch(prefix[None, reuse:], self.device)
             positions = torch.arange(reuse, len(prefix), device=self.device)[None]
             self._hidden_states(ids, positions, plan)
             new = [plan.stored[layer] for layer in range(len(plan.stored))]
@@ -526,6 +578,82 @@ class HFModel(ModelAPI):
     def _encode(self, text: str) -> list[int]:
         return list(self.tokenizer(text, add_special_tokens=False).input_ids)
 
+    def _prompt_ids(self, conversations: Sequence[Conversation]) -> list[np.ndarray]:
+        """Each conversation's prompt tokens (chat template, generation prompt added)."""
+        texts = [self._render(conversation) for conversation in conversations]
+        return self._encode_prompts(conversations, texts)
+
+    def _encode_prompts(
+        self, conversations: Sequence[Conversation], texts: list[str]
+    ) -> list[np.ndarray]:
+        """The token ids of each conversation's rendered `texts`, equal to encoding each whole.
+
+        A system message (an agent's is the same every step, and most of every prompt) is
+        encoded once and its tokens kept (`_head`); each call encodes only the rest of every
+        text, all in one batched tokenizer call.
+        """
+        heads = [
+            self._head(conversation, text) if self.reuse_prompt_tokens else None
+            for conversation, text in zip(conversations, texts, strict=True)
+        ]
+        rests = [
+            text[len(head[0]) :] if head else text for head, text in zip(heads, texts, strict=True)
+        ]
+        encoded = self.tokenizer(rests, add_special_tokens=False).input_ids
+        return [
+            np.concatenate([head[1], np.asarray(ids, dtype=np.int64)])
+            if head
+            else np.asarray(ids, dtype=np.int64)
+            for head, ids in zip(heads, encoded, strict=True)
+        ]
+
+    def _head(self, conversation: Conversation, text: str) -> tuple[str, np.ndarray] | None:
+        """The start of `text` whose tokens are kept for its system message, with the tokens.
+
+        The cut lies where a special token begins (the template's next turn marker):
+        tokenizers split a text at special tokens before anything else, so the two sides
+        encode as they do inside the whole text. Each new head is checked once against the
+        whole text's encoding, and not used where they differ.
+        """
+        if not conversation or conversation[0].role != "system":
+            return None
+        system = conversation[0].content
+        if system not in self._heads:
+            if len(self._heads) >= MAX_KEPT_HEADS:
+                del self._heads[next(iter(self._heads))]
+            self._heads[system] = self._new_head(system, text)
+        head = self._heads[system]
+        if head is None or not text.startswith(head[0]):
+            return None
+        if not text.startswith(self._cut_markers, len(head[0])):
+            return None
+        return head
+
+    def _new_head(self, system: str, text: str) -> tuple[str, np.ndarray] | None:
+        try:
+            alone = str(
+                self.tokenizer.apply_chat_template(
+                    [{"role": "system", "content": system}], tokenize=False
+                )
+            )
+        except (TemplateError, ValueError):
+            # Some templates refuse a lone system message (or one that is not first).
+            return None
+        agreed = next(
+            (i for i, (a, b) in enumerate(zip(alone, text, strict=False)) if a != b),
+            min(len(alone), len(text)),
+        )
+        cut = max(
+            (text.rfind(marker, 0, agreed + len(marker)) for marker in self._cut_markers),
+            default=-1,
+        )
+        if cut <= 0:
+            return None
+        ids = self._encode(text[:cut])
+        if ids + self._encode(text[cut:]) != self._encode(text):
+            return None
+        return text[:cut], np.asarray(ids, dtype=np.int64)
+
     def _eos_ids(self) -> set[int]:
         configured = self.model.generation_config.eos_token_id
         ids = configured if isinstance(configured, list) else [configured]
@@ -536,13 +664,14 @@ class HFModel(ModelAPI):
 #: with every layer attending to all earlier tokens (no sliding window, no soft-capping).
 SPLIT_ATTENTION_MODELS = frozenset({"llama", "mistral", "qwen2", "qwen3"})
 SPLIT_ATTENTION = "craftext_split_prefix"
+#: Distinct system messages whose tokens are kept at once (an agent run has one or a few).
+MAX_KEPT_HEADS = 16
 #: Whether split attention on CPU uses torch's CPU flash kernel; off, it runs the matrix-product
 #: code that other devices run (tests use this to check that code's arithmetic on CPU).
 CPU_FLASH_KERNEL = True
 
 
-def _supports_split_attention(model: Any) -> bool:
-    config = model.config
+def _supports_split_attention(config: Any) -> bool:
     if config.model_type not in SPLIT_ATTENTION_MODELS:
         return False
     window = getattr(config, "sliding_window", None)
@@ -773,26 +902,33 @@ class ThinkingBudget(LogitsProcessor):
         return self.close_ids[0]
 
 
-def resolve_model_path(model_name: str) -> Path | None:
-    """The local folder a model name means, or None for a hub id (loaded from the hub cache)."""
-    if model_name in SHORT_NAMES:
-        return SHORT_NAMES[model_name]()
-    path = Path(model_name).expanduser()
-    if path.is_dir():
-        return path
-    if model_name.startswith((".", "/", "~")):
-        raise UserError(f"hf model folder {model_name!r} does not exist")
-    return None
-
-
-def _common_prefix_length(sequences: list[list[int]], keep_own: int = 1) -> int:
+def _common_prefix_length(sequences: Sequence[np.ndarray], keep_own: int = 1) -> int:
     """Tokens all sequences start with, leaving each at least `keep_own` tokens of its own."""
     limit = min(len(sequence) for sequence in sequences) - keep_own
+    if limit <= 0:
+        return 0
     first = sequences[0]
-    for index in range(limit):
-        if any(sequence[index] != first[index] for sequence in sequences):
-            return index
-    return max(limit, 0)
+    for sequence in sequences[1:]:
+        differ = np.flatnonzero(sequence[:limit] != first[:limit])
+        if differ.size:
+            limit = int(differ[0])
+    return limit
+
+
+def _padded(rows: Sequence[np.ndarray], pad: int, *, left: bool) -> tuple[np.ndarray, np.ndarray]:
+    """`rows` as one (rows, longest) id matrix padded with `pad`, and its mask of real tokens."""
+    width = max(len(row) for row in rows)
+    ids = np.full((len(rows), width), pad, dtype=np.int64)
+    mask = np.zeros((len(rows), width), dtype=np.int64)
+    for index, row in enumerate(rows):
+        begin = width - len(row) if left else 0
+        ids[index, begin : begin + len(row)] = row
+        mask[index, begin : begin + len(row)] = 1
+    return ids, mask
+
+
+def _to_torch(array: np.ndarray, device: torch.device) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(array)).to(device)
 
 
 def _find(tokens: list[int], pattern: list[int]) -> int | None:
@@ -808,6 +944,14 @@ def _cut_at_stop(text: str, stops: list[str]) -> tuple[bool, str]:
     if not positions:
         return False, text
     return True, text[: min(positions)]
+
+
+def _load_error(model_name: str, err: OSError) -> UserError:
+    return UserError(
+        f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
+        f"(hf:/path/to/model), hf:{EMBEDDED_MODEL_NAME}, or a hub id already in the local hub "
+        "cache"
+    )
 
 
 def _torch_dtype(name: str | None, device: torch.device) -> torch.dtype:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any, ClassVar
 
 # The backend registry turns a missing vllm into an install hint.
@@ -42,6 +41,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
     bad_options,
+    local_model_path,
     ranked_choices,
 )
 from llm_agents.backends.reasoning import THINK_OPEN, generate_with_followup, with_reasoning_split
@@ -84,7 +84,8 @@ class VLLMModel(ModelAPI):
             self.settings = VLLMOptions(**options)
         except ValidationError as err:
             raise bad_options("vllm", err) from None
-        self.model_path = resolve_model(model_name)
+        local = local_model_path("vllm", model_name)
+        self.model_path = str(local) if local is not None else model_name
         engine_args: dict[str, Any] = {
             "dtype": self.settings.dtype,
             "enforce_eager": self.settings.enforce_eager,
@@ -296,20 +297,6 @@ class VLLMModel(ModelAPI):
                 chat_template_kwargs=self.settings.chat_template_kwargs or None,
             )
         )
-
-
-def resolve_model(model_name: str) -> str:
-    """The folder or hub id vLLM loads for a model name."""
-    from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
-
-    if model_name == EMBEDDED_MODEL_NAME:
-        return str(embedded_model_dir())
-    path = Path(model_name).expanduser()
-    if path.is_dir():
-        return str(path)
-    if model_name.startswith((".", "/", "~")):
-        raise UserError(f"vllm model folder {model_name!r} does not exist")
-    return model_name
 
 
 def _to_output(result: Any, choices: list[str] | None, latency_s: float) -> ModelOutput:
