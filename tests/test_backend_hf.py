@@ -16,16 +16,17 @@ pytest.importorskip("transformers")
 import torch
 
 from env.errors import UserError
-from llm_agents.backends import embedded, hf
+from llm_agents.backends import embedded
 from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, local_model_path
-from llm_agents.backends.hf import (
+from llm_agents.backends.hf import HFModel, scoring
+from llm_agents.backends.hf import model as hf_model
+from llm_agents.backends.hf.scoring import (
     CandidateTrie,
-    HFModel,
-    ThinkingBudget,
     _attend,
     _SharedPrefixAttention,
     _split_attention_forward,
 )
+from llm_agents.backends.hf.thinking import ThinkingBudget
 
 FRANCE = [
     ChatMessage(role="system", content="Answer with one word."),
@@ -222,7 +223,7 @@ def test_the_off_cpu_attention_code_is_as_exact_in_float16(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     # What a GPU runs (no CPU flash kernel), checked here on CPU.
-    monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", False)
+    monkeypatch.setattr(scoring, "CPU_FLASH_KERNEL", False)
     model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype="float16")
     worst, _ = plain_forward_differences(model, [FRANCE, PERU, GREETINGS[1]], HALF_CHOICES)
     assert worst <= HALF_TOLERANCE
@@ -245,16 +246,16 @@ def test_loglik_refuses_a_bfloat16_model_naming_the_alternative(split_attention:
 
 
 def test_the_default_dtype_is_float32_on_cpu_and_bfloat16_elsewhere() -> None:
-    assert hf._torch_dtype(None, torch.device("cpu")) == torch.float32
-    assert hf._torch_dtype(None, torch.device("cuda")) == torch.bfloat16
-    assert hf._torch_dtype("float16", torch.device("cuda")) == torch.float16
+    assert hf_model._torch_dtype(None, torch.device("cpu")) == torch.float32
+    assert hf_model._torch_dtype(None, torch.device("cuda")) == torch.bfloat16
+    assert hf_model._torch_dtype("float16", torch.device("cuda")) == torch.float16
 
 
 @pytest.mark.slow
 def test_loglik_turns_a_defaulted_bfloat16_into_float32(monkeypatch: pytest.MonkeyPatch) -> None:
     # The GPU default (bfloat16), here on CPU: free generation runs in it; the first loglik
     # call reloads the model in float32 and then scores as a plain float32 pass does.
-    monkeypatch.setattr(hf, "_torch_dtype", lambda name, device: torch.bfloat16)
+    monkeypatch.setattr(hf_model, "_torch_dtype", lambda name, device: torch.bfloat16)
     model = HFModel("smollm2-135m", GenerateConfig(max_tokens=2), threads=1)
     [free] = model.generate([GREETINGS[0]])
     assert free.finish_reason != "error" and model.model.dtype == torch.bfloat16
@@ -315,12 +316,14 @@ def test_prompt_tokens_equal_encoding_each_prompt_whole(model: HFModel) -> None:
 
 def test_common_prefix_length_over_token_arrays() -> None:
     sequences = [np.array([1, 2, 3, 4, 5]), np.array([1, 2, 3, 9, 5, 6]), np.array([1, 2, 8, 4])]
-    assert hf._common_prefix_length(sequences) == 2
-    assert hf._common_prefix_length(sequences[:2]) == 3
+    assert scoring._common_prefix_length(sequences) == 2
+    assert scoring._common_prefix_length(sequences[:2]) == 3
     # Each sequence keeps `keep_own` tokens of its own.
-    assert hf._common_prefix_length([np.array([1, 2, 3]), np.array([1, 2, 3, 4])]) == 2
-    assert hf._common_prefix_length([np.array([1, 2, 3]), np.array([1, 2, 3])], keep_own=0) == 3
-    assert hf._common_prefix_length([np.array([1]), np.array([1, 2])]) == 0
+    assert scoring._common_prefix_length([np.array([1, 2, 3]), np.array([1, 2, 3, 4])]) == 2
+    assert (
+        scoring._common_prefix_length([np.array([1, 2, 3]), np.array([1, 2, 3])], keep_own=0) == 3
+    )
+    assert scoring._common_prefix_length([np.array([1]), np.array([1, 2])]) == 0
 
 
 def test_a_cut_that_would_change_the_tokens_is_never_used() -> None:
@@ -367,7 +370,7 @@ def test_split_attention_rounds_once_in_half_precision(
     # Attention over a shared prefix plus own keys, merged, equals attention over both at
     # once computed exactly, up to one rounding to the model's dtype. Scores of realistic size
     # (tens) are where rounding them, or their log-sum-exp, to half precision costs nats.
-    monkeypatch.setattr(hf, "CPU_FLASH_KERNEL", cpu_kernel)
+    monkeypatch.setattr(scoring, "CPU_FLASH_KERNEL", cpu_kernel)
     torch.manual_seed(0)
     batch, heads, kv_heads, new, prefix_length, past_length, dim = 2, 6, 2, 5, 40, 7, 16
     query = (torch.randn(batch, heads, new, dim) * 2).to(dtype)
