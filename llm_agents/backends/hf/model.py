@@ -108,7 +108,7 @@ class HFModel(ModelAPI):
     Options: `device` ("cpu", "cuda", ...; default: cuda when available), `dtype` ("float32",
     "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU except float32 for `loglik`
     choices, which refuse bfloat16: see the module docstring), `threads` (torch CPU
-    threads; default: torch's own choice), `batch_size` (conversations per forward batch),
+    threads; default: torch's own choice), `rows_per_forward` (conversations per forward pass),
     `choice_scoring` ("sum": total log-likelihood; "mean": per token, which favours long
     candidates less).
     """
@@ -131,20 +131,20 @@ class HFModel(ModelAPI):
         device: str | None = None,
         dtype: str | None = None,
         threads: int | None = None,
-        batch_size: int = 16,
+        rows_per_forward: int = 16,
         choice_scoring: ChoiceScoring = "sum",
         **options: Any,
     ):
         super().__init__(model_name, config, **options)
-        if batch_size < 1:
-            raise UserError(f"hf batch_size must be at least 1, got {batch_size}")
+        if rows_per_forward < 1:
+            raise UserError(f"hf rows_per_forward must be at least 1, got {rows_per_forward}")
         if choice_scoring not in ("sum", "mean"):
             raise UserError(f"hf choice_scoring must be 'sum' or 'mean', got {choice_scoring!r}")
         if threads is not None:
             if threads < 1:
                 raise UserError(f"hf threads must be at least 1, got {threads}")
             torch.set_num_threads(threads)
-        self.batch_size = batch_size
+        self.rows_per_forward = rows_per_forward
         self.choice_scoring: ChoiceScoring = choice_scoring
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.dtype = _torch_dtype(dtype, self.device)
@@ -565,8 +565,8 @@ class HFModel(ModelAPI):
         run: Callable[[Sequence[Conversation]], list[ModelOutput]],
     ) -> list[ModelOutput]:
         outputs: list[ModelOutput] = []
-        for begin in range(0, len(conversations), self.batch_size):
-            batch = conversations[begin : begin + self.batch_size]
+        for begin in range(0, len(conversations), self.rows_per_forward):
+            batch = conversations[begin : begin + self.rows_per_forward]
             try:
                 outputs.extend(run(batch))
             except (RuntimeError, ValueError) as err:
