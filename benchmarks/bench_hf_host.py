@@ -13,8 +13,8 @@ names) by the embedded model (SmolLM2-135M). Three configurations run the same s
 
 Printed per configuration: host time per decision (rendering and encoding the prompts, the
 part this change is about), decisions/s of whole `generate` calls and the host's share of
-that time (best of `--repeats` rounds, which alternate the configurations so that a change in
-the machine's load falls on all of them), and whether the chosen actions equal `after`'s.
+that time (best of `--repeats` rounds, which alternate the configurations in a rotating order
+so that a change in the machine's load falls on all of them), and whether the chosen actions equal `after`'s.
 
     python benchmarks/bench_hf_host.py [--variant full] [--slots 16] [--steps 2] [--repeats 2]
         [--threads 2] [--before f75c7fb]
@@ -181,12 +181,15 @@ def main() -> None:
             "options": built.choices,
         }
         runners[f"before {args.before}"] = RevisionRunner(args.before, workload, args.threads)
-    # Rounds alternate the configurations, so that a change in the machine's load falls on all.
+    # Rounds alternate the configurations, each round starting at the next one, so that a
+    # change in the machine's load, and whatever costs the first pass of a round, falls on all.
     passes: dict[str, list[Pass]] = {name: [] for name in runners}
+    names = list(runners)
     try:
-        for _ in range(args.repeats):
-            for name, runner in runners.items():
-                passes[name].append(runner.one_pass())
+        for round_index in range(args.repeats):
+            shift = round_index % len(names)
+            for name in names[shift:] + names[:shift]:
+                passes[name].append(runners[name].one_pass())
     finally:
         for runner in runners.values():
             if isinstance(runner, RevisionRunner):
