@@ -192,7 +192,7 @@ def test_an_unknown_backend_option_is_refused_by_name(
 def test_options_are_checked_before_the_backend_is_built() -> None:
     pytest.importorskip("torch")
     hf = load_backend_class("hf")
-    assert set(hf.accepted_options()) >= {"device", "dtype", "threads", "batch_size"}
+    assert set(hf.accepted_options()) >= {"device", "dtype", "threads", "rows_per_forward"}
     # Built first, these would fail on the missing folder or URL instead.
     with pytest.raises(UserError, match="no option 'thread'; did you mean 'threads'"):
         get_model("hf:/no/such/model/folder", thread=2)

@@ -154,7 +154,9 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(
 @pytest.mark.slow
 def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
     out = tmp_path / "interrupted"
-    process = subprocess.Popen(_cli(out), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # Answers that take a while: the signal must arrive while the run is still playing.
+    slow = _cli(out, "--backend-option", "latency_s=0.05")
+    process = subprocess.Popen(slow, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     _wait_for_episodes(out / "episodes.jsonl", process, 1)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)
