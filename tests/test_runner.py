@@ -156,7 +156,15 @@ def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
     out = tmp_path / "interrupted"
     # Answers that take a while: the signal must arrive while the run is still playing.
     slow = _cli(out, "--backend-option", "latency_s=0.05")
-    process = subprocess.Popen(slow, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process = subprocess.Popen(
+        slow,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        # A shell's background job (CI scripts, nohup) starts with SIGINT ignored, and Python keeps
+        # an ignored SIGINT ignored: give the run the default, as a terminal's Ctrl-C finds it.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     _wait_for_episodes(out / "episodes.jsonl", process, 1)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)
