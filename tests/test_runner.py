@@ -3,6 +3,7 @@ independence from the episodes in flight and answer timing, resume after SIGKILL
 
 from __future__ import annotations
 
+import contextlib
 import json
 import random
 import signal
@@ -154,8 +155,9 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(
 @pytest.mark.slow
 def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
     out = tmp_path / "interrupted"
-    # Answers that take a while: the signal must arrive while the run is still playing.
-    slow = _cli(out, "--backend-option", "latency_s=0.05")
+    # Answers slow enough that the run cannot finish between its first episode and the signal,
+    # even on a loaded machine: 4 more rounds of 12 steps at 0.25 s each remain.
+    slow = _cli(out, "--backend-option", "latency_s=0.25")
     process = subprocess.Popen(
         slow,
         cwd=REPO,
@@ -168,12 +170,37 @@ def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
     _wait_for_episodes(out / "episodes.jsonl", process, 1)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)
+    assert len(read_episodes(out / "episodes.jsonl")) < 10, "the run ended before the signal"
     assert process.returncode == 130, stderr.decode()
     results = read_results(out / "results.json")
     assert results.status == "partial"
     assert results.summary is not None
     assert results.summary.overall.episodes == len(read_episodes(out / "episodes.jsonl"))
     assert b"rerun the same command to resume" in stderr
+
+
+def test_a_ctrl_c_that_something_swallows_still_stops_the_run(
+    tmp_path: Path, short_env: CrafTextEnv, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from llm_agents.agents.zero_shot import ZeroShotAgent
+
+    decide = ZeroShotAgent.decide
+    calls = 0
+
+    def decide_then_swallow_a_ctrl_c(self: Any, *args: Any) -> Any:
+        nonlocal calls
+        calls += 1
+        if calls == 5:
+            with contextlib.suppress(KeyboardInterrupt):  # as code catching everything would
+                signal.raise_signal(signal.SIGINT)
+        return decide(self, *args)
+
+    monkeypatch.setattr(ZeroShotAgent, "decide", decide_then_swallow_a_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        run(config(tmp_path, limit=6, batch_size=2), short_env)
+    assert read_results(tmp_path / "results.json").status == "partial"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert calls < 6 * MAX_STEPS
 
 
 def test_resume_refuses_a_directory_of_another_run(
