@@ -53,6 +53,8 @@ class Request:
     body: dict[str, Any]
     headers: dict[str, str]
     received_at: float
+    #: The client's (host, port): one per connection.
+    connection: tuple[str, int] = ("", 0)
 
 
 #: Request body -> the answer's message; a `finish_reason` key in it sets the choice's.
@@ -110,6 +112,9 @@ class FaultServer:
 
         class Handler(BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
+            # As real servers do: otherwise a body written after its headers waits for the
+            # client's delayed ACK (40 ms) on a kept-alive connection.
+            disable_nagle_algorithm = True
 
             def log_message(self, format: str, *args: Any) -> None:
                 return None
@@ -150,7 +155,13 @@ class FaultServer:
                         self._send(503, {"error": "fault server request budget spent"})
                         return
                     state.requests.append(
-                        Request(key, body, dict(self.headers.items()), time.monotonic())
+                        Request(
+                            key,
+                            body,
+                            dict(self.headers.items()),
+                            time.monotonic(),
+                            self.client_address,
+                        )
                     )
                     pending = state.plan.get(key)
                     fault = pending.pop(0) if pending else None

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import logging
+import threading
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
@@ -223,6 +225,20 @@ def test_generate_works_inside_a_running_event_loop(server: FaultServer) -> None
         return [o.text for o in backend.generate([conv("x")])]
 
     assert asyncio.run(caller()) == ["echo: x"]
+
+
+def test_calls_from_many_threads_share_kept_alive_connections(server: FaultServer) -> None:
+    backend = model(server, max_concurrency=4)
+    with concurrent.futures.ThreadPoolExecutor(4) as pool:
+        outputs = list(pool.map(lambda i: backend.generate([conv(f"q{i}")])[0], range(40)))
+    assert [o.text for o in outputs] == [f"echo: q{i}" for i in range(40)]
+    # A connection per call would make 40; kept alive, the 4 threads need at most 4.
+    assert len({r.connection for r in server.requests}) <= 4
+    backend.close()
+    assert not [t for t in threading.enumerate() if t.name == "openai-requests"]
+    # A closed backend opens a new loop and client when used again.
+    assert backend.generate([conv("again")])[0].text == "echo: again"
+    backend.close()
 
 
 def test_spec_and_environment_pick_the_server(

@@ -6,19 +6,21 @@ without `@url` the base URL comes from `OPENAI_BASE_URL`. Several base URLs sepa
 goes to the one with the fewest requests in flight, and a failing one is taken out of rotation
 and health-checked until it answers again (`endpoints.py`). The API key is read from an environment
 variable (`OPENAI_API_KEY` unless `api_key_env` names another) and is scrubbed from every error
-and log line. Requests run concurrently (at most `max_concurrency` in flight) on an event loop
-inside the synchronous `generate`; transient failures are retried by the policy in `retry.py`.
+and log line. Every request runs on one event loop in a background thread, through one client
+that keeps its connections open, whichever thread calls the synchronous `generate` (a run calls
+it from many at once); a call sends its conversations concurrently, at most `max_concurrency` in
+flight. Transient failures are retried by the policy in `retry.py`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import base64
-import concurrent.futures
 import difflib
 import json
 import os
 import socket
+import threading
 import time
 from collections.abc import Coroutine, Sequence
 from typing import Any, ClassVar, TypeVar
@@ -101,8 +103,7 @@ class OpenAIModel(ModelAPI):
         "loglik": "chat completions return log-probabilities of generated tokens only, not of "
         "a given answer after the prompt; use the vllm backend (offline engine) or hf for loglik"
     }
-    # Each `generate` call runs its own event loop and client, so calls from threads are
-    # independent; the server batches the requests.
+    # Calls from many threads share the loop and its client; the server batches the requests.
     concurrent_requests = True
 
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
@@ -136,9 +137,10 @@ class OpenAIModel(ModelAPI):
         # Flipped for good once the server rejects structured outputs, so later batches do not
         # pay a failed request each.
         self.structured_choice = self.settings.structured_choice
-        # Built once: loading the CA bundle costs ~30 ms of CPU, and every `generate` call
-        # opens a client (the runner makes one call per request, many at a time).
+        # Built once: loading the CA bundle costs ~30 ms of CPU, and health checks open clients.
         self._ssl_context = httpx.create_ssl_context()
+        self._loop = _LoopThread()
+        self._client: httpx.AsyncClient | None = None
 
     def _add_endpoint(self, written: str) -> None:
         if not written.startswith(("http://", "https://")):
@@ -180,6 +182,10 @@ class OpenAIModel(ModelAPI):
 
     def close(self) -> None:
         self.pool.close()
+        if self._client is not None:
+            self._loop.run(self._client.aclose())
+            self._client = None
+        self._loop.stop()
 
     def generate(
         self,
@@ -197,29 +203,40 @@ class OpenAIModel(ModelAPI):
         One attempt, no retries, at most `PROBE_TIMEOUT_S`: a dead port, a wrong model name or a
         refused key ends the start within seconds, with a one-line `UserError` naming the cause.
         """
-        _run_blocking(self._probe())
+        self._loop.run(self._probe())
 
     def _run(
         self, conversations: Sequence[Conversation], choices: list[str] | None
     ) -> list[ModelOutput]:
-        return _run_blocking(self._generate_all(conversations, choices))
+        return self._loop.run(self._generate_all(conversations, choices))
+
+    def _shared_client(self) -> httpx.AsyncClient:
+        """The client every request uses, made on the loop's thread on first use: one opened
+        per call cost a new connection and ~10 ms of CPU per request, more than a busy run's
+        host can spare at a hundred answers a second."""
+        if self._client is None:
+            limit = self.config.max_concurrency
+            self._client = httpx.AsyncClient(
+                timeout=httpx.Timeout(self.config.timeout_s),
+                # Callers may overlap (a run's many threads), so connections are not capped:
+                # a capped pool would make requests queue for a connection, not for the server.
+                limits=httpx.Limits(max_connections=None, max_keepalive_connections=limit),
+                headers=self._headers(),
+                verify=self._ssl_context,
+            )
+        return self._client
 
     async def _generate_all(
         self, conversations: Sequence[Conversation], choices: list[str] | None
     ) -> list[ModelOutput]:
-        limit = self.config.max_concurrency
-        timeout = httpx.Timeout(self.config.timeout_s)
-        limits = httpx.Limits(max_connections=limit, max_keepalive_connections=limit)
-        semaphore = asyncio.Semaphore(limit)
-        async with httpx.AsyncClient(
-            timeout=timeout, limits=limits, headers=self._headers(), verify=self._ssl_context
-        ) as client:
+        client = self._shared_client()
+        semaphore = asyncio.Semaphore(self.config.max_concurrency)
 
-            async def one(conversation: Conversation) -> ModelOutput:
-                async with semaphore:
-                    return await self._generate_one(client, conversation, choices)
+        async def one(conversation: Conversation) -> ModelOutput:
+            async with semaphore:
+                return await self._generate_one(client, conversation, choices)
 
-            return list(await asyncio.gather(*(one(c) for c in conversations)))
+        return list(await asyncio.gather(*(one(c) for c in conversations)))
 
     def _headers(self) -> dict[str, str]:
         if self._api_key is None:
@@ -498,16 +515,46 @@ class _Rejected(Exception):
     """The server refused the request itself (a 4xx other than 429): retrying cannot help."""
 
 
-def _run_blocking(work: Coroutine[Any, Any, T]) -> T:
-    """Run a coroutine to completion from synchronous code."""
-    try:
-        asyncio.get_running_loop()
-    except RuntimeError:
-        return asyncio.run(work)
-    # Called from inside a running loop (a notebook, an async caller): that loop cannot be
-    # re-entered, so the work gets its own loop on a worker thread.
-    with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
-        return pool.submit(asyncio.run, work).result()
+class _LoopThread:
+    """An event loop running in a daemon thread, started on first use.
+
+    Synchronous callers on any thread (also one already inside a running loop, as in a
+    notebook) hand it coroutines and wait for their results.
+    """
+
+    def __init__(self) -> None:
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    def run(self, work: Coroutine[Any, Any, T]) -> T:
+        future = asyncio.run_coroutine_threadsafe(work, self._running())
+        try:
+            return future.result()
+        except BaseException:
+            # An interrupted caller does not leave its requests running.
+            future.cancel()
+            raise
+
+    def stop(self) -> None:
+        with self._lock:
+            loop, thread = self._loop, self._thread
+            self._loop = self._thread = None
+        if loop is not None and thread is not None:
+            loop.call_soon_threadsafe(loop.stop)
+            thread.join()
+            loop.close()
+
+    def _running(self) -> asyncio.AbstractEventLoop:
+        with self._lock:
+            if self._loop is None:
+                loop = asyncio.new_event_loop()
+                thread = threading.Thread(
+                    target=loop.run_forever, name="openai-requests", daemon=True
+                )
+                thread.start()
+                self._loop, self._thread = loop, thread
+            return self._loop
 
 
 def _transport_cause(err: BaseException) -> str:
