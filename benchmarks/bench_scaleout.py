@@ -95,7 +95,9 @@ def _start_server(args: argparse.Namespace) -> tuple[subprocess.Popen[str], str]
     return server, server.stdout.readline().strip()
 
 
-def _requests_per_s(args: argparse.Namespace, urls: list[str]) -> float:
+def _requests_per_s(args: argparse.Namespace, urls: list[str]) -> tuple[float, float]:
+    """Requests/s of the backend alone, and the client's CPU milliseconds per request (this
+    process only: the servers are processes of their own)."""
     from llm_agents.backends.base import ChatMessage, GenerateConfig
     from llm_agents.backends.openai import OpenAIModel
 
@@ -103,13 +105,13 @@ def _requests_per_s(args: argparse.Namespace, urls: list[str]) -> float:
     model = OpenAIModel("bench", config, base_url=",".join(urls))
     # One conversation per call from many threads: how the runner's dispatcher feeds a server.
     conversations = [[ChatMessage(role="user", content=f"q{i}")] for i in range(args.requests)]
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), time.process_time()
     with concurrent.futures.ThreadPoolExecutor(args.in_flight) as pool:
         outputs = list(pool.map(lambda c: model.generate([c])[0], conversations))
-    elapsed = time.perf_counter() - started
+    elapsed, cpu = time.perf_counter() - started, time.process_time() - cpu
     assert all(o.finish_reason != "error" for o in outputs), "a request failed"
     model.close()
-    return args.requests / elapsed
+    return args.requests / elapsed, cpu / args.requests * 1000
 
 
 def endpoints_throughput(args: argparse.Namespace, root: Path) -> None:
@@ -122,11 +124,12 @@ def endpoints_throughput(args: argparse.Namespace, root: Path) -> None:
     servers = [_start_server(args) for _ in range(2)]
     try:
         urls = [url for _, url in servers]
-        one = _requests_per_s(args, urls[:1])
-        two = _requests_per_s(args, urls)
+        one, one_cpu = _requests_per_s(args, urls[:1])
+        two, two_cpu = _requests_per_s(args, urls)
         print(
             f"backend, {args.requests} requests: 1 endpoint {one:6.1f} requests/s, "
-            f"2 endpoints {two:6.1f} requests/s: {two / one:.2f}x"
+            f"2 endpoints {two:6.1f} requests/s: {two / one:.2f}x; client CPU per request "
+            f"{one_cpu:.2f} ms and {two_cpu:.2f} ms"
         )
         steps = []
         for count in (1, 2):
