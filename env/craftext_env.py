@@ -215,22 +215,7 @@ class CrafTextEnv:
         Frozen slots also keep their step index, so their next step draws the same key it would
         have drawn now: a trajectory does not depend on when its slot was stepped.
         """
-        stepped, info = jax.vmap(self.step_from_episode_key)(state, actions)
-
-        def keep_inactive(new: jax.Array, old: jax.Array) -> jax.Array:
-            mask = active.reshape(active.shape + (1,) * (new.ndim - 1))
-            return jnp.where(mask, new, old)
-
-        next_state: EpisodeState = jax.tree.map(keep_inactive, stepped, state)
-        info = StepInfo(
-            reward=jnp.where(active, info.reward, 0.0),
-            done=next_state.done,
-            termination=next_state.termination,
-            craftax_reward=jnp.where(active, info.craftax_reward, 0.0),
-            new_achievements=active[:, None] & info.new_achievements,
-            goal_at_game_over=active & info.goal_at_game_over,
-        )
-        return next_state, info
+        return _step_where(self, state, actions, active)
 
     def step_slots(
         self, state: EpisodeState, slots: jax.Array, actions: jax.Array, valid: jax.Array
@@ -242,24 +227,32 @@ class CrafTextEnv:
         a slot: scattered rows would race.
         """
         current = jax.tree.map(lambda leaf: leaf[slots], state)
-        stepped, info = jax.vmap(self.step_from_episode_key)(current, actions)
-
-        def keep_invalid(new: jax.Array, old: jax.Array) -> jax.Array:
-            return jnp.where(valid.reshape(valid.shape + (1,) * (new.ndim - 1)), new, old)
-
-        stepped = jax.tree.map(keep_invalid, stepped, current)
+        stepped, info = _step_where(self, current, actions, valid)
         next_state: EpisodeState = jax.tree.map(
             lambda batch, rows: batch.at[slots].set(rows), state, stepped
         )
-        info = StepInfo(
-            reward=jnp.where(valid, info.reward, 0.0),
-            done=stepped.done,
-            termination=stepped.termination,
-            craftax_reward=jnp.where(valid, info.craftax_reward, 0.0),
-            new_achievements=valid[:, None] & info.new_achievements,
-            goal_at_game_over=valid & info.goal_at_game_over,
-        )
         return next_state, info
+
+
+def _step_where(
+    env: CrafTextEnv, state: EpisodeState, actions: jax.Array, mask: jax.Array
+) -> tuple[EpisodeState, StepInfo]:
+    """Step the rows of a batch where `mask` is true; the others keep their state bit for bit
+    and their info says nothing happened."""
+    stepped, info = jax.vmap(env.step_from_episode_key)(state, actions)
+
+    def keep_unmasked(new: jax.Array, old: jax.Array) -> jax.Array:
+        return jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
+
+    next_state: EpisodeState = jax.tree.map(keep_unmasked, stepped, state)
+    return next_state, StepInfo(
+        reward=jnp.where(mask, info.reward, 0.0),
+        done=next_state.done,
+        termination=next_state.termination,
+        craftax_reward=jnp.where(mask, info.craftax_reward, 0.0),
+        new_achievements=mask[:, None] & info.new_achievements,
+        goal_at_game_over=mask & info.goal_at_game_over,
+    )
 
 
 def episode_key(seed: int, goal_id: str, instruction_index: int, episode_index: int) -> np.ndarray:
@@ -368,10 +361,8 @@ class VectorEnv:
             return self._to_host(
                 self._state, info.reward, info.new_achievements, info.goal_at_game_over
             )
-        reward = np.zeros(self.batch_size, np.float32)
-        new = np.zeros((self.batch_size, NUM_ACHIEVEMENTS), bool)
-        at_game_over = np.zeros(self.batch_size, bool)
         idle = np.flatnonzero(~active)
+        groups, infos = [], []
         for start in range(0, len(ready), self._group):
             group = ready[start : start + self._group]
             # Padding rows name distinct idle slots, which are written back as they were.
@@ -380,15 +371,22 @@ class VectorEnv:
             state, info = self._step_slots(
                 state, jnp.asarray(slots), jnp.asarray(actions[slots]), jnp.asarray(valid)
             )
-            rows_reward, rows_new, rows_over = jax.device_get(
-                (info.reward, info.new_achievements, info.goal_at_game_over)
-            )
+            groups.append(group)
+            infos.append((info.reward, info.new_achievements, info.goal_at_game_over))
+        self._state = state
+        reward = np.zeros(self.batch_size, np.float32)
+        new = np.zeros((self.batch_size, NUM_ACHIEVEMENTS), bool)
+        at_game_over = np.zeros(self.batch_size, bool)
+        # One transfer for the round's groups, with the state's: each sync stalls the host.
+        game, termination, steps, fetched = jax.device_get(
+            (state.game, state.termination, state.steps, infos)
+        )
+        for group, (rows_reward, rows_new, rows_over) in zip(groups, fetched, strict=True):
             count = len(group)
             reward[group] = rows_reward[:count]
             new[group] = rows_new[:count]
             at_game_over[group] = rows_over[:count]
-        self._state = state
-        return self._to_host(self._state, reward, new, at_game_over)
+        return _host_batch(game, termination, steps, reward, new, at_game_over)
 
     def _fresh_host(self) -> HostBatch:
         # numpy zeros: an eager jnp.zeros would be one more compile on an accelerator.
@@ -414,16 +412,27 @@ class VectorEnv:
         game, reward_np, termination, steps, new_np, at_game_over = jax.device_get(
             (state.game, reward, state.termination, state.steps, new, goal_at_game_over)
         )
-        return HostBatch(
-            game=game,
-            reward=reward_np,
-            done=termination != Termination.RUNNING,
-            termination=termination,
-            steps=steps,
-            achievements=np.asarray(game.achievements)[:, :NUM_ACHIEVEMENTS],
-            new_achievements=new_np,
-            goal_at_game_over=at_game_over,
-        )
+        return _host_batch(game, termination, steps, reward_np, new_np, at_game_over)
+
+
+def _host_batch(
+    game: Any,
+    termination: np.ndarray,
+    steps: np.ndarray,
+    reward: np.ndarray,
+    new: np.ndarray,
+    goal_at_game_over: np.ndarray,
+) -> HostBatch:
+    return HostBatch(
+        game=game,
+        reward=reward,
+        done=termination != Termination.RUNNING,
+        termination=termination,
+        steps=steps,
+        achievements=np.asarray(game.achievements)[:, :NUM_ACHIEVEMENTS],
+        new_achievements=new,
+        goal_at_game_over=goal_at_game_over,
+    )
 
 
 def _place_episode(state: EpisodeState, episode: EpisodeState, slot: jax.Array) -> EpisodeState:

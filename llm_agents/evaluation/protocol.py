@@ -58,6 +58,15 @@ class Protocol(BaseModel):
 
 _OFFICIAL = "official CrafText code (AIRI-Institute/CrafText at 1c518ae)"
 _LOOP = "the official LLM baseline loop"
+# Both protocols take these two from the paper.
+_PAPER_SPLITS = ProtocolChoice(
+    setting="splits",
+    value=("one", "combo", "new_objects"),
+    source="the paper's zero-shot table (Achievements one / combo, New objects)",
+)
+_STEP_CAP = ProtocolChoice(
+    setting="max_steps", value=250, source=f"{_LOOP} (the paper states no step cap)"
+)
 
 PROTOCOLS: dict[ProtocolName, Protocol] = {
     "default": Protocol(
@@ -70,14 +79,8 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
                 source="ours: full Craftax is the current game; the checker's 22 achievement ids "
                 "exist in both variants",
             ),
-            ProtocolChoice(
-                setting="splits",
-                value=("one", "combo", "new_objects"),
-                source="the paper's zero-shot table (Achievements one / combo, New objects)",
-            ),
-            ProtocolChoice(
-                setting="max_steps", value=250, source=f"{_LOOP} (the paper states no step cap)"
-            ),
+            _PAPER_SPLITS,
+            _STEP_CAP,
             ProtocolChoice(
                 setting="episodes_per_instruction",
                 value=1,
@@ -121,14 +124,8 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
                 source=f"{_OFFICIAL}: its EASY checker masks 22 Craftax-Classic achievements "
                 "and fails on full Craftax",
             ),
-            ProtocolChoice(
-                setting="splits",
-                value=("one", "combo", "new_objects"),
-                source="the paper's zero-shot table (Achievements one / combo, New objects)",
-            ),
-            ProtocolChoice(
-                setting="max_steps", value=250, source=f"{_LOOP} (the paper states no step cap)"
-            ),
+            _PAPER_SPLITS,
+            _STEP_CAP,
             ProtocolChoice(
                 setting="episodes_per_instruction",
                 value=1,
