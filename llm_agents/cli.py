@@ -74,7 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: the rule the run was played under)",
     )
     report.add_argument(
-        "--compare", metavar="OTHER_RUN", help="another run (e.g. the expert's) shown beside it"
+        "--compare",
+        metavar="OTHER_RUN",
+        action="append",
+        help="another run (e.g. the expert's) shown beside it; repeat for more",
     )
 
     data = commands.add_parser(
@@ -106,7 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument(
         "--compare",
         metavar="OTHER_RUN",
-        help="another run (e.g. the expert's) whose row is shown beside this run's",
+        action="append",
+        help="another run (e.g. the expert's) whose row is shown beside this run's; repeat for "
+        "more",
     )
     view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -193,7 +198,13 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.compare:
         from llm_agents.evaluation.report import compare_runs
 
-        print(compare_runs(args.run_dir, args.compare))
+        if args.success_rule:
+            raise UserError(
+                "--success-rule re-scores one run: leave out --compare, or compare runs as they "
+                "were scored"
+            )
+
+        print(compare_runs(args.run_dir, *args.compare))
         return 0
     print(report_run(args.run_dir, success_rule=args.success_rule))
     return 0
@@ -253,7 +264,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         outcome = build_view(
             args.run_dir,
             progress=not args.no_progress,
-            compare=[args.compare] if args.compare else [],
+            compare=args.compare or [],
         )
         print(
             f"wrote {outcome.index} ({len(outcome.statuses)} episodes, {outcome.frames} frames, "

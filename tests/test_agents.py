@@ -278,6 +278,24 @@ def test_few_shot_prompt_snapshot(tmp_path: Path) -> None:
 # ------------------------------------------------------------------------------------ report
 
 
+def test_report_compares_every_run_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from llm_agents.cli import EXIT_USER_ERROR, main
+
+    expert = make_expert_run(tmp_path / "expert")
+    model_run = make_expert_run(tmp_path / "model", agent="zero-shot")
+    other = make_expert_run(tmp_path / "other", agent="cot")
+    assert main(["report", str(model_run), "--compare", str(expert), "--compare", str(other)]) == 0
+    labels = [line.split("|")[0].strip() for line in capsys.readouterr().out.splitlines()[2:5]]
+    assert "(zero-shot" in labels[0]
+    assert labels[1].startswith("expert (scripted")
+    assert "(cot" in labels[2]
+    code = main(["report", str(model_run), "--compare", str(expert), "--success-rule", "official"])
+    assert code == EXIT_USER_ERROR
+    assert "--success-rule re-scores one run" in capsys.readouterr().err
+
+
 def test_compare_puts_the_other_run_beside(tmp_path: Path) -> None:
     expert = make_expert_run(tmp_path / "expert")
     model_run = make_expert_run(tmp_path / "model", agent="zero-shot")

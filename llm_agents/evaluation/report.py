@@ -458,10 +458,10 @@ def comparison_notes(runs: Sequence[ComparedRun]) -> list[str]:
     return []
 
 
-def compare_runs(run_dir: str | Path, other_dir: str | Path) -> str:
-    """A run's table with another run's row beside it (e.g. the expert's on the same dataset),
-    and the published rows; says so when the two runs read different datasets."""
-    runs = [compared_run(run_dir), compared_run(other_dir)]
+def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
+    """A run's table with other runs' rows beside it (e.g. the expert's on the same dataset),
+    and the published rows; says so when the runs read different datasets."""
+    runs = [compared_run(run_dir), *(compared_run(other) for other in others)]
     columns = comparison_columns(runs)
     rows = [["Run", *(CATEGORY_LABELS[c] for c in columns)]]
     rows += [run.cells(columns) for run in runs]
