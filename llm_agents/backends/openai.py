@@ -211,9 +211,9 @@ class OpenAIModel(ModelAPI):
         return self._loop.run(self._generate_all(conversations, choices))
 
     def _shared_client(self) -> httpx.AsyncClient:
-        """The client every request uses, made on the loop's thread on first use: one opened
-        per call cost a new connection and ~10 ms of CPU per request, more than a busy run's
-        host can spare at a hundred answers a second."""
+        """The client every request uses, made on the loop's thread on first use: a client per
+        call opened a connection per request and cost the host 2.5 ms of CPU per request against
+        1.4 ms (loopback server, 32 threads)."""
         if self._client is None:
             limit = self.config.max_concurrency
             self._client = httpx.AsyncClient(
