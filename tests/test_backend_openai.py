@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import gc
 import logging
 import threading
 import time
@@ -228,17 +229,33 @@ def test_generate_works_inside_a_running_event_loop(server: FaultServer) -> None
 
 
 def test_calls_from_many_threads_share_kept_alive_connections(server: FaultServer) -> None:
+    def loop_threads() -> set[threading.Thread]:
+        return {t for t in threading.enumerate() if t.name == "openai-requests"}
+
+    before = loop_threads()
     backend = model(server, max_concurrency=4)
     with concurrent.futures.ThreadPoolExecutor(4) as pool:
         outputs = list(pool.map(lambda i: backend.generate([conv(f"q{i}")])[0], range(40)))
     assert [o.text for o in outputs] == [f"echo: q{i}" for i in range(40)]
     # A connection per call would make 40; kept alive, the 4 threads need at most 4.
     assert len({r.connection for r in server.requests}) <= 4
+    [own] = loop_threads() - before
     backend.close()
-    assert not [t for t in threading.enumerate() if t.name == "openai-requests"]
+    assert not own.is_alive()
     # A closed backend opens a new loop and client when used again.
     assert backend.generate([conv("again")])[0].text == "echo: again"
     backend.close()
+
+    def use_and_drop_a_backend() -> threading.Thread:
+        dropped = model(server)
+        dropped.generate([conv("dropped")])
+        [thread] = loop_threads() - before
+        return thread
+
+    thread = use_and_drop_a_backend()
+    gc.collect()
+    thread.join(timeout=5)
+    assert not thread.is_alive(), "a backend dropped without close() left its loop running"
 
 
 def test_spec_and_environment_pick_the_server(

@@ -22,6 +22,7 @@ import os
 import socket
 import threading
 import time
+import weakref
 from collections.abc import Coroutine, Sequence
 from typing import Any, ClassVar, TypeVar
 
@@ -140,6 +141,8 @@ class OpenAIModel(ModelAPI):
         # Built once: loading the CA bundle costs ~30 ms of CPU, and health checks open clients.
         self._ssl_context = httpx.create_ssl_context()
         self._loop = _LoopThread()
+        # A backend dropped without `close()` still ends its loop's thread.
+        weakref.finalize(self, self._loop.stop, wait=False)
         self._client: httpx.AsyncClient | None = None
 
     def _add_endpoint(self, written: str) -> None:
@@ -536,12 +539,15 @@ class _LoopThread:
             future.cancel()
             raise
 
-    def stop(self) -> None:
+    def stop(self, *, wait: bool = True) -> None:
+        """Stop the loop; `wait` for its thread to end (not possible from that thread)."""
         with self._lock:
             loop, thread = self._loop, self._thread
             self._loop = self._thread = None
-        if loop is not None and thread is not None:
-            loop.call_soon_threadsafe(loop.stop)
+        if loop is None or thread is None:
+            return
+        loop.call_soon_threadsafe(loop.stop)
+        if wait and thread is not threading.current_thread():
             thread.join()
             loop.close()
 
