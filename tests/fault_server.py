@@ -68,6 +68,13 @@ def echo_answer(body: dict[str, Any]) -> dict[str, Any]:
     return {"role": "assistant", "content": content}
 
 
+class _Server(ThreadingHTTPServer):
+    # A real server's backlog: the default of 5 resets connections when a client opens many at
+    # once (a run's 32 in flight), and the client would retry them.
+    request_queue_size = 1024
+    daemon_threads = True
+
+
 @dataclass
 class FaultServer:
     """The server's state; `url` is the base URL to give the backend (ends in /v1)."""
@@ -242,8 +249,7 @@ class FaultServer:
 
         if self.capacity is not None:
             self._slots = threading.BoundedSemaphore(self.capacity)
-        httpd = ThreadingHTTPServer(("127.0.0.1", self.port), Handler)
-        httpd.daemon_threads = True
+        httpd = _Server(("127.0.0.1", self.port), Handler)
         self._httpd = httpd
         # A short poll keeps shutdown (once per test) quick.
         threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True).start()
