@@ -120,6 +120,20 @@ def test_a_missing_extra_gives_the_install_command(
     assert isinstance(caught.value, UserError)
 
 
+def test_a_dependency_that_names_no_module_is_still_explained(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "craftext_unnamed_backend.py").write_text(
+        "raise ModuleNotFoundError('the tokenizers wheel is incomplete')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(backends.BACKENDS, "vllm", "craftext_unnamed_backend:Model")
+    with pytest.raises(BackendNotInstalled) as caught:
+        get_model("vllm:some-model")
+    assert "None" not in str(caught.value)
+    assert "the tokenizers wheel is incomplete" in str(caught.value)
+
+
 def test_a_missing_project_module_is_a_bug_not_a_user_error(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

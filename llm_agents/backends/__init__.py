@@ -94,9 +94,10 @@ def load_backend_class(backend: str) -> type[ModelAPI]:
         extra = EXTRAS.get(backend)
         if extra is None or (err.name or "").startswith("llm_agents"):
             raise
+        # A package may raise this itself for a missing piece of its own, naming no module.
+        missing = f"the package {err.name!r}" if err.name else f"a package it imports ({err})"
         raise BackendNotInstalled(
-            f"the {backend} backend needs the package {err.name!r}: "
-            f"pip install 'craftext-llm[{extra}]'"
+            f"the {backend} backend needs {missing}: pip install 'craftext-llm[{extra}]'"
         ) from err
     cls: type[ModelAPI] = getattr(module, class_name)
     return cls
