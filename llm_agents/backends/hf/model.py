@@ -29,12 +29,21 @@ answer still cut off gets one "answer only" follow-up.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+import torch
+from jinja2 import TemplateError
+from transformers import (
+    AutoConfig,
+    AutoModelForCausalLM,
+    AutoTokenizer,
+    DynamicCache,
+    LogitsProcessorList,
+)
+from transformers.cache_utils import DynamicLayer
 
 from env.errors import UserError
 from llm_agents.backends.base import (
@@ -51,32 +60,6 @@ from llm_agents.backends.base import (
     ranked_choices,
 )
 from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME
-from llm_agents.backends.reasoning import (
-    THINK_CLOSE,
-    THINK_OPEN,
-    resolve_truncated,
-    with_reasoning_split,
-)
-
-# Set before transformers is imported: the hub is unreachable here and must not be waited on.
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
-try:
-    import torch
-    from jinja2 import TemplateError
-    from transformers import (
-        AutoConfig,
-        AutoModelForCausalLM,
-        AutoTokenizer,
-        DynamicCache,
-        LogitsProcessorList,
-    )
-    from transformers.cache_utils import DynamicLayer
-except ModuleNotFoundError as err:
-    raise ModuleNotFoundError(
-        f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
-    ) from err
-
 from llm_agents.backends.hf.scoring import (
     MAX_KEPT_HEADS,
     SPLIT_ATTENTION,
@@ -89,6 +72,12 @@ from llm_agents.backends.hf.scoring import (
     _trie_and_pairs,
 )
 from llm_agents.backends.hf.thinking import ThinkingBudget
+from llm_agents.backends.reasoning import (
+    THINK_CLOSE,
+    THINK_OPEN,
+    resolve_truncated,
+    with_reasoning_split,
+)
 
 ChoiceScoring = Literal["sum", "mean"]
 

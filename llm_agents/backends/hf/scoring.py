@@ -4,23 +4,12 @@ candidates' shared tokens held in a trie."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
-# Set before transformers is imported: the hub is unreachable here and must not be waited on.
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
-try:
-    import torch
-    from transformers.modeling_utils import AttentionInterface
-except ModuleNotFoundError as err:
-    raise ModuleNotFoundError(
-        f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
-    ) from err
-
+import torch
+from transformers.modeling_utils import AttentionInterface
 
 SPLIT_ATTENTION_MODELS = frozenset({"llama", "mistral", "qwen2", "qwen3"})
 SPLIT_ATTENTION = "craftext_split_prefix"

@@ -3,18 +3,8 @@ enough."""
 
 from __future__ import annotations
 
-import os
-
-# Set before transformers is imported: the hub is unreachable here and must not be waited on.
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
-try:
-    import torch
-    from transformers import LogitsProcessor
-except ModuleNotFoundError as err:
-    raise ModuleNotFoundError(
-        f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
-    ) from err
+import torch
+from transformers import LogitsProcessor
 
 
 class ThinkingBudget(LogitsProcessor):
