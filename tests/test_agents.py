@@ -275,6 +275,37 @@ def test_few_shot_prompt_snapshot(tmp_path: Path) -> None:
     check_snapshot("prompt_few_shot_classic.txt", conversation_text(messages))
 
 
+@pytest.mark.parametrize(
+    ("agent", "template"),
+    [
+        ("zero-shot", "step"),
+        ("cot", "step_cot"),
+        ("cot", "cot_turn"),
+        ("few-shot", "few_shot"),
+        ("few-shot", "step"),
+    ],
+)
+def test_a_broken_template_of_any_strategy_stops_the_run_before_anything_is_written(
+    agent: str, template: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from llm_agents.cli import EXIT_USER_ERROR, main
+
+    demos = make_expert_run(tmp_path / "expert")
+    templates = tmp_path / "templates"
+    templates.mkdir()
+    (templates / f"{template}.j2").write_text("{{ no_such_variable }}\n")
+    out = tmp_path / "run"
+    argv = [
+        "eval", "--model", "mock:", "--agent", agent, "--demos", str(demos),
+        "--variant", "classic", "--splits", "combo", "--max-steps", "2", "--limit", "1",
+        "--templates-dir", str(templates), "--output-dir", str(out), "--no-progress",
+    ]  # fmt: skip
+    assert main(argv) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    assert f"{template}.j2" in err and "no_such_variable" in err
+    assert not out.exists()
+
+
 # ------------------------------------------------------------------------------------ report
 
 

@@ -43,8 +43,11 @@ class Agent(Protocol):
 
     def end_episode(self, slot: int) -> None: ...
 
-    def check_templates(self, instruction: str, plan: str | None = None) -> None:
-        """Render what the agent would send, so a broken template fails before any work."""
+    def check_templates(
+        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Build what the agent would send for an episode of `instruction` (and `plan`, `goal`)
+        through the path a run builds it with, so a broken template fails before any work."""
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt: ...
 

@@ -71,8 +71,8 @@ class ChainOfThoughtAgent(ZeroShotAgent):
             budget -= size
         return kept[::-1]
 
-    def build_messages(self, slot: int, observation: Any) -> tuple[list[ChatMessage], str]:
-        messages, text = super().build_messages(slot, observation)
+    def messages_for(self, slot: int, observation_text: str) -> list[ChatMessage]:
+        messages = super().messages_for(slot, observation_text)
         turns: list[ChatMessage] = []
         for step, reply in self.kept_replies(slot):
             stand_in = render_template(TURN_TEMPLATE, {"step": step}, self.templates_dir)
@@ -80,7 +80,7 @@ class ChainOfThoughtAgent(ZeroShotAgent):
                 ChatMessage(role="user", content=stand_in),
                 ChatMessage(role="assistant", content=reply),
             ]
-        return [messages[0], *turns, *messages[1:]], text
+        return [messages[0], *turns, *messages[1:]]
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
         decision = super().decide(prompt, output)

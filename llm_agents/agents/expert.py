@@ -128,7 +128,9 @@ class ExpertAgent:
     def end_episode(self, slot: int) -> None:
         self._episodes.pop(slot, None)
 
-    def check_templates(self, instruction: str, plan: str | None = None) -> None:
+    def check_templates(
+        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
         """The expert renders no prompt: nothing to check."""
 
     def task(self, slot: int) -> Task | None:

@@ -175,8 +175,8 @@ class FewShotAgent(ZeroShotAgent):
         """The demonstrations the slot's prompts carry."""
         return list(self._demos.get(slot, []))
 
-    def build_messages(self, slot: int, observation: Any) -> tuple[list[ChatMessage], str]:
-        messages, text = super().build_messages(slot, observation)
+    def messages_for(self, slot: int, observation_text: str) -> list[ChatMessage]:
+        messages = super().messages_for(slot, observation_text)
         context = {
             "demonstrations": [d.model_dump() for d in self._demos.get(slot, [])],
             "step": messages[-1].content,
@@ -184,4 +184,4 @@ class FewShotAgent(ZeroShotAgent):
         user = ChatMessage(
             role="user", content=render_template(TEMPLATE, context, self.templates_dir)
         )
-        return [*messages[:-1], user], text
+        return [*messages[:-1], user]

@@ -33,6 +33,9 @@ if TYPE_CHECKING:
 
 SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"
+# The template check plays a step in a slot no run uses, with a stand-in observation text.
+_CHECK_SLOT = -1
+_PLACEHOLDER = "(observation)"
 
 
 class _PositionLike(Protocol):
@@ -260,12 +263,21 @@ class ZeroShotAgent:
             "choice_mode": self.choice_rule is not None,
         }
 
-    def check_templates(self, instruction: str, plan: str | None = None) -> None:
-        """Render a step prompt with a placeholder observation, so that a broken template fails
-        before any model call (the system prompt was rendered by the constructor)."""
-        history = [HistoryEntry(step=0, action=self.fallback_name, outcome="no visible effect")]
-        context = self.step_context("(observation)", instruction, plan, history)
-        render_template(STEP_TEMPLATE, context, self.templates_dir)
+    def check_templates(
+        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Build the messages of an episode's second step (a placeholder observation after one
+        answered step) the way a run builds them, so a broken template of any strategy (the step
+        message, a kept reply's stand-in, the demonstrations) fails before any work."""
+        slot = _CHECK_SLOT
+        self.start_episode(slot, instruction, plan, goal)
+        try:
+            first = StepPrompt(slot=slot, observation=None, messages=[], text=_PLACEHOLDER)
+            self.decide(first, ModelOutput(text=self.fallback_name))
+            self._close_step(self._episode(slot), "no visible effect")
+            self.messages_for(slot, _PLACEHOLDER)
+        finally:
+            self.end_episode(slot)
 
     def start_episode(
         self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
@@ -298,18 +310,28 @@ class ZeroShotAgent:
         episode = self._episode(slot)
         if episode.pending is not None:
             action, before = episode.pending
-            outcome = describe_outcome(action, before, observation)
-            episode.history.append(
-                HistoryEntry(step=episode.step - 1, action=action, outcome=outcome)
-            )
-            episode.pending = None
+            self._close_step(episode, describe_outcome(action, before, observation))
         text = self.render_observation(observation)
+        return self.messages_for(slot, text), text
+
+    @staticmethod
+    def _close_step(episode: _Episode, outcome: str) -> None:
+        """Move the episode's pending action into its history with `outcome`."""
+        assert episode.pending is not None
+        action, _ = episode.pending
+        episode.history.append(HistoryEntry(step=episode.step - 1, action=action, outcome=outcome))
+        episode.pending = None
+
+    def messages_for(self, slot: int, observation_text: str) -> list[ChatMessage]:
+        """The slot's messages for an observation rendered as `observation_text` (strategies
+        built on this one add their turns here)."""
+        episode = self._episode(slot)
         recent = episode.history[-self.history_length :] if self.history_length else []
-        context = self.step_context(text, episode.instruction, episode.plan, recent)
+        context = self.step_context(observation_text, episode.instruction, episode.plan, recent)
         user = ChatMessage(
             role="user", content=render_template(self.step_template, context, self.templates_dir)
         )
-        return [self.system_message, user], text
+        return [self.system_message, user]
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt:
         """The slot's prompt for this observation (first half of `act`)."""

@@ -226,10 +226,11 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     plans = _load_plans(config.plans)
     missing = [i.text for i in instructions if plans is not None and i.text not in plans]
     schedule = build_schedule(config, instructions, plans)
-    # Renders the system prompt and checks the fallback action; a step prompt is rendered
+    # Renders the system prompt and checks the fallback action; a step's messages are built
     # too, so a broken template fails here rather than on the first model call.
     agent: Agent = build_agent(config)
-    agent.check_templates(schedule[0].instruction.text, schedule[0].plan)
+    first = schedule[0]
+    agent.check_templates(first.instruction.text, first.plan, first.instruction.goal)
     identity = RunIdentity(
         settings=config.result_settings(),
         templates=_template_hashes(config.templates_dir),
