@@ -20,6 +20,8 @@ from pathlib import Path
 from typing import Any
 
 ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION: DOWN"]
+#: The mock script answering them in turn, named in the config as the model that plays.
+SCRIPT = "cycle:" + "|".join(ANSWERS)
 
 #: part name -> (object, attribute) whose calls are timed.
 PARTS = {
@@ -64,7 +66,7 @@ def timed_run(
     from llm_agents.evaluation.runner import run_eval
 
     settings = {
-        "model": "mock:cycle:LEFT",
+        "model": f"mock:{SCRIPT}",
         "variant": env.variant.value,
         "splits": ["one", "combo", "paraphrased", "new_objects"],
         "max_steps": env.config.max_steps,
@@ -73,11 +75,11 @@ def timed_run(
     }
     # One episode more than the slots, so the warm-up also refills one (that compiles too).
     warm = settings | {"output_dir": str(workdir / f"warm{in_flight}"), "limit": in_flight + 1}
-    run_eval(build_config(warm), MockModel(outputs=ANSWERS), env=env)
+    run_eval(build_config(warm), MockModel(SCRIPT), env=env)
     config = build_config(
         settings | {"output_dir": str(workdir / f"run{in_flight}"), "limit": episodes}
     )
-    model = MockModel(outputs=ANSWERS)
+    model = MockModel(SCRIPT)
     spent.clear()
     start = time.perf_counter()
     outcome = run_eval(config, model, env=env)

@@ -29,6 +29,8 @@ from llm_agents.evaluation.runner import run_eval
 from llm_agents.viewer import build_view
 
 ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION: DOWN"]
+#: The mock script answering them in turn, named in the config as the model that plays.
+SCRIPT = "cycle:" + "|".join(ANSWERS)
 
 
 @dataclass
@@ -48,7 +50,7 @@ def timed() -> Iterator[Timing]:
 def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> Timing:
     config = build_config(
         {
-            "model": "mock:cycle:LEFT",
+            "model": f"mock:{SCRIPT}",
             "variant": env.variant.value,
             "splits": ["combo", "paraphrased", "new_objects"],
             "max_steps": env.config.max_steps,
@@ -58,7 +60,7 @@ def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> Timing:
         }
     )
     with timed() as timing:
-        run_eval(config, MockModel(outputs=ANSWERS), env=env)
+        run_eval(config, MockModel(SCRIPT), env=env)
     return timing
 
 

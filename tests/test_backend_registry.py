@@ -33,7 +33,7 @@ from llm_agents.backends.mock import MockModel
         ("openai:org/model@name@http://h:1/v1", "openai", "org/model@name", "http://h:1/v1"),
         ("vllm:Qwen/Qwen3-0.6B", "vllm", "Qwen/Qwen3-0.6B", None),
         ("mock:cycle:A|B", "mock", "cycle:A|B", None),
-        ("mock:", "mock", "", None),
+        ("mock:", "mock", "noop", None),
     ],
 )
 def test_specs_are_split_into_backend_model_and_url(

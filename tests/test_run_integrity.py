@@ -101,10 +101,11 @@ def test_failed_answers_are_recorded_not_scored_and_replayed_on_resume(
 def test_the_circuit_breaker_stops_the_run_and_keeps_what_finished(
     tmp_path: Path, short_env: CrafTextEnv
 ) -> None:
+    script = "list:" + "|".join(["NOOP"] * (MAX_STEPS + 1))
     with pytest.raises(BackendFailure, match="3 failed model answers in a row"):
         run_eval(
-            config(tmp_path, max_consecutive_failures=3, batch_size=1),
-            MockModel("list:" + "|".join(["NOOP"] * (MAX_STEPS + 1))),
+            config(tmp_path, model=f"mock:{script}", max_consecutive_failures=3, batch_size=1),
+            MockModel(script),
             env=short_env,
         )
     results = read_results(tmp_path / "results.json")

@@ -19,10 +19,11 @@ import pytest
 from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
+from llm_agents.backends.cache import CachedModel
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.runner import build_schedule, run_eval
+from llm_agents.evaluation.runner import build_schedule, open_model, run_eval
 from llm_agents.run_data.store import read_episodes, read_results
 
 REPO = Path(__file__).resolve().parents[1]
@@ -243,8 +244,12 @@ def test_report_command_rebuilds_table_and_chart(
 def test_prompts_carry_real_observations_and_action_outcomes(
     tmp_path: Path, short_env: CrafTextEnv
 ) -> None:
-    model = MockModel(outputs=["ACTION: LEFT"])
-    run_eval(config(tmp_path, limit=1, batch_size=1), model, env=short_env)
+    model = MockModel("cycle:ACTION: LEFT")
+    run_eval(
+        config(tmp_path, model="mock:cycle:ACTION: LEFT", limit=1, batch_size=1),
+        model,
+        env=short_env,
+    )
     users = [messages[-1].content for messages, _ in model.requests]
     assert len(users) == MAX_STEPS
     assert "first step" in users[0]
@@ -252,6 +257,55 @@ def test_prompts_carry_real_observations_and_action_outcomes(
     # Every later prompt reports what the previous LEFT did, read off two real observations.
     for user in users[1:]:
         assert "LEFT: moved west" in user or "LEFT: blocked" in user
+
+
+HASH_SCRIPT = SCRIPT.removeprefix("mock:")
+
+
+@pytest.mark.parametrize(
+    ("make_model", "named"),
+    [
+        (lambda tmp: MockModel("cycle:ACTION: DO"), "mock:cycle:ACTION: DO"),
+        (lambda tmp: MockModel(HASH_SCRIPT, GenerateConfig(max_tokens=7)), "generation"),
+        (lambda tmp: CachedModel(MockModel(HASH_SCRIPT), tmp / "x.sqlite"), "x.sqlite"),
+    ],
+    ids=["another model", "other generation settings", "a cache the config lacks"],
+)
+def test_a_model_other_than_the_configs_is_refused_before_anything_is_written(
+    tmp_path: Path, short_env: CrafTextEnv, make_model: Any, named: str
+) -> None:
+    out = tmp_path / "run"
+    with (
+        pytest.raises(ValueError, match="not the config's") as refused,
+        make_model(tmp_path) as model,
+    ):
+        run_eval(config(out, limit=1), model, env=short_env)
+    assert named in str(refused.value)
+    assert not out.exists()
+
+
+def test_the_configs_response_cache_is_honoured_and_a_model_without_it_refused(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    cache = tmp_path / "answers.sqlite"
+    first = config(tmp_path / "first", limit=2, cache=str(cache))
+    with (
+        pytest.raises(ValueError, match="response cache"),
+        MockModel(HASH_SCRIPT) as plain,
+    ):
+        run_eval(first, plain, env=short_env)
+    assert not (tmp_path / "first").exists()
+
+    with open_model(first) as model:
+        run_eval(first, model, env=short_env)
+    again = first.model_copy(update={"output_dir": str(tmp_path / "again")})
+    with open_model(again) as model:
+        run_eval(again, model, env=short_env)
+    steps = [
+        json.loads(line) for line in (tmp_path / "again" / "steps.jsonl").read_text().splitlines()
+    ]
+    assert steps and all(step["cached"] for step in steps)
+    assert canonical(tmp_path / "again") == canonical(tmp_path / "first")
 
 
 class JitteryModel(MockModel):
@@ -311,7 +365,10 @@ def test_episodes_do_not_depend_on_episodes_in_flight_or_answer_timing(
     )
     model = JitteryModel(concurrent, seed=batch_size, max_concurrency=max_concurrency)
     out = tmp_path / "jittery"
-    run_eval(config(out, batch_size=batch_size, limit=limit), model, env=short_env)
+    generation = {"max_concurrency": max_concurrency}
+    run_eval(
+        config(out, batch_size=batch_size, limit=limit, generation=generation), model, env=short_env
+    )
 
     assert canonical(out) == canonical(reference)
     if concurrent:

@@ -82,6 +82,8 @@ def parse_model_spec(spec: str) -> ModelSpec:
             rest, _, base_url = rest.rpartition("@")
     if not rest and backend != "mock":
         raise UserError(f"model spec {spec!r} names no model after {backend}:")
+    # `mock:` is the script that answers NOOP, named as the model it builds names itself.
+    rest = rest or "noop"
     return ModelSpec(backend=backend, name=rest, base_url=base_url)
 
 

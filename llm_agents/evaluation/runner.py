@@ -278,11 +278,13 @@ def run_eval(
     progress: ProgressFactory | None = None,
     env: Any = None,
 ) -> RunOutcome:
-    """Prepare, probe the model, and run (or resume) the evaluation `config` describes."""
+    """Prepare, probe the model, and run (or resume) the evaluation `config` describes.
+
+    `model` must be the one `config` names, opened as `open_model(config)` opens it (the same
+    backend, model, generation settings and response cache): the results record the config.
+    """
     prepared = prepare_run(config)
-    if config.probe:
-        model.probe()
-    return execute_run(prepared, model, progress=progress, env=env)
+    return execute_run(prepared, model, progress=progress, env=env, probe=config.probe)
 
 
 def open_model(settings: ModelSettings) -> ModelAPI:
@@ -306,6 +308,36 @@ def open_model(settings: ModelSettings) -> ModelAPI:
     return model
 
 
+def check_model(config: EvalConfig, model: ModelAPI) -> None:
+    """Refuse a model other than the one `config` names, since the results record the config:
+    another backend, model or generation settings, or a response cache other than
+    `config.cache` (`open_model(config)` opens the right one). An agent that needs no model
+    plays with any, and records none."""
+    from llm_agents.agents import agent_class
+    from llm_agents.backends import parse_model_spec
+    from llm_agents.backends.cache import CachedModel
+
+    if not agent_class(config.agent).needs_model:
+        return
+    spec = parse_model_spec(config.model)
+    problems = []
+    if (model.backend_name, model.model_name) != (spec.backend, spec.name):
+        problems.append(
+            f"it is {model.backend_name}:{model.model_name}, the config names {config.model}"
+        )
+    if model.config != config.generation:
+        problems.append("its generation settings are not the config's")
+    cache = model.path if isinstance(model, CachedModel) else None
+    wanted = Path(config.cache).expanduser() if config.cache else None
+    if cache != wanted:
+        problems.append(f"its response cache is {cache}, the config's is {wanted}")
+    if problems:
+        raise ValueError(
+            f"the model passed to run_eval is not the config's: {'; '.join(problems)} "
+            "(open it with open_model(config))"
+        )
+
+
 def make_env_config(config: EvalConfig) -> EnvConfig:
     """The `EnvConfig` of the env a run's episodes are played in."""
     from env import EnvConfig
@@ -325,15 +357,20 @@ def execute_run(
     *,
     progress: ProgressFactory | None = None,
     env: Any = None,
+    probe: bool = False,
 ) -> RunOutcome:
-    """Play the prepared run with `model`, writing as it goes.
+    """Play the prepared run with `model` (probed first with `probe`), writing as it goes.
 
-    `env` may pass an existing `CrafTextEnv` of the same variant and step cap (tests share one).
-    Raises `BackendFailure` (after saving) when the backend failed too often in a row.
+    `model` must be the one the config names (see `check_model`). `env` may pass an existing
+    `CrafTextEnv` of the same variant and step cap (tests share one). Raises `BackendFailure`
+    (after saving) when the backend failed too often in a row.
     """
     from env import CrafTextEnv
 
     config = prepared.config
+    check_model(config, model)
+    if probe:
+        model.probe()
     env_config = make_env_config(config)
     if env is None:
         env = CrafTextEnv(env_config)
