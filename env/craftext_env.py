@@ -26,9 +26,9 @@ from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import scored_success
 from env.jax_cache import enable_compilation_cache
 from env.placement import EnvDevice, place_env
-from env.rules import SuccessRule
+from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP, SuccessRule
 from env.termination import Termination
-from env.variant import Variant
+from env.variant import DEFAULT_VARIANT, Variant
 
 #: Each success is worth this much more than Craftax's own per-step reward, which is divided by it.
 CRAFTAX_REWARD_SCALE = 50.0
@@ -39,11 +39,11 @@ class EnvConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    variant: Variant = Variant.FULL
+    variant: Variant = DEFAULT_VARIANT
     """Craftax variant: `full` (Craftax-Symbolic-v1, 43 actions) or `classic` (17 actions)."""
-    max_steps: int = Field(250, ge=1)
-    """Step cap per episode (250 in the official LLM baseline code)."""
-    success_rule: SuccessRule = "game_over_counts"
+    max_steps: int = Field(STEP_CAP, ge=1)
+    """Step cap per episode (`env.rules.STEP_CAP`, the official LLM baseline's)."""
+    success_rule: SuccessRule = DEFAULT_SUCCESS_RULE
     """Whether a goal completed on the step the game ends counts (`game_over_counts`) or not
     (`official`); see `env.rules.SuccessRule`."""
     world_key: int | None = None

@@ -52,6 +52,7 @@ from env.errors import UserError
 # The records are re-exported: `env.dataset` is where callers get goals from.
 from env.goals import CATEGORIES as CATEGORIES
 from env.goals import CATEGORY_SPLIT as CATEGORY_SPLIT
+from env.goals import PAPER_CATEGORIES as PAPER_CATEGORIES
 from env.goals import SPLITS as SPLITS
 from env.goals import Category as Category
 from env.goals import Dataset as Dataset

@@ -27,6 +27,9 @@ SourceKind = Literal["archive", "directory", "wheel", "json"]
 
 SPLITS: tuple[Split, ...] = get_args(Split)
 CATEGORIES: tuple[Category, ...] = get_args(Category)
+#: The goal sets of the paper's zero-shot table (Achievements one / combo, New objects): what a
+#: run plays unless told otherwise, and the columns published numbers exist for.
+PAPER_CATEGORIES: tuple[Category, ...] = ("one", "combo", "new_objects")
 CATEGORY_SPLIT: dict[Category, Split] = {
     "one": "easy_train",
     "combo": "easy_train",

@@ -8,6 +8,12 @@ SuccessRule = Literal["game_over_counts", "official"]
 limit) is a success: `game_over_counts` says yes; `official` says no, as the official CrafText
 wrapper scores it (it checks the goal on the state after the automatic reset)."""
 SUCCESS_RULES: tuple[SuccessRule, ...] = get_args(SuccessRule)
+#: The rule the env, the settings and the `default` protocol start from.
+DEFAULT_SUCCESS_RULE: SuccessRule = "game_over_counts"
+
+#: Step cap per episode of the official LLM baseline loop (the paper states none); the env, the
+#: settings and both protocols start from it.
+STEP_CAP = 250
 
 WorldSeeding = Literal["per_episode", "official"]
 """`per_episode`: each episode's world comes from its own episode key; `official`: every episode

@@ -36,6 +36,10 @@ class Variant(StrEnum):
         return len(self.action_names)
 
 
+#: The variant the env, the settings and the `default` protocol start from.
+DEFAULT_VARIANT = Variant.FULL
+
+
 def as_variant(variant: Variant | str) -> Variant:
     """Accept a `Variant` or its value (`"full"`, `"classic"`); anything else is a `UserError`."""
     try:

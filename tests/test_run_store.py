@@ -126,3 +126,104 @@ def test_output_dir_checks(tmp_path: Path) -> None:
         check_output_dir(file / "run" / "deeper")
     check_output_dir(tmp_path / "new" / "run")
     assert not (tmp_path / "new").exists()
+
+
+# ------------------------------------------------------------------ what a run's identity holds
+
+#: A valid value other than the default for every setting: a new setting must be added here,
+#: and so be marked (or not) as changing results.
+OTHER_VALUES: dict[str, object] = {
+    "model": "mock:noop",
+    "generation": {"temperature": 0.5},
+    "backend_options": {"dtype": "float16"},
+    "cache": "answers.sqlite",
+    "limit": 3,
+    "templates_dir": ".",
+    "dataset": "data.json",
+    "variant": "classic",
+    "probe": False,
+    "choice": "guided",
+    "splits": ("combo",),
+    "paraphrases": False,
+    "episodes_per_instruction": 2,
+    "max_steps": 9,
+    "seed": 1,
+    "batch_size": 2,
+    "renderer": "grid",
+    "history_length": 2,
+    "plans": "plans.json",
+    "output_dir": "elsewhere",
+    "fallback_action": "DO",
+    "record_steps": False,
+    "max_consecutive_failures": 2,
+    "protocol": "paper",
+    "protocol_overrides": ("max_steps",),
+    "success_rule": "official",
+    "world_seeding": "official",
+    "env_device": "default",
+    "ray": True,
+    "ray_workers": 3,
+    "ray_worker_gpus": 1.0,
+    "agent": "cot",
+    "cot_steps": 2,
+    "cot_max_tokens": 100,
+    "few_shot_steps": 2,
+    "demos": "expert-run",
+}
+OTHER_GENERATION: dict[str, object] = {
+    "max_tokens": 9,
+    "temperature": 0.5,
+    "top_p": 0.5,
+    "sampling_seed": 1,
+    "stop": ["\n"],
+    "reasoning_budget": 9,
+    "timeout_s": 5.0,
+    "max_concurrency": 2,
+    "max_retries": 1,
+}
+
+
+def test_every_setting_has_another_value_to_try() -> None:
+    from llm_agents.backends.base import GenerateConfig
+    from llm_agents.evaluation.config import EvalConfig
+
+    assert set(OTHER_VALUES) == set(EvalConfig.model_fields)
+    assert set(OTHER_GENERATION) == set(GenerateConfig.model_fields)
+
+
+@pytest.mark.parametrize("name", sorted(OTHER_VALUES))
+def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_changes(
+    name: str,
+) -> None:
+    from llm_agents.backends.base import result_fields
+    from llm_agents.evaluation.config import EvalConfig
+
+    base = EvalConfig()
+    changed = EvalConfig.model_validate(base.model_dump() | {name: OTHER_VALUES[name]})
+    assert getattr(changed, name) != getattr(base, name)
+    moved = changed.result_settings() != base.result_settings()
+    assert moved == (name in result_fields(EvalConfig))
+
+
+@pytest.mark.parametrize("name", sorted(OTHER_GENERATION))
+def test_only_generation_settings_that_shape_answers_are_in_a_runs_identity(name: str) -> None:
+    from llm_agents.backends.base import TRANSPORT_FIELDS
+    from llm_agents.evaluation.config import EvalConfig
+
+    base = EvalConfig()
+    changed = EvalConfig.model_validate(
+        base.model_dump() | {"generation": {name: OTHER_GENERATION[name]}}
+    )
+    moved = changed.result_settings() != base.result_settings()
+    assert moved == (name not in TRANSPORT_FIELDS)
+    assert {"timeout_s", "max_concurrency", "max_retries"} == TRANSPORT_FIELDS
+
+
+def test_backend_options_about_speed_are_left_out_of_a_runs_identity() -> None:
+    from llm_agents.evaluation.config import EvalConfig
+
+    base = EvalConfig(backend_options={"dtype": "float32"})
+    faster = EvalConfig(backend_options={"dtype": "float32", "threads": 4})
+    other = EvalConfig(backend_options={"dtype": "float16"})
+    assert faster.result_settings() == base.result_settings()
+    assert other.result_settings() != base.result_settings()

@@ -13,7 +13,7 @@ import inspect
 import logging
 from collections.abc import Sequence, Sized
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Self
+from typing import Annotated, Any, ClassVar, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -57,22 +57,59 @@ class ChoiceSet(BaseModel):
     """`loglik`: the option with the highest log-likelihood; `guided`: constrained greedy decoding."""
 
 
+class _ChangesResults:
+    """See `CHANGES_RESULTS`."""
+
+    def __repr__(self) -> str:
+        return "CHANGES_RESULTS"
+
+
+#: Settings metadata, `name: Annotated[T, CHANGES_RESULTS]`: the setting can change what a run
+#: answers or scores, so a run resumed in the same directory must match it. An unmarked setting
+#: changes only speed, waiting, logging, or where things are read (paths, whose contents are
+#: hashed instead) or written.
+CHANGES_RESULTS = _ChangesResults()
+
+
+def result_fields(settings: type[BaseModel]) -> tuple[str, ...]:
+    """The fields of a settings class marked `CHANGES_RESULTS`, in declaration order."""
+    return tuple(
+        name
+        for name, field in settings.model_fields.items()
+        if any(mark is CHANGES_RESULTS for mark in field.metadata)
+    )
+
+
+def result_values(settings: BaseModel) -> dict[str, Any]:
+    """The marked settings' values as JSON data, nested settings reduced to their own marked
+    ones: the part of a run's identity its settings give."""
+    values = {}
+    for name in result_fields(type(settings)):
+        value = getattr(settings, name)
+        values[name] = (
+            result_values(value)
+            if isinstance(value, BaseModel)
+            else settings.model_dump(mode="json", include={name})[name]
+        )
+    return values
+
+
 class GenerateConfig(BaseModel):
     """Generation parameters shared by all backends."""
 
     model_config = ConfigDict(extra="forbid", use_attribute_docstrings=True)
 
-    max_tokens: int = Field(256, ge=1)
+    max_tokens: Annotated[int, CHANGES_RESULTS] = Field(256, ge=1)
     """Most tokens generated for the answer (thinking included unless `reasoning_budget` is set)."""
-    temperature: float = Field(0.0, ge=0.0)
+    temperature: Annotated[float, CHANGES_RESULTS] = Field(0.0, ge=0.0)
     """Sampling temperature; 0 means greedy decoding."""
-    top_p: float = Field(1.0, gt=0.0, le=1.0)
+    top_p: Annotated[float, CHANGES_RESULTS] = Field(1.0, gt=0.0, le=1.0)
     """Nucleus sampling mass."""
-    sampling_seed: int | None = 0
+    sampling_seed: Annotated[int | None, CHANGES_RESULTS] = 0
     """Sampling seed where the backend supports one; None leaves it to the backend."""
-    stop: list[str] = Field(default_factory=list)
+    stop: Annotated[list[str], CHANGES_RESULTS] = Field(default_factory=list)
     """Strings that end generation."""
-    reasoning_budget: int | None = Field(None, ge=1)
+    reasoning_budget: Annotated[int | None, CHANGES_RESULTS] = Field(None, ge=1)
     """Tokens a reasoning model may spend thinking before it must answer; None: no separate budget."""
     timeout_s: float = Field(120.0, gt=0)
     """Seconds one request may take before it counts as failed (HTTP backends)."""
@@ -82,10 +119,10 @@ class GenerateConfig(BaseModel):
     """Retries of a transient failure (HTTP backends), after the first attempt."""
 
 
-#: Generation parameters that cannot change an answer: they only bound waiting and retrying.
-TRANSPORT_FIELDS = frozenset({"timeout_s", "max_concurrency", "max_retries"})
 #: Generation parameters that shape the answer itself.
-ANSWER_FIELDS = frozenset(GenerateConfig.model_fields) - TRANSPORT_FIELDS
+ANSWER_FIELDS = frozenset(result_fields(GenerateConfig))
+#: Generation parameters that cannot change an answer: they only bound waiting and retrying.
+TRANSPORT_FIELDS = frozenset(GenerateConfig.model_fields) - ANSWER_FIELDS
 #: Longest a probe request may take: a dead server must fail the start within seconds.
 PROBE_TIMEOUT_S = 10.0
 #: Longest error text an output keeps; server bodies and tracebacks can be megabytes.

@@ -12,7 +12,7 @@ from __future__ import annotations
 import difflib
 import tomllib
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import yaml
 from pydantic import (
@@ -24,20 +24,20 @@ from pydantic import (
     model_validator,
 )
 
-from env.dataset import parse_categories
+from env.dataset import PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
 from env.placement import EnvDevice
-from env.rules import SuccessRule, WorldSeeding
-from env.variant import Variant
+from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
+from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
-from llm_agents.backends.base import ChoiceRule, GenerateConfig
+from llm_agents.backends.base import CHANGES_RESULTS, ChoiceRule, GenerateConfig, result_values
 from llm_agents.evaluation.protocol import ProtocolName, apply_protocol
 from textualizer import RENDERERS
 
-#: The paper's zero-shot EASY table: Achievements one / combo, and New objects.
-DEFAULT_CATEGORIES: tuple[str, ...] = ("one", "combo", "new_objects")
+if TYPE_CHECKING:
+    from env import EnvConfig
 
 #: Backend options that change how fast or where a model runs, never what it answers.
 TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env", "health_interval_s"})
@@ -50,11 +50,11 @@ class ModelSettings(BaseModel):
         extra="forbid", validate_assignment=True, use_attribute_docstrings=True
     )
 
-    model: str = "hf:smollm2-135m"
+    model: Annotated[str, CHANGES_RESULTS] = "hf:smollm2-135m"
     """Model spec: hf:NAME_OR_PATH, vllm:NAME_OR_PATH, openai:MODEL@URL or mock:SCRIPT."""
-    generation: GenerateConfig = Field(default_factory=GenerateConfig)
+    generation: Annotated[GenerateConfig, CHANGES_RESULTS] = Field(default_factory=GenerateConfig)
     """Generation parameters passed to the backend."""
-    backend_options: dict[str, Any] = Field(default_factory=dict)
+    backend_options: Annotated[dict[str, Any], CHANGES_RESULTS] = Field(default_factory=dict)
     """Backend option KEY=VALUE (repeatable; values read as JSON when they parse), e.g.
     threads=2, device=cuda, dtype=float32 (hf), enforce_eager=true (vllm), api_key_env=MY_KEY
     (openai)."""
@@ -68,7 +68,7 @@ class ModelSettings(BaseModel):
     """Dataset source: an official CrafText clone, a craftext wheel or a dataset JSON written by
     this tool; unset: the official data (downloaded and cached on first use; the craftext 0.2.2
     wheel's, with a warning, when that fails)."""
-    variant: Variant = Variant.FULL
+    variant: Annotated[Variant, CHANGES_RESULTS] = DEFAULT_VARIANT
     """Craftax variant: full (43 actions) or classic (17 actions)."""
     probe: bool = True
     """Send one cheap request before any work to check that the model answers (a dead server,
@@ -101,48 +101,50 @@ class ModelSettings(BaseModel):
 class EvalConfig(ModelSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
-    choice: ChoiceRule | None = None
+    choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
-    splits: tuple[str, ...] = DEFAULT_CATEGORIES
+    splits: Annotated[tuple[str, ...], CHANGES_RESULTS] = PAPER_CATEGORIES
     """Instruction categories to run: one, combo, paraphrased, new_objects."""
-    paraphrases: bool = True
+    paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Run every paraphrase of each goal as well as its original instruction."""
-    episodes_per_instruction: int = Field(1, ge=1)
+    episodes_per_instruction: Annotated[int, CHANGES_RESULTS] = Field(1, ge=1)
     """Episodes (distinct worlds) per instruction text."""
-    max_steps: int = Field(250, ge=1)
+    max_steps: Annotated[int, CHANGES_RESULTS] = Field(STEP_CAP, ge=1)
     """Step cap per episode (250 in the official LLM baseline)."""
-    seed: int = 0
+    seed: Annotated[int, CHANGES_RESULTS] = 0
     """Run seed; each episode's world derives from (seed, goal, instruction variant, episode)."""
     batch_size: int = Field(8, ge=1)
     """Episodes in flight at once: each steps as soon as its own answer arrives, and a finished
     one's slot is refilled at once. With a server backend, match --max-concurrency to it."""
-    renderer: str = "objects"
+    renderer: Annotated[str, CHANGES_RESULTS] = "objects"
     """Observation text format: objects, grid or table (the official baseline's)."""
-    history_length: int = Field(5, ge=0)
+    history_length: Annotated[int, CHANGES_RESULTS] = Field(5, ge=0)
     """Recent actions (with outcomes) shown in each prompt."""
     plans: str | None = None
     """JSON file mapping instruction text to plan text, added to the step prompt."""
     output_dir: str = "runs/latest"
     """Where steps, episodes and results are written; rerunning on it resumes the run."""
-    fallback_action: str = "NOOP"
+    fallback_action: Annotated[str, CHANGES_RESULTS] = "NOOP"
     """Action taken when the model's answer cannot be parsed (counted as invalid)."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
     max_consecutive_failures: int = Field(8, ge=1)
     """Stop the run (keeping what finished) after this many failed model answers in a row."""
-    protocol: ProtocolName = "default"
+    protocol: Annotated[ProtocolName, CHANGES_RESULTS] = "default"
     """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
     `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
     temperature, 10 tokens, 4 actions shown); see the README's protocol table."""
-    protocol_overrides: tuple[str, ...] = Field((), json_schema_extra={"flag": False})
+    protocol_overrides: Annotated[tuple[str, ...], CHANGES_RESULTS] = Field(
+        (), json_schema_extra={"flag": False}
+    )
     """Settings given explicitly that depart from the protocol's (filled in from the protocol,
     never set by hand)."""
-    success_rule: SuccessRule = "game_over_counts"
+    success_rule: Annotated[SuccessRule, CHANGES_RESULTS] = DEFAULT_SUCCESS_RULE
     """Whether a goal completed on the step the game ends is a success: `game_over_counts` (yes)
     or `official` (no, as the official CrafText wrapper scores it)."""
-    world_seeding: WorldSeeding = "per_episode"
+    world_seeding: Annotated[WorldSeeding, CHANGES_RESULTS] = "per_episode"
     """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
     episode in the one world of reset key PRNGKey(1), as the official loop plays."""
     env_device: EnvDevice = "cpu"
@@ -168,16 +170,16 @@ class EvalConfig(ModelSettings):
         completed["protocol_overrides"] = tuple(departures)
         return completed
 
-    agent: str = "zero-shot"
+    agent: Annotated[str, CHANGES_RESULTS] = "zero-shot"
     """Agent strategy: `zero-shot`, `cot` (keeps its recent reasoning), `few-shot` (expert
     demonstrations first) or `expert` (scripted, no model)."""
-    cot_steps: int = Field(3, ge=1)
+    cot_steps: Annotated[int, CHANGES_RESULTS] = Field(3, ge=1)
     """cot: how many of the model's last replies stay in the conversation."""
-    cot_max_tokens: int = Field(384, ge=1)
+    cot_max_tokens: Annotated[int, CHANGES_RESULTS] = Field(384, ge=1)
     """cot: the kept replies' total size cap, in tokens (estimated as 4 characters each)."""
-    few_shot_steps: int = Field(8, ge=1)
+    few_shot_steps: Annotated[int, CHANGES_RESULTS] = Field(8, ge=1)
     """few-shot: demonstration steps shown before each episode."""
-    demos: str | None = None
+    demos: Annotated[str | None, CHANGES_RESULTS] = None
     """few-shot: a run directory of the `expert` agent on training goals (`one`, `combo`) with
     the same renderer, whose successful episodes give the demonstrations."""
 
@@ -218,39 +220,32 @@ class EvalConfig(ModelSettings):
             raise ValueError(f"unknown action {value!r}{hint}")
         return value
 
-    def result_settings(self) -> dict[str, Any]:
-        """The settings that change results: what a resumed run must match.
+    @classmethod
+    def recorded(cls, settings: dict[str, Any]) -> EvalConfig:
+        """The config a run recorded (`RunResults.config`), as it was: not validated again (the
+        paths it names may not exist here), defaults for the settings the run predates."""
+        return cls.model_construct(**{k: v for k, v in settings.items() if k in cls.model_fields})
 
-        Paths are left out (the run identity hashes the contents they point at), and so is
-        everything about speed, caching, logging or where results go.
-        """
-        settings = self.model_dump(
-            mode="json",
-            exclude={
-                "output_dir",
-                "limit",
-                "batch_size",
-                "cache",
-                "generation",
-                "backend_options",
-                "templates_dir",
-                "plans",
-                "dataset",
-                "record_steps",
-                "probe",
-                "max_consecutive_failures",
-                "env_device",
-                "ray",
-                "ray_workers",
-                "ray_worker_gpus",
-            },
+    def env_config(self) -> EnvConfig:
+        """The `EnvConfig` of the env this run's episodes are played (and replayed) in."""
+        from env import EnvConfig
+
+        return EnvConfig(
+            variant=self.variant,
+            max_steps=self.max_steps,
+            success_rule=self.success_rule,
+            world_key=OFFICIAL_WORLD_KEY if self.world_seeding == "official" else None,
+            device=self.env_device,
         )
-        settings["generation"] = self.generation.model_dump(
-            mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}
-        )
+
+    def result_settings(self) -> dict[str, Any]:
+        """The settings that change results (marked `CHANGES_RESULTS`): what a resumed run must
+        match. Of the backend options, those that only change how fast or where a model runs
+        are left out."""
+        settings = result_values(self)
         settings["backend_options"] = {
             key: value
-            for key, value in self.backend_options.items()
+            for key, value in settings["backend_options"].items()
             if key not in TRANSPORT_BACKEND_OPTIONS
         }
         return settings

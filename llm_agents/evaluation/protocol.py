@@ -16,8 +16,10 @@ from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict
 
-from env.dataset import parse_categories
+from env.dataset import PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
+from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP
+from env.variant import DEFAULT_VARIANT
 
 ProtocolName = Literal["default", "paper"]
 PROTOCOL_NAMES: tuple[ProtocolName, ...] = get_args(ProtocolName)
@@ -61,11 +63,11 @@ _LOOP = "the official LLM baseline loop"
 # Both protocols take these two from the paper.
 _PAPER_SPLITS = ProtocolChoice(
     setting="splits",
-    value=("one", "combo", "new_objects"),
+    value=PAPER_CATEGORIES,
     source="the paper's zero-shot table (Achievements one / combo, New objects)",
 )
 _STEP_CAP = ProtocolChoice(
-    setting="max_steps", value=250, source=f"{_LOOP} (the paper states no step cap)"
+    setting="max_steps", value=STEP_CAP, source=f"{_LOOP} (the paper states no step cap)"
 )
 
 PROTOCOLS: dict[ProtocolName, Protocol] = {
@@ -75,7 +77,7 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
         choices=(
             ProtocolChoice(
                 setting="variant",
-                value="full",
+                value=DEFAULT_VARIANT.value,
                 source="ours: full Craftax is the current game; the checker's 22 achievement ids "
                 "exist in both variants",
             ),
@@ -88,7 +90,7 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
             ),
             ProtocolChoice(
                 setting="success_rule",
-                value="game_over_counts",
+                value=DEFAULT_SUCCESS_RULE,
                 source="ours: a goal completed on the step the player dies was completed",
             ),
             ProtocolChoice(

@@ -36,7 +36,6 @@ from llm_agents.evaluation.runner import (
     RunOutcome,
     ScheduledEpisode,
     _play,
-    make_env_config,
     run_schedule,
     versions,
 )
@@ -184,7 +183,7 @@ class EpisodeWorker:
             from llm_agents.agents import NoModel, agent_class
             from llm_agents.evaluation.runner import open_model
 
-            self._env = CrafTextEnv(make_env_config(config))
+            self._env = CrafTextEnv(config.env_config())
             self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()
         except Exception as err:  # reported by `ready`, where the driver can say it in one line
             self._failure = _failure(err)

@@ -17,9 +17,15 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
 
-from env.dataset import CATEGORY_SPLIT, OFFICIAL_COMMIT, OFFICIAL_SPLIT_SHA256, Category
+from env.dataset import (
+    CATEGORY_SPLIT,
+    OFFICIAL_COMMIT,
+    OFFICIAL_SPLIT_SHA256,
+    PAPER_CATEGORIES,
+)
 from env.errors import UserError
 from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.evaluation.protocol import PROTOCOLS
 from llm_agents.run_data.metrics import SuccessRate, Summary, summarize
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import (
@@ -73,11 +79,11 @@ PUBLISHED: tuple[PublishedResult, ...] = (
     PublishedResult(model="DeepSeek-R1-Distill-Qwen-32B", one=0.15, combo=0.07, new_objects=0.06),
 )
 
-_PAPER_CATEGORIES: tuple[Category, ...] = ("one", "combo", "new_objects")
-# What the official evaluation does where it changes the numbers (see llm_agents.evaluation.protocol).
-_PAPER_VARIANT = "classic"
-_PAPER_MAX_STEPS = 250
-_PAPER_SUCCESS_RULE: SuccessRule = "official"
+# What the official evaluation does where it changes the numbers.
+_PAPER = PROTOCOLS["paper"]
+_PAPER_VARIANT: str = _PAPER.value("variant")
+_PAPER_MAX_STEPS: int = _PAPER.value("max_steps")
+_PAPER_SUCCESS_RULE: SuccessRule = _PAPER.value("success_rule")
 # Runs recorded before the success rule was a setting scored the game-over step as a success.
 _RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
 NOT_IN_DATASET = "not in this dataset"
@@ -92,7 +98,7 @@ CATEGORY_LABELS = {
 
 def chart_categories(summary: Summary) -> list[str]:
     extra = ["paraphrased"] if "paraphrased" in summary.by_category else []
-    return [*_PAPER_CATEGORIES, *extra]
+    return [*PAPER_CATEGORIES, *extra]
 
 
 def table_columns(summary: Summary) -> list[str]:
@@ -234,7 +240,7 @@ def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
     if not isinstance(digests, dict):
         differences.append(f"dataset: split digests not recorded (source: {source})")
     else:
-        splits = dict.fromkeys(CATEGORY_SPLIT[c] for c in _PAPER_CATEGORIES)
+        splits = dict.fromkeys(CATEGORY_SPLIT[c] for c in PAPER_CATEGORIES)
         other = [split for split in splits if digests.get(split) != OFFICIAL_SPLIT_SHA256[split]]
         if other:
             differences.append(
@@ -261,7 +267,7 @@ def _absent_categories(results: RunResults) -> set[str]:
 
 def _tick_label(category: str, ours: SuccessRate | None) -> str:
     notes = [f"n={ours.episodes}" if ours is not None else "not run"]
-    if category not in _PAPER_CATEGORIES:
+    if category not in PAPER_CATEGORIES:
         notes.append("none published")
     return f"{CATEGORY_LABELS[category]}\n({', '.join(notes)})"
 
@@ -446,7 +452,7 @@ def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
     and the overall rate."""
     categories = {c for run in runs for c in run.summary.by_category}
     columns: list[str] = [
-        c for c in (*_PAPER_CATEGORIES, "paraphrased") if c in categories or c in _PAPER_CATEGORIES
+        c for c in (*PAPER_CATEGORIES, "paraphrased") if c in categories or c in PAPER_CATEGORIES
     ]
     return [*columns, "overall"]
 

@@ -32,13 +32,12 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
-from env.rules import OFFICIAL_WORLD_KEY
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.zero_shot import Decision
 from llm_agents.backends.base import ModelAPI
@@ -63,9 +62,6 @@ from llm_agents.run_data.store import (
     rewrite_lines,
     write_results,
 )
-
-if TYPE_CHECKING:
-    from env import EnvConfig
 
 logger = logging.getLogger(__name__)
 
@@ -338,19 +334,6 @@ def check_model(config: EvalConfig, model: ModelAPI) -> None:
         )
 
 
-def make_env_config(config: EvalConfig) -> EnvConfig:
-    """The `EnvConfig` of the env a run's episodes are played in."""
-    from env import EnvConfig
-
-    return EnvConfig(
-        variant=config.variant,
-        max_steps=config.max_steps,
-        success_rule=config.success_rule,
-        world_key=OFFICIAL_WORLD_KEY if config.world_seeding == "official" else None,
-        device=config.env_device,
-    )
-
-
 def execute_run(
     prepared: PreparedRun,
     model: ModelAPI,
@@ -371,7 +354,7 @@ def execute_run(
     check_model(config, model)
     if probe:
         model.probe()
-    env_config = make_env_config(config)
+    env_config = config.env_config()
     if env is None:
         env = CrafTextEnv(env_config)
     elif env.config != env_config:

@@ -23,6 +23,7 @@ import markupsafe
 import numpy as np
 
 from env.errors import UserError
+from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.report import (
     CATEGORY_LABELS,
     PUBLISHED,
@@ -197,37 +198,20 @@ def _encoded(
 
 
 def _replayer(run: LoadedRun, *, batch_size: int) -> Any:
-    from env.variant import as_variant
-
-    config = run.config
-    return _compiled_replayer(
-        as_variant(config.get("variant", "full")).value,
-        config.get("max_steps", 250),
-        config.get("success_rule", "game_over_counts"),
-        config.get("world_seeding", "per_episode") == "official",
-        batch_size,
-    )
+    env_config = EvalConfig.recorded(run.config).env_config()
+    return _compiled_replayer(env_config.model_dump_json(), batch_size)
 
 
 # Tracing and compiling the replay costs seconds: a process that views several runs (tests,
-# benchmarks, a notebook) does it once per setting.
+# benchmarks, a notebook) does it once per env.
 @functools.cache
-def _compiled_replayer(
-    variant: str, max_steps: int, success_rule: Any, official_world: bool, batch_size: int
-) -> Any:
-    from env import CrafTextEnv, EnvConfig, Variant
+def _compiled_replayer(env_config_json: str, batch_size: int) -> Any:
+    from env import CrafTextEnv, EnvConfig
     from env.replay import Replayer
-    from env.rules import OFFICIAL_WORLD_KEY
 
-    env = CrafTextEnv(
-        EnvConfig(
-            variant=Variant(variant),
-            max_steps=max_steps,
-            success_rule=success_rule,
-            world_key=OFFICIAL_WORLD_KEY if official_world else None,
-        )
+    return Replayer(
+        CrafTextEnv(EnvConfig.model_validate_json(env_config_json)), batch_size=batch_size
     )
-    return Replayer(env, batch_size=batch_size)
 
 
 def _replay_input(view: EpisodeView) -> Any:
