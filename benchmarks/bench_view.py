@@ -69,7 +69,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, nargs="+", default=[64, 256])
     parser.add_argument("--max-steps", type=int, default=250)
     parser.add_argument("--variant", default="full", choices=["full", "classic"])
-    parser.add_argument("--batch-size", type=int, default=32, help="episodes played in lockstep")
+    parser.add_argument("--batch-size", type=int, default=32, help="episodes in flight")
     parser.add_argument("--replay-batch", type=int, default=16, help="episodes replayed at once")
     args = parser.parse_args()
 

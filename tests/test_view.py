@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, episode_key
 from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.runner import run_eval, world_key
+from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import read_episodes
 from llm_agents.viewer import build_view
@@ -93,7 +93,7 @@ def test_runner_records_the_reset_key_that_older_records_derive(run_dir: Path) -
         record = view.record
         assert record.reset_key is not None
         repeat = int(record.episode_id.rsplit("/", 1)[-1])
-        derived = world_key(record.seed, record.goal_id, record.instruction_variant, repeat)
+        derived = episode_key(record.seed, record.goal_id, record.instruction_variant, repeat)
         assert record.reset_key == derived.tolist()
         view.record = record.model_copy(update={"reset_key": None})
         assert view.reset_key().tolist() == record.reset_key
@@ -380,7 +380,7 @@ def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) 
     from env.replay import Replayer
 
     replayer = Replayer(classic_env, batch_size=12)
-    keys = np.stack([world_key(0, "goal", 0, repeat) for repeat in range(12)])
+    keys = np.stack([episode_key(0, "goal", 0, repeat) for repeat in range(12)])
     masks = np.zeros((12, 22), bool)
     state, _ = replayer._reset(keys, make_task(masks, masks))
     for lane in (0, 9, 11):

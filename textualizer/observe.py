@@ -341,7 +341,7 @@ def _vitals(
     )
 
 
-class _Episode:
+class _EpisodeRow:
     """One episode of a batched state: attribute access indexes the leading axis lazily."""
 
     def __init__(self, batch: Any, index: int) -> None:
@@ -353,7 +353,7 @@ class _Episode:
         if isinstance(value, np.ndarray) or hasattr(value, "__array__"):
             found: Any = np.asarray(value)[self._index]
         else:
-            found = _Episode(value, self._index)
+            found = _EpisodeRow(value, self._index)
         # Kept, so that reading a field again (observe reads several twice) skips this lookup.
         setattr(self, name, found)
         return found
@@ -371,4 +371,4 @@ def observe_batch(
             f"observe_batch() takes a batched state (player_position of shape (N, 2)), got shape {shape}"
         )
     chosen = range(shape[0]) if indices is None else indices
-    return [observe(_Episode(states, i), variant) for i in chosen]
+    return [observe(_EpisodeRow(states, i), variant) for i in chosen]

@@ -1,8 +1,8 @@
 """Agent strategies by name: `zero-shot`, `cot`, `few-shot` and the scripted `expert`.
 
 Like the backends, the registry (`registry.AGENTS`) maps a name to `"module:Class"` and
-imports lazily. Every agent plays a batch of episodes (slots) in lockstep and follows the `Agent`
-protocol; the runner builds one with `build_agent(config)` per lane.
+imports lazily. Every agent plays many episodes (slots) at once, each stepping on its own, and
+follows the `Agent` protocol; the runner builds one per run with `build_agent(config)`.
 """
 
 from __future__ import annotations

@@ -35,8 +35,8 @@ from llm_agents.agents.expert_plan import (
     STONE_GROUND,
     WALKABLE,
     Cell,
+    ExpertTask,
     PlanContext,
-    Task,
     WorldMap,
     next_task,
 )
@@ -81,14 +81,14 @@ def _direction(src: Cell, dst: Cell) -> str:
     raise ValueError(f"{dst} is not next to {src}")
 
 
-class _Episode:
+class _ExpertEpisode:
     def __init__(self, goal: Goal | None):
         self.required: tuple[str, ...] = goal.required if goal is not None else ()
         self.forbidden: tuple[str, ...] = goal.forbidden if goal is not None else ()
         self.world = WorldMap()
         self.explore_target: Cell | None = None
         self.heading: Cell = (1, 0)
-        self.last_task: Task | None = None
+        self.last_task: ExpertTask | None = None
         self.patrol_target: Cell | None = None
         self.last_prey: tuple[Cell, int] | None = None
         self.mined: set[Cell] = set()
@@ -110,7 +110,7 @@ class ExpertAgent:
         self.fallback_id = action_id(fallback_action, self.variant)
         self.renderer = renderer
         self._render = importlib.import_module("textualizer").render
-        self._episodes: dict[int, _Episode] = {}
+        self._episodes: dict[int, _ExpertEpisode] = {}
 
     @classmethod
     def from_config(cls, config: AgentSettings) -> ExpertAgent:
@@ -123,7 +123,7 @@ class ExpertAgent:
         """Begin an episode; `goal` (the dataset record) is required, the text is ignored."""
         if goal is None:
             raise UserError("the expert agent needs the goal record, not only the instruction text")
-        self._episodes[slot] = _Episode(goal)
+        self._episodes[slot] = _ExpertEpisode(goal)
 
     def end_episode(self, slot: int) -> None:
         self._episodes.pop(slot, None)
@@ -133,11 +133,11 @@ class ExpertAgent:
     ) -> None:
         """The expert renders no prompt: nothing to check."""
 
-    def task(self, slot: int) -> Task | None:
+    def task(self, slot: int) -> ExpertTask | None:
         """The task the slot worked on at its last step (for reports of why it failed)."""
         return self._episode(slot).last_task
 
-    def _episode(self, slot: int) -> _Episode:
+    def _episode(self, slot: int) -> _ExpertEpisode:
         if slot not in self._episodes:
             raise UserError(f"slot {slot} has no episode; call start_episode({slot}, ...) first")
         return self._episodes[slot]
@@ -181,7 +181,7 @@ class ExpertAgent:
 
     # ------------------------------------------------------------------ one step of one slot
 
-    def choose(self, slot: int, obs: Observation) -> tuple[str, Task | None]:
+    def choose(self, slot: int, obs: Observation) -> tuple[str, ExpertTask | None]:
         """The action for one slot's observation, and the task it serves."""
         episode = self._episode(slot)
         episode.world.update(obs)
@@ -200,7 +200,7 @@ class ExpertAgent:
 class _Step:
     """The reasoning of one step: the map search from the player and the chosen action."""
 
-    def __init__(self, agent: ExpertAgent, episode: _Episode, obs: Observation):
+    def __init__(self, agent: ExpertAgent, episode: _ExpertEpisode, obs: Observation):
         self.agent = agent
         self.episode = episode
         self.obs = obs
@@ -317,7 +317,7 @@ class _Step:
 
     # --- the decision
 
-    def decide(self) -> tuple[str, Task | None]:
+    def decide(self) -> tuple[str, ExpertTask | None]:
         urgent = self._survive()
         if urgent is not None:
             return urgent
@@ -329,7 +329,7 @@ class _Step:
                 action = "NOOP"
         return action, task
 
-    def _keep_gathering(self) -> Task | None:
+    def _keep_gathering(self) -> ExpertTask | None:
         """The last gathering task while its amount is not reached and its block is close:
         the planner asks only for what the next craft needs, the amount is what the whole
         plan will use, and collecting it in one visit saves coming back."""
@@ -344,7 +344,7 @@ class _Step:
         near = [self.dist[c] for c in stands if c in self.dist]
         return last if near and min(near) <= _GATHER_DETOUR else None
 
-    def _survive(self) -> tuple[str, Task] | None:
+    def _survive(self) -> tuple[str, ExpertTask] | None:
         """Fight or flee an adjacent zombie; drink or eat when low."""
         health = self.obs.vitals.health
         for cell, kind in sorted(self.mobs.items(), key=lambda item: self._steps_to(item[0])):
@@ -355,24 +355,24 @@ class _Step:
             # Skeletons back off, so they are only fought when next to the player.
             chase = health > 4 and kind == "zombie"
             if not self.forbidden(KILL_ACHIEVEMENT[kind]) and (distance == 1 or chase):
-                fight = Task("hunt", kind, note=f"{kind} next to the player")
+                fight = ExpertTask("hunt", kind, note=f"{kind} next to the player")
                 return (self.interact({cell}) or "DO"), fight
             if distance > 1:
                 continue
             away = self._flee(cell)
             if away is not None:
-                return away, Task("hunt", kind, note="keeping away from a zombie")
+                return away, ExpertTask("hunt", kind, note="keeping away from a zombie")
         vitals = self.obs.vitals
         facing_water = self.obs.facing_block == "water"
         topping_up = facing_water and vitals.drink < vitals.max_food
         if (vitals.drink <= _DRINK_LOW or topping_up) and not self.forbidden("COLLECT_DRINK"):
             water = set(self.world.cells(["water"]))
             if water and (action := self.interact(water)):
-                return action, Task("gather", "water", note="thirsty")
+                return action, ExpertTask("gather", "water", note="thirsty")
         if vitals.food <= _FOOD_LOW and not self.forbidden("EAT_COW"):
             cows = {cell for cell, kind in self.mobs.items() if kind == "cow"}
             if cows and (action := self.interact(cows)):
-                return action, Task("hunt", "cow", note="hungry")
+                return action, ExpertTask("hunt", "cow", note="hungry")
         return None
 
     def _steps_to(self, cell: Cell) -> int:
@@ -386,7 +386,7 @@ class _Step:
         ]
         return max(options)[1] if options else None
 
-    def perform(self, task: Task) -> str | None:
+    def perform(self, task: ExpertTask) -> str | None:
         kind, target = task.kind, task.target
         if kind == "gather" and target is not None:
             return self.interact(set(self.world.cells([target])))

@@ -184,7 +184,7 @@ class WorldMap:
 
 
 @dataclass
-class Task:
+class ExpertTask:
     """What the expert works on now."""
 
     kind: TaskKind
@@ -300,7 +300,7 @@ def _budget(ctx: PlanContext, material: str) -> int:
     return total
 
 
-def _gather(ctx: PlanContext, block: str, achievement: str | None, amount: int) -> Task:
+def _gather(ctx: PlanContext, block: str, achievement: str | None, amount: int) -> ExpertTask:
     """Collect `block` until the inventory holds `amount` (explore when none is known)."""
     if block in MINING:
         tier, _ = MINING[block]
@@ -308,11 +308,13 @@ def _gather(ctx: PlanContext, block: str, achievement: str | None, amount: int) 
             tool = {1: "MAKE_WOOD_PICKAXE", 2: "MAKE_STONE_PICKAXE", 3: "MAKE_IRON_PICKAXE"}[tier]
             return _craft(ctx, tool, achievement)
     if not ctx.world.cells([block]):
-        return Task("explore", block, achievement, note=f"no {block} seen yet")
-    return Task("gather", block, achievement, amount=amount)
+        return ExpertTask("explore", block, achievement, note=f"no {block} seen yet")
+    return ExpertTask("gather", block, achievement, amount=amount)
 
 
-def _material(ctx: PlanContext, material: str, amount: int, achievement: str | None) -> Task | None:
+def _material(
+    ctx: PlanContext, material: str, amount: int, achievement: str | None
+) -> ExpertTask | None:
     """A task that brings `material` to `amount` (the plan's budget when gathering), or None."""
     if ctx.count(material) >= amount:
         return None
@@ -321,7 +323,7 @@ def _material(ctx: PlanContext, material: str, amount: int, achievement: str | N
     return _gather(ctx, block, achievement, target)
 
 
-def _table(ctx: PlanContext, achievement: str | None, extra_wood: int) -> Task | None:
+def _table(ctx: PlanContext, achievement: str | None, extra_wood: int) -> ExpertTask | None:
     """A task that gets a crafting table within reach, or None when one is."""
     if ctx.near_cells(["crafting_table"], ctx.table_reach):
         return None
@@ -329,15 +331,15 @@ def _table(ctx: PlanContext, achievement: str | None, extra_wood: int) -> Task |
         # A table placed earlier (before the ban mattered) is still usable; explore back to it.
         if ctx.world.cells(["crafting_table"]):
             return None
-        return Task("idle", note="needs a crafting table, and placing one is forbidden")
+        return ExpertTask("idle", note="needs a crafting table, and placing one is forbidden")
     wood = _material(ctx, "wood", TABLE_WOOD + extra_wood, achievement)
-    return wood or Task("place", "PLACE_TABLE", achievement)
+    return wood or ExpertTask("place", "PLACE_TABLE", achievement)
 
 
-def _craft(ctx: PlanContext, action: str, achievement: str | None) -> Task:
+def _craft(ctx: PlanContext, action: str, achievement: str | None) -> ExpertTask:
     recipe = RECIPES[action]
     if not ctx.allowed(action):
-        return Task("idle", note=f"{action} is forbidden")
+        return ExpertTask("idle", note=f"{action} is forbidden")
     for material in ("wood", "stone", "coal", "iron"):
         need = getattr(recipe, material)
         if need and (task := _material(ctx, material, need, achievement)):
@@ -346,7 +348,7 @@ def _craft(ctx: PlanContext, action: str, achievement: str | None) -> Task:
         return task
     if recipe.furnace and (task := _furnace(ctx, achievement)):
         return task
-    return Task("craft", _with_sword(ctx, action), achievement, needs_furnace=recipe.furnace)
+    return ExpertTask("craft", _with_sword(ctx, action), achievement, needs_furnace=recipe.furnace)
 
 
 def _with_sword(ctx: PlanContext, action: str) -> str:
@@ -363,7 +365,7 @@ def _with_sword(ctx: PlanContext, action: str) -> str:
     return action
 
 
-def _furnace(ctx: PlanContext, achievement: str | None) -> Task | None:
+def _furnace(ctx: PlanContext, achievement: str | None) -> ExpertTask | None:
     """A task that gets a furnace beside a reachable table, or None when there is one."""
     tables = ctx.near_cells(["crafting_table"], ctx.table_reach)
     furnaces = ctx.world.cells(["furnace"])
@@ -371,12 +373,12 @@ def _furnace(ctx: PlanContext, achievement: str | None) -> Task | None:
         if any(abs(fx - tx) <= 2 and abs(fy - ty) <= 2 for fx, fy in furnaces):
             return None
     if not ctx.allowed("PLACE_FURNACE"):
-        return Task("idle", note="needs a furnace, and placing one is forbidden")
+        return ExpertTask("idle", note="needs a furnace, and placing one is forbidden")
     stone = _material(ctx, "stone", FURNACE_STONE, achievement)
-    return stone or _table(ctx, achievement, 0) or Task("place", "PLACE_FURNACE", achievement)
+    return stone or _table(ctx, achievement, 0) or ExpertTask("place", "PLACE_FURNACE", achievement)
 
 
-def task_for(ctx: PlanContext, achievement: str) -> Task:
+def task_for(ctx: PlanContext, achievement: str) -> ExpertTask:
     """The next task towards one achievement, given the inventory and the map."""
     a = achievement
     if a in ("COLLECT_WOOD", "COLLECT_DRINK"):
@@ -386,21 +388,21 @@ def task_for(ctx: PlanContext, achievement: str) -> Task:
         block = a.removeprefix("COLLECT_").lower()
         return _gather(ctx, block, a, max(ctx.count(block) + 1, _budget(ctx, block)))
     if a == "COLLECT_SAPLING":
-        return Task("forage", "grass", a)
+        return ExpertTask("forage", "grass", a)
     if a == "PLACE_PLANT":
         if ctx.count("sapling") < 1:
-            return Task("forage", "grass", a)
-        return Task("place", "PLACE_PLANT", a)
+            return ExpertTask("forage", "grass", a)
+        return ExpertTask("place", "PLACE_PLANT", a)
     if a == "EAT_PLANT":
         if ctx.world.cells(["ripe_plant"]):
-            return Task("gather", "ripe_plant", a)
+            return ExpertTask("gather", "ripe_plant", a)
         if ctx.world.cells(["plant"]):
-            return Task(
+            return ExpertTask(
                 "wait", "plant", a, note=f"plants ripen {PLANT_RIPENS_AFTER} steps after planting"
             )
         if ctx.count("sapling") < 1:
-            return Task("forage", "grass", a)
-        return Task("place", "PLACE_PLANT", a)
+            return ExpertTask("forage", "grass", a)
+        return ExpertTask("place", "PLACE_PLANT", a)
     if a in AIDS:
         for tool in aids(ctx):
             kind_name, tool_name = tool.removeprefix("MAKE_").lower().split("_")
@@ -408,37 +410,39 @@ def task_for(ctx: PlanContext, achievement: str) -> Task:
                 return _craft(ctx, tool, a)
     if a in ("EAT_COW", "DEFEAT_ZOMBIE", "DEFEAT_SKELETON"):
         kind = {"EAT_COW": "cow", "DEFEAT_ZOMBIE": "zombie", "DEFEAT_SKELETON": "skeleton"}[a]
-        return Task("hunt", kind, a)
+        return ExpertTask("hunt", kind, a)
     if a == "PLACE_TABLE":
         wood = _material(ctx, "wood", TABLE_WOOD, a)
-        return wood or Task("place", "PLACE_TABLE", a)
+        return wood or ExpertTask("place", "PLACE_TABLE", a)
     if a == "PLACE_STONE":
         stone = _material(ctx, "stone", 1, a)
-        return stone or Task("place", "PLACE_STONE", a)
+        return stone or ExpertTask("place", "PLACE_STONE", a)
     if a == "PLACE_FURNACE":
         stone = _material(ctx, "stone", FURNACE_STONE, a)
-        return stone or _table(ctx, a, 0) or Task("place", "PLACE_FURNACE", a)
+        return stone or _table(ctx, a, 0) or ExpertTask("place", "PLACE_FURNACE", a)
     if a in RECIPES:
         return _craft(ctx, a, a)
     if a == "WAKE_UP":
         if ctx.obs.vitals.energy >= ctx.obs.vitals.max_food:
-            return Task("wait", None, a, note="energy is full: sleep is refused until it drops")
-        return Task("sleep", None, a)
-    return Task("idle", note=f"no plan for {a}")
+            return ExpertTask(
+                "wait", None, a, note="energy is full: sleep is refused until it drops"
+            )
+        return ExpertTask("sleep", None, a)
+    return ExpertTask("idle", note=f"no plan for {a}")
 
 
-def next_task(ctx: PlanContext) -> Task:
+def next_task(ctx: PlanContext) -> ExpertTask:
     """The task to work on now: the first required achievement (in plan order) not yet
     unlocked, resolved down to the first missing tool, material or place."""
     reason = infeasible(ctx.required, ctx.forbidden)
     if reason is not None:
-        return Task("idle", note=reason)
+        return ExpertTask("idle", note=reason)
     todo = [a for a in plan_order(ctx.required, ctx.forbidden) if a not in ctx.achieved]
     todo = [a for a in todo if a in ctx.required or a not in ctx.achieved]
     # Sleeping is only possible once energy has dropped, and quick then: do it when it is.
     if "WAKE_UP" in todo and ctx.obs.vitals.energy < ctx.obs.vitals.max_food:
         return task_for(ctx, "WAKE_UP")
-    waiting: Task | None = None
+    waiting: ExpertTask | None = None
     for achievement in todo:
         if achievement not in ctx.required:
             continue  # reached through the required ones' tasks
@@ -447,4 +451,4 @@ def next_task(ctx: PlanContext) -> Task:
             waiting = waiting or task
             continue
         return task
-    return waiting or Task("idle", note="every required achievement is unlocked")
+    return waiting or ExpertTask("idle", note="every required achievement is unlocked")

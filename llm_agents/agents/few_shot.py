@@ -58,13 +58,13 @@ class Demonstration(BaseModel):
 
 
 @dataclass(frozen=True)
-class _Episode:
+class _DemoEpisode:
     goal_id: str
     instruction: str
     steps: tuple[DemoStep, ...]
 
 
-def load_demonstrations(run_dir: str | Path, renderer: str, variant: str) -> list[_Episode]:
+def load_demonstrations(run_dir: str | Path, renderer: str, variant: str) -> list[_DemoEpisode]:
     """Successful training-goal episodes of an expert run, shortest first."""
     folder = Path(run_dir)
     results_path, episodes_path, steps_path = (
@@ -104,13 +104,17 @@ def load_demonstrations(run_dir: str | Path, renderer: str, variant: str) -> lis
                 )
     ordered = sorted(wanted.values(), key=lambda e: (e.steps, e.episode_id))
     return [
-        _Episode(e.goal_id, e.instruction, tuple(sorted(steps[e.episode_id], key=lambda s: s.step)))
+        _DemoEpisode(
+            e.goal_id, e.instruction, tuple(sorted(steps[e.episode_id], key=lambda s: s.step))
+        )
         for e in ordered
         if steps[e.episode_id]
     ]
 
 
-def pick_demonstrations(episodes: list[_Episode], goal_id: str, count: int) -> list[Demonstration]:
+def pick_demonstrations(
+    episodes: list[_DemoEpisode], goal_id: str, count: int
+) -> list[Demonstration]:
     """`count` steps in all, from the shortest episodes of goals other than `goal_id`."""
     picked: list[Demonstration] = []
     left = count
@@ -133,7 +137,7 @@ class FewShotAgent(ZeroShotAgent):
     def __init__(
         self,
         *args: Any,
-        demos: str | Path | list[_Episode] | None = None,
+        demos: str | Path | list[_DemoEpisode] | None = None,
         steps: int = 8,
         **kwargs: Any,
     ):

@@ -28,7 +28,7 @@ from typing import Any, ClassVar, TypeVar
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
-from pydantic import BaseModel, ConfigDict, Field, SecretStr, ValidationError
+from pydantic import ConfigDict, Field, SecretStr, ValidationError
 from tenacity import RetryError
 
 from env.errors import UserError
@@ -46,6 +46,7 @@ from llm_agents.backends.endpoints import Endpoint, EndpointPool, EndpointStats,
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
 from llm_agents.backends.retry import (
     RetryPolicy,
+    RetryWaits,
     TransientError,
     async_retrying,
     is_transient_status,
@@ -61,7 +62,7 @@ LISTED_MODELS = 8
 T = TypeVar("T")
 
 
-class OpenAIOptions(BaseModel):
+class OpenAIOptions(RetryWaits):
     """Options of the openai backend (keyword arguments of `get_model`)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -71,14 +72,6 @@ class OpenAIOptions(BaseModel):
     reads `OPENAI_BASE_URL`."""
     api_key_env: str = DEFAULT_API_KEY_ENV
     """Environment variable holding the API key; when the default one is unset no key is sent (local servers)."""
-    backoff_initial_s: float = Field(1.0, ge=0.0)
-    """Wait before the first retry, doubled for each further one."""
-    backoff_max_s: float = Field(60.0, ge=0.0)
-    """Longest exponential wait between retries."""
-    jitter_s: float = Field(1.0, ge=0.0)
-    """Up to this many random seconds added to each wait."""
-    retry_after_max_s: float = Field(300.0, ge=0.0)
-    """Longest wait a server's `Retry-After` may impose."""
     structured_choice: bool = True
     """Constrain choice answers with the server's structured outputs; off, or after the server rejects it, choices are answered in free text."""
     extra_body: dict[str, Any] = Field(default_factory=dict)
@@ -166,13 +159,7 @@ class OpenAIModel(ModelAPI):
     @property
     def retry_policy(self) -> RetryPolicy:
         """Retry limits from the current `GenerateConfig` (read at each call), waits from options."""
-        return RetryPolicy.for_generation(
-            self.config,
-            backoff_initial_s=self.settings.backoff_initial_s,
-            backoff_max_s=self.settings.backoff_max_s,
-            jitter_s=self.settings.jitter_s,
-            retry_after_max_s=self.settings.retry_after_max_s,
-        )
+        return RetryPolicy.for_generation(self.config, self.settings)
 
     def __repr__(self) -> str:
         return f"OpenAIModel(model={self.model_name!r}, base_url={self.base_url!r})"

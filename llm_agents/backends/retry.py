@@ -32,15 +32,11 @@ logger = logging.getLogger(__name__)
 TRANSIENT_STATUSES = frozenset({408, 429}) | frozenset(range(500, 600))
 
 
-class RetryPolicy(BaseModel):
-    """How often and how patiently a transient failure is retried."""
+class RetryWaits(BaseModel):
+    """How long to wait between attempts: backend options (the openai backend's inherit them)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid")
 
-    max_retries: int = Field(6, ge=0)
-    """Retries after the first attempt; 0 tries once."""
-    attempt_timeout_s: float = Field(120.0, gt=0.0)
-    """Longest one attempt may take, start to last byte."""
     backoff_initial_s: float = Field(1.0, ge=0.0)
     """Wait before the first retry, doubled for each further one (before jitter)."""
     backoff_max_s: float = Field(60.0, ge=0.0)
@@ -50,11 +46,26 @@ class RetryPolicy(BaseModel):
     retry_after_max_s: float = Field(300.0, ge=0.0)
     """Longest wait a server's `Retry-After` may impose."""
 
+
+class RetryPolicy(RetryWaits):
+    """How often and how patiently a transient failure is retried."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_retries: int = Field(6, ge=0)
+    """Retries after the first attempt; 0 tries once."""
+    attempt_timeout_s: float = Field(120.0, gt=0.0)
+    """Longest one attempt may take, start to last byte."""
+
     @classmethod
-    def for_generation(cls, config: GenerateConfig, **waits: float) -> RetryPolicy:
+    def for_generation(cls, config: GenerateConfig, waits: RetryWaits) -> RetryPolicy:
         """The policy a generation asks for: its limits (`max_retries`, `timeout_s`) always come
         from the `GenerateConfig`, only the waits between attempts from the backend's options."""
-        return cls(max_retries=config.max_retries, attempt_timeout_s=config.timeout_s, **waits)
+        return cls(
+            max_retries=config.max_retries,
+            attempt_timeout_s=config.timeout_s,
+            **waits.model_dump(include=set(RetryWaits.model_fields)),
+        )
 
 
 class TransientError(Exception):

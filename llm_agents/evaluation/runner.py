@@ -66,7 +66,7 @@ from llm_agents.run_data.store import (
 logger = logging.getLogger(__name__)
 
 
-class BackendFailure(UserError):
+class BackendFailure(Exception):
     """The backend failed too often in a row; the run stopped with status `failed`."""
 
 
@@ -561,14 +561,6 @@ class _Sink:
         write_results(self.out / RESULTS_FILE, results)
 
 
-def world_key(seed: int, goal_id: str, instruction_variant: int, repeat: int) -> np.ndarray:
-    """The key an episode's world is reset with: the one place the runner derives it, so the
-    recorded `EpisodeRecord.reset_key` and replays of older records agree with the worlds played."""
-    from env import episode_key
-
-    return episode_key(seed, goal_id, instruction_variant, repeat)
-
-
 class EpisodeSink(Protocol):
     """What `_play` takes episodes from and hands records to: the run's `_Sink` here, or a Ray
     worker's, which ships them to the driver's."""
@@ -594,7 +586,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSink) -> N
     env step over the slots; the waiting ones are left untouched, so timing never changes a
     trajectory), writes their records, refills finished slots and sends the next prompts.
     """
-    from env import VectorEnv, goal_masks
+    from env import VectorEnv, episode_key, goal_masks
     from textualizer import observe_batch
 
     agent: Agent = build_agent(config)
@@ -607,7 +599,7 @@ def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSink) -> N
     def task_rows(specs: Sequence[ScheduledEpisode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         keys = np.stack(
             [
-                world_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
+                episode_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
                 for s in specs
             ]
         )
@@ -745,7 +737,7 @@ def _step_record(
 def _episode_record(
     state: _Live, steps: int, termination: int, seed: int, goal_at_game_over: GameOver = None
 ) -> EpisodeRecord:
-    from env import Termination
+    from env import Termination, episode_key
 
     spec = state.spec
     return EpisodeRecord(
@@ -766,7 +758,7 @@ def _episode_record(
         achievements=state.achievements,
         plan_given=spec.plan is not None,
         goal_at_game_over=goal_at_game_over,
-        reset_key=world_key(
+        reset_key=episode_key(
             seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
         ).tolist(),
     )

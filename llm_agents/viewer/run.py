@@ -47,15 +47,15 @@ class EpisodeView:
         return f"episode-{self.record.episode_index:05d}.png"
 
     def reset_key(self) -> np.ndarray:
-        """The key the episode's world was reset with: recorded, or derived as the runner did."""
+        """The episode's key (its world's reset key): recorded, or derived as the runner did."""
         if self.record.reset_key is not None:
             return np.asarray(self.record.reset_key, dtype=np.uint32)
-        from llm_agents.evaluation.runner import world_key
+        from env import episode_key
 
         # Records written before reset_key existed: the repeat is the id's last field
         # (`ScheduledEpisode.episode_id`).
         repeat = int(self.record.episode_id.rsplit("/", 1)[-1])
-        return world_key(
+        return episode_key(
             self.record.seed, self.record.goal_id, self.record.instruction_variant, repeat
         )
 
