@@ -20,7 +20,7 @@ from fault_server import Fault, FaultServer
 from env.errors import UserError
 from llm_agents.backends import CachedModel, get_model
 from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
-from llm_agents.backends.openai import OpenAIModel
+from llm_agents.backends.openai import LOOP_THREAD_NAME, OpenAIModel
 from llm_agents.backends.retry import RetryPolicy, backoff_wait, parse_retry_after
 
 #: Retries fast enough for tests; the timeout is short so "slow" faults stay cheap.
@@ -230,7 +230,7 @@ def test_generate_works_inside_a_running_event_loop(server: FaultServer) -> None
 
 def test_calls_from_many_threads_share_kept_alive_connections(server: FaultServer) -> None:
     def loop_threads() -> set[threading.Thread]:
-        return {t for t in threading.enumerate() if t.name == "openai-requests"}
+        return {t for t in threading.enumerate() if t.name == LOOP_THREAD_NAME}
 
     before = loop_threads()
     backend = model(server, max_concurrency=4)

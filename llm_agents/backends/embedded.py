@@ -12,14 +12,13 @@ complete; a lock file keeps concurrent processes from converting twice.
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import importlib.util
 import os
 import tempfile
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
+
+from filelock import FileLock
 
 # cache_root, sha256_file and CACHE_ENV_VAR are re-exported: callers and tests use them from here.
 from env.downloads import CACHE_ENV_VAR as CACHE_ENV_VAR
@@ -44,7 +43,7 @@ def embedded_model_dir() -> Path:
     if target.is_dir():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
-    with _exclusive_lock(target.parent / f".{CONVERTED_DIRNAME}.lock"):
+    with FileLock(target.parent / f".{CONVERTED_DIRNAME}.lock"):
         # Another process may have finished the conversion while this one waited.
         if target.is_dir():
             return target
@@ -98,13 +97,3 @@ def convert_gguf(gguf_path: Path, out_dir: Path) -> None:
         del model.config.quantization_config
     model.save_pretrained(out_dir)
     tokenizer.save_pretrained(out_dir)
-
-
-@contextlib.contextmanager
-def _exclusive_lock(path: Path) -> Iterator[None]:
-    with path.open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import difflib
 import json
 import os
@@ -23,11 +24,12 @@ import socket
 import threading
 import time
 import weakref
-from collections.abc import Coroutine, Sequence
-from typing import Any, ClassVar, TypeVar
+from collections.abc import Awaitable, Callable, Sequence
+from typing import Any, ClassVar, TypeVar, TypeVarTuple
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
+from anyio.from_thread import BlockingPortal, start_blocking_portal
 from pydantic import ConfigDict, Field, SecretStr, ValidationError
 from tenacity import RetryError
 
@@ -59,7 +61,11 @@ ERROR_BODY_CHARS = 300
 #: Most model ids a probe lists when the requested one is not served.
 LISTED_MODELS = 8
 
+#: The name of the thread that runs the requests' event loop.
+LOOP_THREAD_NAME = "openai-requests"
+
 T = TypeVar("T")
+Args = TypeVarTuple("Args")
 
 
 class OpenAIOptions(RetryWaits):
@@ -133,9 +139,9 @@ class OpenAIModel(ModelAPI):
         self.structured_choice = self.settings.structured_choice
         # Built once: loading the CA bundle costs ~30 ms of CPU, and health checks open clients.
         self._ssl_context = httpx.create_ssl_context()
-        self._loop = _LoopThread()
+        self._portal = _Portal()
         # A backend dropped without `close()` still ends its loop's thread.
-        weakref.finalize(self, self._loop.stop, wait=False)
+        weakref.finalize(self, self._portal.stop, wait=False)
         self._client: httpx.AsyncClient | None = None
 
     def _add_endpoint(self, written: str) -> None:
@@ -173,9 +179,9 @@ class OpenAIModel(ModelAPI):
     def close(self) -> None:
         self.pool.close()
         if self._client is not None:
-            self._loop.run(self._client.aclose())
+            self._portal.run(self._client.aclose)
             self._client = None
-        self._loop.stop()
+        self._portal.stop()
 
     def generate(
         self,
@@ -193,12 +199,12 @@ class OpenAIModel(ModelAPI):
         One attempt, no retries, at most `PROBE_TIMEOUT_S`: a dead port, a wrong model name or a
         refused key ends the start within seconds, with a one-line `UserError` naming the cause.
         """
-        self._loop.run(self._probe())
+        self._portal.run(self._probe)
 
     def _run(
         self, conversations: Sequence[Conversation], choices: list[str] | None
     ) -> list[ModelOutput]:
-        return self._loop.run(self._generate_all(conversations, choices))
+        return self._portal.run(self._generate_all, conversations, choices)
 
     def _shared_client(self) -> httpx.AsyncClient:
         """The client every request uses, made on the loop's thread on first use: a client per
@@ -505,20 +511,21 @@ class _Rejected(Exception):
     """The server refused the request itself (a 4xx other than 429): retrying cannot help."""
 
 
-class _LoopThread:
-    """An event loop running in a daemon thread, started on first use.
+class _Portal:
+    """anyio's blocking portal (an event loop in a daemon thread), opened on first use.
 
     Synchronous callers on any thread (also one already inside a running loop, as in a
-    notebook) hand it coroutines and wait for their results.
+    notebook) hand it coroutine functions and wait for their results.
     """
 
     def __init__(self) -> None:
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._thread: threading.Thread | None = None
+        self._opened: (
+            tuple[contextlib.AbstractContextManager[BlockingPortal], BlockingPortal] | None
+        ) = None
         self._lock = threading.Lock()
 
-    def run(self, work: Coroutine[Any, Any, T]) -> T:
-        future = asyncio.run_coroutine_threadsafe(work, self._running())
+    def run(self, work: Callable[[*Args], Awaitable[T]], *args: *Args) -> T:
+        future = self._portal().start_task_soon(work, *args)
         try:
             return future.result()
         except BaseException:
@@ -527,27 +534,26 @@ class _LoopThread:
             raise
 
     def stop(self, *, wait: bool = True) -> None:
-        """Stop the loop; `wait` for its thread to end (not possible from that thread)."""
+        """Stop the loop; `wait` for its thread to end, else (a finalizer, on any thread) only
+        ask it to."""
         with self._lock:
-            loop, thread = self._loop, self._thread
-            self._loop = self._thread = None
-        if loop is None or thread is None:
+            opened, self._opened = self._opened, None
+        if opened is None:
             return
-        loop.call_soon_threadsafe(loop.stop)
-        if wait and thread is not threading.current_thread():
-            thread.join()
-            loop.close()
+        manager, portal = opened
+        if wait:
+            manager.__exit__(None, None, None)
+        else:
+            # On the loop's own thread the portal refuses; its daemon thread ends with the process.
+            with contextlib.suppress(RuntimeError):
+                portal.start_task_soon(portal.stop)
 
-    def _running(self) -> asyncio.AbstractEventLoop:
+    def _portal(self) -> BlockingPortal:
         with self._lock:
-            if self._loop is None:
-                loop = asyncio.new_event_loop()
-                thread = threading.Thread(
-                    target=loop.run_forever, name="openai-requests", daemon=True
-                )
-                thread.start()
-                self._loop, self._thread = loop, thread
-            return self._loop
+            if self._opened is None:
+                manager = start_blocking_portal(name=LOOP_THREAD_NAME)
+                self._opened = (manager, manager.__enter__())
+            return self._opened[1]
 
 
 def _transport_cause(err: BaseException) -> str:
