@@ -154,7 +154,7 @@ def measure(
     config = GenerateConfig(max_tokens=workload.max_tokens)
     model = get_model(spec, config, **options)
     if not split_attention:
-        model.split_attention = False  # type: ignore[attr-defined]
+        model.scorer.split_attention = False  # type: ignore[attr-defined]
     cells = []
     try:
         for mode in modes:

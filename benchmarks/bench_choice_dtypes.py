@@ -90,8 +90,7 @@ def scorer(model: HFModel, conversations: list[list[ChatMessage]], options: list
     """`choice_scores` without the dtype check, so a refused dtype can be measured too."""
     prompts = model._prompt_ids(conversations)
     candidates = [model._encode(option) for option in options]
-    with torch.inference_mode():
-        return model._candidate_log_likelihoods(prompts, candidates)
+    return model.scorer.log_likelihoods(model.model, prompts, candidates)
 
 
 def largest_gap(a: list[list[float]], b: list[list[float]]) -> float:
@@ -137,8 +136,8 @@ def main() -> None:
         except UserError:
             accepted = "refused"
         for split in (True, False):
-            model.split_attention = split
-            model._prefix_ids, model._prefix_states = model._prefix_ids[:0], []
+            model.scorer.split_attention = split
+            model.scorer.forget_prefix()
             fresh = scorer(model, steps[0], options)
             reused = scorer(model, steps[1], options)
             rows.append(

@@ -16,7 +16,7 @@ pytest.importorskip("transformers")
 import torch
 
 from env.errors import UserError
-from llm_agents.backends import embedded
+from llm_agents.backends import embedded, get_model
 from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, local_model_path
 from llm_agents.backends.hf import HFModel, scoring
 from llm_agents.backends.hf import model as hf_model
@@ -179,11 +179,11 @@ def test_both_choice_paths_give_the_same_scores(model: HFModel, split_attention:
     # The split-attention path (shared prefix kept once) and the generic cache path agree.
     choices = ["MAKE_WOOD_PICKAXE", "DO", " Lima", "MAKE"]
     conversations = [FRANCE, PERU, GREETINGS[1]]
-    model.split_attention = split_attention
+    model.scorer.split_attention = split_attention
     try:
         scores = model.choice_scores(conversations, choices)
     finally:
-        model.split_attention = True
+        model.scorer.split_attention = True
     for conversation, row in zip(conversations, scores, strict=True):
         prompt = model._render(conversation)
         expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
@@ -203,7 +203,7 @@ def float16_model() -> HFModel:
 def test_float16_choice_scores_match_a_plain_forward_pass(
     float16_model: HFModel, split_attention: bool
 ) -> None:
-    float16_model.split_attention = split_attention
+    float16_model.scorer.split_attention = split_attention
     try:
         # A batch with a shared prefix and one without, then a call reusing the prefix.
         worst, spread = 0.0, 0.0
@@ -211,7 +211,7 @@ def test_float16_choice_scores_match_a_plain_forward_pass(
             got = plain_forward_differences(float16_model, conversations, HALF_CHOICES)
             worst, spread = max(worst, got[0]), max(spread, got[1])
     finally:
-        float16_model.split_attention = True
+        float16_model.scorer.split_attention = True
     print(f"float16: choice vs plain {worst:.3f}, plain sdpa vs eager {spread:.3f}")
     # Before the split path rounded once, float16 lost whole nats to merged half-precision
     # softmax parts (and bfloat16 crashed on CPU).
@@ -234,7 +234,7 @@ def test_loglik_refuses_a_bfloat16_model_naming_the_alternative(split_attention:
     # bfloat16's rounding alone moves a plain pass's scores by most of a nat (sdpa vs eager,
     # batch 1 vs 6: 0.4-0.85 on real prompts), so no path can match it within 0.1.
     model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), threads=1, dtype="bfloat16")
-    model.split_attention = split_attention
+    model.scorer.split_attention = split_attention
     choices = ChoiceSet(options=("banana", "Paris"), rule="loglik")
     with pytest.raises(UserError, match=r"bfloat16.*dtype=float32") as refused:
         model.generate([FRANCE], choices=choices)
@@ -277,7 +277,7 @@ def test_loglik_turns_a_defaulted_bfloat16_into_float32(monkeypatch: pytest.Monk
 def test_cuda_choice_scores_match_a_plain_forward_pass(dtype: str) -> None:
     model = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), device="cuda", dtype=dtype)
     for split_attention in (True, False):
-        model.split_attention = split_attention
+        model.scorer.split_attention = split_attention
         # The second call reuses the first one's prompt prefix.
         for conversations in ([FRANCE, PERU, GREETINGS[1]], [PERU]):
             worst, spread = plain_forward_differences(model, conversations, HALF_CHOICES)
@@ -488,6 +488,23 @@ def test_missing_model_folder_is_a_user_error(tmp_path: Path, backend: str) -> N
     assert local_model_path(backend, str(tmp_path)) == tmp_path
     assert local_model_path(backend, "someone/some-model") is None
     assert local_model_path(backend, "Qwen/Qwen2.5-0.5B-Instruct") is None
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "named"),
+    [
+        ("rows_per_forward", 0, "rows_per_forward"),
+        ("threads", 0, "threads"),
+        ("dtype", "float8", "dtype"),
+        ("choice_scoring", "median", "choice_scoring"),
+        ("device", "gpu", "'gpu' is not a torch device"),
+        ("rows_per_forwrd", 4, "did you mean 'rows_per_forward'"),
+    ],
+)
+def test_bad_options_are_one_line_user_errors(option: str, value: Any, named: str) -> None:
+    with pytest.raises(UserError, match=named) as refused:
+        get_model("hf:smollm2-135m", **{option: value})
+    assert "\n" not in str(refused.value)
 
 
 def test_uncached_hub_model_is_a_user_error_not_a_hang() -> None:

@@ -6,7 +6,7 @@ loads any local model folder; any other name is a hub id, loaded only from the l
 
 Free generation renders each conversation with the model's chat template and decodes a batch at
 once (left padding). Choices follow the `loglik` rule only (`guided` is refused): every
-candidate is scored by its log-likelihood after the prompt, with one prompt pass per batch: all
+candidate is scored by its log-likelihood after the prompt (`scoring.py`), with one prompt pass per batch: all
 candidates then go through a single pass over the prompt's cached keys and values, side by side
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
 attention mask). The answer is always one of the choices.
@@ -36,14 +36,8 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 import torch
 from jinja2 import TemplateError
-from transformers import (
-    AutoConfig,
-    AutoModelForCausalLM,
-    AutoTokenizer,
-    DynamicCache,
-    LogitsProcessorList,
-)
-from transformers.cache_utils import DynamicLayer
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from transformers import AutoConfig, AutoModelForCausalLM, AutoTokenizer, LogitsProcessorList
 
 from env.errors import UserError
 from llm_agents.backends.base import (
@@ -56,20 +50,16 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    bad_options,
     local_model_path,
     ranked_choices,
 )
 from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME
 from llm_agents.backends.hf.scoring import (
-    MAX_KEPT_HEADS,
-    SPLIT_ATTENTION,
-    CandidateTrie,
-    _common_prefix_length,
-    _padded,
-    _SharedPrefixAttention,
-    _supports_split_attention,
-    _to_torch,
-    _trie_and_pairs,
+    LoglikScorer,
+    padded,
+    supports_split_attention,
+    to_torch,
 )
 from llm_agents.backends.hf.thinking import ThinkingBudget
 from llm_agents.backends.reasoning import (
@@ -80,8 +70,12 @@ from llm_agents.backends.reasoning import (
 )
 
 ChoiceScoring = Literal["sum", "mean"]
+DtypeName = Literal["float32", "bfloat16", "float16"]
 
 logger = logging.getLogger(__name__)
+
+#: Distinct system messages whose tokens are kept at once (an agent run has one or a few).
+MAX_KEPT_HEADS = 16
 
 #: Why `loglik` refuses a bfloat16 model, and what to use instead.
 LOGLIK_BFLOAT16 = (
@@ -91,18 +85,41 @@ LOGLIK_BFLOAT16 = (
 )
 
 
-class HFModel(ModelAPI):
-    """A transformers causal LM answering batches of chat conversations.
+class HFOptions(BaseModel):
+    """Options of the hf backend (keyword arguments of `get_model`)."""
 
-    Options: `device` ("cpu", "cuda", ...; default: cuda when available), `dtype` ("float32",
-    "bfloat16", "float16"; default float32 on CPU, bfloat16 on GPU except float32 for `loglik`
-    choices, which refuse bfloat16: see the module docstring), `threads` (torch CPU
-    threads; default: torch's own choice), `rows_per_forward` (conversations per forward pass),
-    `choice_scoring` ("sum": total log-likelihood; "mean": per token, which favours long
-    candidates less).
-    """
+    model_config = ConfigDict(extra="forbid")
+
+    device: str | None = None
+    """Torch device: cpu, cuda, cuda:1, ...; None: cuda when available, else cpu."""
+    dtype: DtypeName | None = None
+    """Weights' type; None: float32 on CPU, bfloat16 on GPU except float32 for `loglik` choices,
+    which refuse bfloat16 (see the module docstring)."""
+    threads: int | None = Field(None, ge=1)
+    """Torch CPU threads; None: torch's own choice."""
+    rows_per_forward: int = Field(16, ge=1)
+    """Conversations per forward pass."""
+    choice_scoring: ChoiceScoring = "sum"
+    """sum: a choice's total log-likelihood; mean: per token, which favours long choices less."""
+
+    @field_validator("device")
+    @classmethod
+    def _known_device(cls, device: str | None) -> str | None:
+        if device is not None:
+            try:
+                torch.device(device)
+            except RuntimeError:
+                raise ValueError(
+                    f"{device!r} is not a torch device (cpu, cuda, cuda:1, ...)"
+                ) from None
+        return device
+
+
+class HFModel(ModelAPI):
+    """A transformers causal LM answering batches of chat conversations."""
 
     backend_name = "hf"
+    options_model = HFOptions
     honoured_config = ANSWER_FIELDS
     choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik"})
     choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {
@@ -112,32 +129,20 @@ class HFModel(ModelAPI):
     # transformers' own annotations of its model classes do not type-check cleanly.
     _model: Any = None
 
-    def __init__(
-        self,
-        model_name: str,
-        config: GenerateConfig | None = None,
-        *,
-        device: str | None = None,
-        dtype: str | None = None,
-        threads: int | None = None,
-        rows_per_forward: int = 16,
-        choice_scoring: ChoiceScoring = "sum",
-        **options: Any,
-    ):
+    def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
-        if rows_per_forward < 1:
-            raise UserError(f"hf rows_per_forward must be at least 1, got {rows_per_forward}")
-        if choice_scoring not in ("sum", "mean"):
-            raise UserError(f"hf choice_scoring must be 'sum' or 'mean', got {choice_scoring!r}")
-        if threads is not None:
-            if threads < 1:
-                raise UserError(f"hf threads must be at least 1, got {threads}")
-            torch.set_num_threads(threads)
-        self.rows_per_forward = rows_per_forward
-        self.choice_scoring: ChoiceScoring = choice_scoring
-        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        self.dtype = _torch_dtype(dtype, self.device)
-        self.dtype_given = dtype is not None
+        try:
+            self.settings = HFOptions(**options)
+        except ValidationError as err:
+            raise bad_options("hf", err) from None
+        if self.settings.threads is not None:
+            torch.set_num_threads(self.settings.threads)
+        self.rows_per_forward = self.settings.rows_per_forward
+        self.choice_scoring: ChoiceScoring = self.settings.choice_scoring
+        default_device = "cuda" if torch.cuda.is_available() else "cpu"
+        self.device = torch.device(self.settings.device or default_device)
+        self.dtype = _torch_dtype(self.settings.dtype, self.device)
+        self.dtype_given = self.settings.dtype is not None
         self.model_path = local_model_path("hf", model_name)
         self._source = str(self.model_path) if self.model_path is not None else model_name
         try:
@@ -162,11 +167,9 @@ class HFModel(ModelAPI):
         #: Whether prompts reuse their system message's tokens (`_encode_prompts`); False
         #: encodes every prompt whole (the benchmarks compare the two).
         self.reuse_prompt_tokens = True
-        # Key/value states of the last choice-mode prompt prefix, per layer (see _prefix_cache).
-        self._prefix_ids = np.zeros(0, dtype=np.int64)
-        self._prefix_states: list[tuple[torch.Tensor, torch.Tensor]] = []
-        # Choice mode's own attention (see _SharedPrefixAttention) where the model allows it.
-        self.split_attention = _supports_split_attention(model_config)
+        self.scorer = LoglikScorer(
+            self.tokenizer.pad_token_id, split_attention=supports_split_attention(model_config)
+        )
 
     @property
     def model(self) -> Any:
@@ -196,7 +199,7 @@ class HFModel(ModelAPI):
             # Loaded by free generation before the first choice; reloaded from the checkpoint
             # rather than upcast, so the weights are those a float32 load gives.
             self._model = None
-            self._prefix_ids, self._prefix_states = np.zeros(0, dtype=np.int64), []
+            self.scorer.forget_prefix()
             if self.device.type == "cuda":
                 torch.cuda.empty_cache()
 
@@ -241,8 +244,7 @@ class HFModel(ModelAPI):
         self.check_choice_rule("loglik")
         prompts = self._prompt_ids(conversations)
         candidates = [self._encode(choice) for choice in choices]
-        with torch.inference_mode():
-            return self._candidate_log_likelihoods(prompts, candidates)
+        return self.scorer.log_likelihoods(self.model, prompts, candidates)
 
     # -- free generation ----------------------------------------------------------------------
 
@@ -260,8 +262,8 @@ class HFModel(ModelAPI):
         config = self.config
         start = time.perf_counter()
         # Left padding, as the tokenizer pads a batch for generation.
-        ids, mask = _padded(prompts, self.tokenizer.pad_token_id, left=True)
-        input_ids, attention_mask = _to_torch(ids, self.device), _to_torch(mask, self.device)
+        ids, mask = padded(prompts, self.tokenizer.pad_token_id, left=True)
+        input_ids, attention_mask = to_torch(ids, self.device), to_torch(mask, self.device)
         prompt_len = input_ids.shape[1]
         max_new = config.max_tokens
         processors = []
@@ -322,229 +324,13 @@ class HFModel(ModelAPI):
     ) -> list[ModelOutput]:
         start = time.perf_counter()
         prompts = self._prompt_ids(conversations)
-        with torch.inference_mode():
-            scores = self._candidate_log_likelihoods(prompts, candidates)
+        scores = self.scorer.log_likelihoods(self.model, prompts, candidates)
         if self.choice_scoring == "mean":
             scores = [
                 [score / len(ids) for score, ids in zip(row, candidates, strict=True)]
                 for row in scores
             ]
         return ranked_choices(choices, prompts, candidates, scores, time.perf_counter() - start)
-
-    def _candidate_log_likelihoods(
-        self, token_ids: Sequence[np.ndarray | Sequence[int]], candidates: list[list[int]]
-    ) -> list[list[float]]:
-        """Summed log-probability of every candidate after every prompt (token ids).
-
-        The prompts' common prefix (in an agent, the system prompt) is encoded once and shared
-        by the batch; then one pass over the rest of every prompt, one over the candidates.
-        """
-        prompts = [np.asarray(ids, dtype=np.int64) for ids in token_ids]
-        if self.split_attention:
-            return self._split_log_likelihoods(prompts, candidates)
-        device = self.device
-        pad = self.tokenizer.pad_token_id
-        batch = len(prompts)
-        # Every prompt keeps at least one own token: its last one predicts the first candidate
-        # token.
-        shared = _common_prefix_length(prompts)
-        cache = None
-        if shared:
-            cache = self._prefix_cache(prompts[0][:shared])
-            cache.batch_repeat_interleave(batch)
-        # Left padding (after the shared prefix) puts every prompt's last token in one column.
-        padded_ids, padded_mask = _padded([p[shared:] for p in prompts], pad, left=True)
-        rest_ids, rest_mask = _to_torch(padded_ids, device), _to_torch(padded_mask, device)
-        prompt_mask = torch.cat(
-            [torch.ones(batch, shared, dtype=rest_mask.dtype, device=device), rest_mask], dim=-1
-        )
-        first = self.model(
-            input_ids=rest_ids,
-            attention_mask=prompt_mask,
-            position_ids=shared + (rest_mask.cumsum(-1) - 1).clamp(min=0),
-            past_key_values=cache,
-            use_cache=True,
-            logits_to_keep=1,
-        )
-        first_tokens = torch.tensor([ids[0] for ids in candidates], device=device)
-        scores = first.logits[:, -1].float().log_softmax(-1)[:, first_tokens]
-        # The logits at a candidate's token j predict its token j + 1; single-token candidates
-        # are fully scored by the prompt pass.
-        trie, pairs = _trie_and_pairs(candidates)
-        if pairs:
-            predicting = sorted({node for _, node, _ in pairs})
-            row_of = {node: row for row, node in enumerate(predicting)}
-            later = self._candidate_pass(first.past_key_values, prompt_mask, trie, predicting)
-            rows = torch.tensor([row_of[node] for _, node, _ in pairs], device=device)
-            targets = torch.tensor([token for _, _, token in pairs], device=device)
-            owners = torch.tensor([k for k, _, _ in pairs], device=device)
-            scores = scores.index_add(1, owners, later[:, rows, targets])
-        return [[float(score) for score in row] for row in scores]
-
-    def _prefix_cache(self, prefix: np.ndarray) -> Any:
-        """A batch-1 cache of `prefix`, starting from the previous call's prefix where they agree.
-
-        Successive agent steps share their system prompt, so most of it is encoded only once.
-        """
-        reuse = _common_prefix_length([self._prefix_ids, prefix], keep_own=0)
-        cache = DynamicCache(config=self.model.config)
-        if reuse:
-            for index, (keys, values) in enumerate(self._prefix_states):
-                cache.update(keys[:, :, :reuse], values[:, :, :reuse], index)
-        if reuse < len(prefix):
-            self.model(
-                input_ids=_to_torch(prefix[None, reuse:], self.device),
-                past_key_values=cache,
-                use_cache=True,
-                logits_to_keep=1,
-            )
-        states = []
-        for layer in cache.layers:
-            # Only plain per-token layers can be cut to a shorter prefix later.
-            if type(layer) is not DynamicLayer or layer.keys is None or layer.values is None:
-                return cache
-            states.append((layer.keys, layer.values))
-        self._prefix_ids, self._prefix_states = prefix, states
-        return cache
-
-    def _candidate_pass(
-        self,
-        prompt_cache: Any,
-        prompt_mask: torch.Tensor,
-        trie: CandidateTrie,
-        predicting: list[int],
-    ) -> torch.Tensor:
-        """Log-probabilities at the `predicting` nodes of the candidate trie, in one pass.
-
-        A trie node sees the (unpadded) prompt and its own ancestors only, so one pass over the
-        prompt cache scores every candidate, and a prefix shared by candidates is computed once.
-        """
-        device = self.device
-        batch, width = prompt_mask.shape
-        total = len(trie.tokens)
-        own = torch.zeros(total, total, dtype=torch.bool, device=device)
-        for node, seen in enumerate(trie.ancestry()):
-            own[node, seen] = True
-        allowed = torch.cat(
-            [
-                prompt_mask.bool()[:, None, :].expand(batch, total, width),
-                own[None].expand(batch, total, total),
-            ],
-            dim=-1,
-        )
-        dtype = self.model.dtype
-        mask = torch.zeros(allowed.shape, dtype=dtype, device=device)
-        mask.masked_fill_(~allowed, torch.finfo(dtype).min)
-        depths = torch.tensor(trie.depths, device=device)
-        output = self.model(
-            input_ids=torch.tensor([trie.tokens] * batch, device=device),
-            attention_mask=mask[:, None],
-            position_ids=prompt_mask.sum(-1, keepdim=True) + depths[None],
-            past_key_values=prompt_cache,
-            use_cache=True,
-            logits_to_keep=torch.tensor(predicting, device=device),
-        )
-        log_probs: torch.Tensor = output.logits.float().log_softmax(-1)
-        return log_probs
-
-    # -- choice mode with split attention -----------------------------------------------------
-
-    def _split_log_likelihoods(
-        self, prompts: list[np.ndarray], candidates: list[list[int]]
-    ) -> list[list[float]]:
-        """`_candidate_log_likelihoods` without copying the shared prefix per prompt.
-
-        The prefix's keys and values are kept once (batch 1) and every prompt's queries attend
-        to them in one batched product; each prompt's own tokens (right-padded, so no row is
-        masked out) and then the candidate trie attend to their own keys separately, and the
-        two softmax parts are merged by their log-sum-exp. Only trie nodes with children are
-        fed: a leaf's token is scored by its parent's logits.
-        """
-        device = self.device
-        pad = self.tokenizer.pad_token_id
-        batch = len(prompts)
-        shared = _common_prefix_length(prompts)
-        prefix = self._split_prefix(prompts[0][:shared]) if shared else None
-        padded_ids, padded_mask = _padded([p[shared:] for p in prompts], pad, left=False)
-        rest_ids = _to_torch(padded_ids, device)
-        lengths = _to_torch(padded_mask.sum(1), device)
-        width = rest_ids.shape[1]
-        positions = shared + torch.arange(width, device=device)
-        rest_plan = _SharedPrefixAttention(prefix, store=True)
-        hidden = self._hidden_states(rest_ids, positions.expand(batch, width), rest_plan)
-        last = hidden[torch.arange(batch, device=device), lengths - 1]
-        first_tokens = torch.tensor([ids[0] for ids in candidates], device=device)
-        scores = self._log_probs(last)[:, first_tokens]
-        trie, pairs = _trie_and_pairs(candidates)
-        if pairs:
-            # Nodes with children; their ancestors have children too, so the set is closed.
-            fed = sorted({node for _, node, _ in pairs})
-            row_of = {node: row for row, node in enumerate(fed)}
-            ancestry = trie.ancestry()
-            own = torch.zeros(len(fed), len(fed), dtype=torch.bool, device=device)
-            for row, node in enumerate(fed):
-                own[row, [row_of[seen] for seen in ancestry[node]]] = True
-            past_mask = torch.arange(width, device=device)[None, None] < lengths[:, None, None]
-            depths = torch.tensor([trie.depths[node] for node in fed], device=device)
-            trie_plan = _SharedPrefixAttention(
-                prefix,
-                past=rest_plan.stored,
-                mask=torch.cat(
-                    [past_mask.expand(batch, len(fed), width), own.expand(batch, -1, -1)], -1
-                ),
-            )
-            trie_ids = torch.tensor([[trie.tokens[node] for node in fed]] * batch, device=device)
-            trie_hidden = self._hidden_states(
-                trie_ids, shared + lengths[:, None] + depths[None], trie_plan
-            )
-            later = self._log_probs(trie_hidden)
-            rows = torch.tensor([row_of[node] for _, node, _ in pairs], device=device)
-            targets = torch.tensor([token for _, _, token in pairs], device=device)
-            owners = torch.tensor([k for k, _, _ in pairs], device=device)
-            scores = scores.index_add(1, owners, later[:, rows, targets])
-        return [[float(score) for score in row] for row in scores]
-
-    def _split_prefix(self, prefix: np.ndarray) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """Keys and values (batch 1, per layer) of `prefix`, reusing the previous call's."""
-        reuse = _common_prefix_length([self._prefix_ids, prefix], keep_own=0)
-        kept = [(keys[:, :, :reuse], values[:, :, :reuse]) for keys, values in self._prefix_states]
-        states = kept
-        if reuse < len(prefix):
-            plan = _SharedPrefixAttention(kept if reuse else None, store=True)
-            ids = _to_torch(prefix[None, reuse:], self.device)
-            positions = torch.arange(reuse, len(prefix), device=self.device)[None]
-            self._hidden_states(ids, positions, plan)
-            new = [plan.stored[layer] for layer in range(len(plan.stored))]
-            states = (
-                [
-                    (torch.cat([k, new_k], 2), torch.cat([v, new_v], 2))
-                    for (k, v), (new_k, new_v) in zip(kept, new, strict=True)
-                ]
-                if reuse
-                else new
-            )
-        self._prefix_ids, self._prefix_states = prefix, states
-        return states
-
-    def _hidden_states(
-        self, ids: torch.Tensor, positions: torch.Tensor, plan: _SharedPrefixAttention
-    ) -> torch.Tensor:
-        """The decoder's final hidden states, attending as `plan` says."""
-        config = self.model.config
-        default = config._attn_implementation
-        config._attn_implementation = SPLIT_ATTENTION
-        try:
-            output = self.model.get_decoder()(
-                input_ids=ids, position_ids=positions, use_cache=False, split_attention=plan
-            )
-        finally:
-            config._attn_implementation = default
-        hidden: torch.Tensor = output.last_hidden_state
-        return hidden
-
-    def _log_probs(self, hidden: torch.Tensor) -> torch.Tensor:
-        log_probs: torch.Tensor = self.model.get_output_embeddings()(hidden).float().log_softmax(-1)
-        return log_probs
 
     # -- helpers ------------------------------------------------------------------------------
 
@@ -660,10 +446,6 @@ class HFModel(ModelAPI):
         return {i for i in [*ids, self.tokenizer.eos_token_id] if i is not None}
 
 
-#: Model types whose logits are the decoder's last hidden state times the output embeddings,
-#: with every layer attending to all earlier tokens (no sliding window, no soft-capping).
-
-
 def _cut_at_stop(text: str, stops: list[str]) -> tuple[bool, str]:
     positions = [pos for stop in stops if (pos := text.find(stop)) != -1]
     if not positions:
@@ -679,10 +461,8 @@ def _load_error(model_name: str, err: OSError) -> UserError:
     )
 
 
-def _torch_dtype(name: str | None, device: torch.device) -> torch.dtype:
+def _torch_dtype(name: DtypeName | None, device: torch.device) -> torch.dtype:
     if name is None:
         return torch.float32 if device.type == "cpu" else torch.bfloat16
-    dtypes = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
-    if name not in dtypes:
-        raise UserError(f"hf dtype {name!r} is not one of {', '.join(dtypes)}")
-    return dtypes[name]
+    dtype: torch.dtype = getattr(torch, name)
+    return dtype
