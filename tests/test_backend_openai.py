@@ -100,7 +100,7 @@ def test_retry_after_is_honoured(server: FaultServer) -> None:
     limited, plain = server.times("limited"), server.times("plain")
     assert limited[1] - limited[0] >= 0.95
     # Without the header the backoff of the test config applies: far shorter.
-    assert plain[1] - plain[0] < 0.5
+    assert plain[1] - plain[0] < 0.9
 
 
 @pytest.mark.parametrize("status", [400, 401, 404, 422])
@@ -127,12 +127,13 @@ def test_exhausted_retries_give_a_clear_error_without_losing_the_batch(
 
 
 def test_exhausted_timeouts_name_the_timeout(server: FaultServer) -> None:
-    server.plan = {"stuck": [Fault("slow", delay_s=1.0)] * 3}
+    # Answers far later than the bound below, so only the timeouts can end the call within it.
+    server.plan = {"stuck": [Fault("slow", delay_s=10.0)] * 3}
     start = time.monotonic()
     [output] = model(server, timeout_s=0.3, max_retries=1).generate([conv("stuck")])
     assert output.finish_reason == "error"
     assert "2 attempts" in (output.error or "") and "0.3 s" in (output.error or "")
-    assert time.monotonic() - start < 1.5
+    assert time.monotonic() - start < 5.0
 
 
 def test_api_key_is_sent_but_never_leaks(

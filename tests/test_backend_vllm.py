@@ -194,7 +194,7 @@ def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]],
 def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     model_dir: Path, tmp_path: Path, classic_env: Any
 ) -> None:
-    torch = pytest.importorskip("torch")
+    pytest.importorskip("torch")
     pytest.importorskip("transformers")
     from llm_agents.backends.hf import HFModel
 
@@ -224,7 +224,6 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
 
     hf = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), dtype="float32")
     hf_scores = hf.choice_scores(conversations, options)
-    hf_outputs = hf.generate(conversations, ChoiceSet(options=tuple(options), rule="loglik"))
     worst = max(
         abs(a - b)
         for hf_row, vllm_row in zip(hf_scores, result["scores"], strict=True)
@@ -232,19 +231,24 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     )
     print(f"hf vs vllm loglik scores, float32: largest difference {worst:.2e} nats")
     assert worst < 0.01
-    with torch.inference_mode():
-        hf_cut = hf._candidate_log_likelihoods(
-            result["cut_prompts"], [hf._encode(option) for option in options]
-        )
+    hf_cut = hf.scorer.log_likelihoods(
+        hf.model,
+        result["cut_prompts"],
+        [hf._encode(option) for option in options],
+    )
     cut_worst = max(
         abs(a - b)
         for hf_row, vllm_row in zip(hf_cut, result["cut_scores"], strict=True)
         for a, b in zip(hf_row, vllm_row, strict=True)
     )
     assert cut_worst < 0.01
+    # hf's answers are its scores' best options (its own tests check that `generate` picks
+    # them), so vLLM's answers are compared with those instead of scoring everything again.
     vllm_outputs = result["outputs"]
-    assert [o["text"] for o in vllm_outputs] == [o.text for o in hf_outputs]
-    assert [o["prompt_tokens"] for o in vllm_outputs] == [o.prompt_tokens for o in hf_outputs]
+    hf_best = [options[max(range(len(options)), key=row.__getitem__)] for row in hf_scores]
+    assert [o["text"] for o in vllm_outputs] == hf_best
+    prompt_tokens = [len(ids) for ids in hf._prompt_ids(conversations)]
+    assert [o["prompt_tokens"] for o in vllm_outputs] == prompt_tokens
     assert all(o["finish_reason"] == "choice" for o in vllm_outputs)
     # Real prompts of different situations: the models do not pick one answer everywhere.
     assert len({max(range(len(options)), key=row.__getitem__) for row in hf_scores}) > 1
@@ -337,7 +341,7 @@ def test_the_probe_against_vllm_serve_names_a_wrong_model(vllm_server: str) -> N
     start = time.monotonic()
     with pytest.raises(UserError) as caught:
         typo.probe()
-    assert time.monotonic() - start < 5
+    assert time.monotonic() - start < 15
     assert str(caught.value).startswith("model 'smollm' is not served at")
     assert "did you mean 'smollm2'?" in str(caught.value)
 

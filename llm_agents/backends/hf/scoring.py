@@ -187,10 +187,13 @@ class LoglikScorer:
         self._prefix_ids, self._prefix_states = np.zeros(0, dtype=np.int64), []
 
     def log_likelihoods(
-        self, model: Any, prompts: Sequence[np.ndarray], candidates: list[list[int]]
+        self,
+        model: Any,
+        token_ids: Sequence[np.ndarray | Sequence[int]],
+        candidates: list[list[int]],
     ) -> list[list[float]]:
         """Summed log-probability of every candidate after every prompt (token ids)."""
-        prompts = [np.asarray(ids, dtype=np.int64) for ids in prompts]
+        prompts = [np.asarray(ids, dtype=np.int64) for ids in token_ids]
         with torch.inference_mode():
             if self.split_attention:
                 return self._split_log_likelihoods(model, prompts, candidates)
