@@ -21,7 +21,7 @@ DEMO_FLAGS := --model hf:smollm2-135m --choice loglik --variant classic --limit 
 help:
 	@echo "make demo       run a small evaluation with the embedded model (CPU, offline)"
 	@echo "make test       lint, type-check and run every test (slow ones included)"
-	@echo "make lint       ruff check, ruff format --check, mypy"
+	@echo "make lint       ruff check, ruff format --check, mypy, lint-imports"
 	@echo "make bench      run every benchmarks/bench_*.py script, one after another"
 	@echo "make clean      remove build outputs, caches and runs/demo (keeps the virtualenvs)"
 	@echo "make distclean  clean, and remove .venv and .venv-vllm"
@@ -51,6 +51,7 @@ lint: $(VENV)/.stamp-dev
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 # JAX_COMPILATION_CACHE_DIR is not set here: the env enables JAX's persistent cache itself
 # (in the user cache directory unless the variable is already set).
