@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, Field
 
 from env.errors import UserError
-from llm_agents.agents.zero_shot import Decision
+from llm_agents.agents.types import Decision
 from llm_agents.backends.endpoints import EndpointStats, merge_endpoint_stats
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.runner import (

@@ -39,7 +39,7 @@ import numpy as np
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
 from llm_agents.agents import Agent, build_agent
-from llm_agents.agents.zero_shot import Decision
+from llm_agents.agents.types import Decision
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
