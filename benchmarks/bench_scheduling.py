@@ -196,7 +196,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
     from env import VectorEnv, episode_key, goal_masks
     from env.dataset import load_dataset
     from llm_agents.agents.zero_shot import ZeroShotAgent
-    from llm_agents.evaluation.runner import build_schedule
+    from llm_agents.evaluation.schedule import build_schedule
     from textualizer import observe_batch
 
     instructions = load_dataset(config.dataset).instructions(config.splits)
