@@ -85,5 +85,5 @@ class EpisodeQueue:
         return [self._stack.pop() for _ in range(min(count, len(self._stack)))]
 
     def put_back(self, specs: Sequence[ScheduledEpisode]) -> None:
-        """Episodes taken but lost unplayed (a Ray worker died): they are taken again first."""
+        """Episodes taken but not played: they are taken again first, in schedule order."""
         self._stack.extend(sorted(specs, key=lambda spec: spec.index, reverse=True))

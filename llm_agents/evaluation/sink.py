@@ -62,9 +62,11 @@ class RunSink:
         return sum(e.episode_id in self.scheduled_ids for e in self.episodes)
 
     def take(self, count: int) -> list[ScheduledEpisode]:
+        """The next episodes to play; none once the run has stopped."""
         return [] if self.stopped else self.queue.take(count)
 
     def put_back(self, specs: Sequence[ScheduledEpisode]) -> None:
+        """Episodes taken but lost unplayed (a Ray worker died): they are taken again first."""
         self.queue.put_back(specs)
 
     def record(
@@ -74,6 +76,7 @@ class RunSink:
         ended: list[EpisodeRecord],
         aborted: list[str],
     ) -> None:
+        """Write a round's records, count its backend failures, and show progress."""
         if steps:
             # Steps of unfinished episodes are dropped on resume, so only an episode's end needs
             # its steps on disk (before its line): an fsync per round would stall every round.
