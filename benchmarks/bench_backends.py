@@ -40,7 +40,7 @@ DEFAULT_VLLM_PYTHON = REPO / ".venv-vllm" / "bin" / "python"
 sys.path.insert(0, str(REPO))
 
 from llm_agents.backends import GenerateConfig, get_model  # noqa: E402
-from llm_agents.backends.base import ChatMessage, ChoiceSet  # noqa: E402
+from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput  # noqa: E402
 
 
 class Workload(BaseModel):
@@ -131,13 +131,12 @@ def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
     for _ in range(steps):
         for slot in range(slots):
             observation = textualizer.observe(jax.tree.map(np.asarray, states[slot].game), variant)
-            messages, _ = agent.build_messages(slot, observation)
-            conversations.append(messages)
-            action = int(rng.integers(len(names)))
-            # What `act` records for a chosen action, without a model call.
-            agent._episodes[slot].pending = (names[action], observation)
-            agent._episodes[slot].step += 1
-            states[slot], _ = step(states[slot], jnp.int32(action))
+            prompt = agent.prepare(slot, observation)
+            conversations.append(prompt.messages)
+            # A random action stands in for the model's answer, so the history is recorded as
+            # in a run without a model call.
+            decision = agent.decide(prompt, ModelOutput(text=names[int(rng.integers(len(names)))]))
+            states[slot], _ = step(states[slot], jnp.int32(decision.action))
     return Workload(conversations=conversations, choices=names, max_tokens=1, slots=slots)
 
 

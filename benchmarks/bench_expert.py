@@ -27,7 +27,7 @@ from env.dataset import Dataset, DatasetSource, Goal, category_of
 from llm_agents.agents import NoModel
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval
-from llm_agents.run_data.store import read_episodes
+from llm_agents.run_data.store import EPISODES_FILE, STEPS_FILE, read_episodes, read_steps
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "craftext_official_easy.json"
 
@@ -55,12 +55,7 @@ def convert_reference(path: Path, out_dir: Path) -> Path:
 
 def last_notes(steps_path: Path) -> dict[str, str]:
     """Each episode's last step's note (the expert's task then)."""
-    notes: dict[str, str] = {}
-    with steps_path.open(encoding="utf-8") as handle:
-        for line in handle:
-            record = json.loads(line)
-            notes[record["episode_id"]] = record.get("reasoning") or ""
-    return notes
+    return {step.episode_id: step.reasoning or "" for step in read_steps(steps_path)}
 
 
 def main() -> None:
@@ -105,8 +100,8 @@ def main() -> None:
         start = time.perf_counter()
         run_eval(config, NoModel())
         elapsed = time.perf_counter() - start
-        episodes = read_episodes(out / "episodes.jsonl")
-        notes = last_notes(out / "steps.jsonl")
+        episodes = read_episodes(out / EPISODES_FILE)
+        notes = last_notes(out / STEPS_FILE)
         from env.dataset import load_dataset
 
         goals = {goal.id: goal for goal in load_dataset(dataset).goals}

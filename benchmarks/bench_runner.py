@@ -30,7 +30,7 @@ PARTS = {
     "observe": ("textualizer", "observe_batch"),
     "prompt (render text, template)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "prepare"),
     "decide (parse, hash)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "decide"),
-    "records + JSON lines": ("llm_agents.evaluation.runner:_Sink", "record"),
+    "records + JSON lines": ("llm_agents.evaluation.sink:RunSink", "record"),
 }
 
 

@@ -196,7 +196,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
     from env import VectorEnv, episode_key, goal_masks
     from env.dataset import load_dataset
     from llm_agents.agents.zero_shot import ZeroShotAgent
-    from llm_agents.evaluation.runner import build_schedule
+    from llm_agents.evaluation.schedule import build_schedule
     from textualizer import observe_batch
 
     instructions = load_dataset(config.dataset).instructions(config.splits)
@@ -218,7 +218,10 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
         agent.start_episode(slot, spec.instruction.text)
     while live:
         slots = sorted(live)
-        decisions = agent.act(model, slots, observe_batch(host.game, config.variant, slots))
+        observations = observe_batch(host.game, config.variant, slots)
+        prompts = [agent.prepare(slot, obs) for slot, obs in zip(slots, observations, strict=True)]
+        outputs = model.generate([p.messages for p in prompts], choices=agent.choices)
+        decisions = [agent.decide(p, out) for p, out in zip(prompts, outputs, strict=True)]
         actions = np.full(batch, agent.fallback_id, dtype=np.int32)
         for decision in decisions:
             actions[decision.slot] = decision.action

@@ -1,17 +1,19 @@
-"""ZeroShotAgent with mock backends: batching, parsing and fallback, history outcomes."""
+"""ZeroShotAgent with mock backends: prompts per slot, parsing and fallback, history outcomes."""
 
 import hashlib
 import json
 from collections.abc import Sequence
 
 import pytest
+from agent_steps import play_step
 from pydantic import BaseModel, Field
 
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.agents.zero_shot import Decision, ZeroShotAgent, describe_outcome
+from llm_agents.agents.types import Decision
+from llm_agents.agents.zero_shot import ZeroShotAgent, describe_outcome
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOutput
+from llm_agents.backends.base import ChatMessage, ChoiceRule
 from llm_agents.backends.mock import MockModel
 
 
@@ -72,15 +74,15 @@ def user_text(conversation: Sequence[ChatMessage]) -> str:
     return conversation[-1].content
 
 
-def test_one_batched_call_per_step_with_a_shared_system_prompt() -> None:
+def test_each_slot_gets_its_own_step_message_under_a_shared_system_prompt() -> None:
     model = get_model("mock:cycle:LEFT|DO|MAKE_WOOD_PICKAXE")
     assert isinstance(model, MockModel)
     agent = make_agent()
     for slot in range(3):
         agent.start_episode(slot, f"goal number {slot}")
     observations = [FakeObservation(label=f"slot {slot}") for slot in range(3)]
-    first = agent.act(model, [0, 1, 2], observations)
-    second = agent.act(model, [0, 1, 2], observations)
+    first = play_step(agent, model, [0, 1, 2], observations)
+    second = play_step(agent, model, [0, 1, 2], observations)
     assert [d.name for d in first + second] == ["LEFT", "DO", "MAKE_WOOD_PICKAXE"] * 2
     assert [d.action for d in first] == [1, 5, 11]
     assert len(model.requests) == 6
@@ -93,25 +95,6 @@ def test_one_batched_call_per_step_with_a_shared_system_prompt() -> None:
         assert choices is None
 
 
-def test_calls_generate_once_per_act() -> None:
-    calls: list[int] = []
-
-    class CountingModel(MockModel):
-        def generate(
-            self,
-            conversations: Sequence[Sequence[ChatMessage]],
-            choices: ChoiceSet | None = None,
-        ) -> list[ModelOutput]:
-            calls.append(len(conversations))
-            return super().generate(conversations, choices)
-
-    agent = make_agent()
-    for slot in (4, 7):
-        agent.start_episode(slot, "collect wood")
-    agent.act(CountingModel(outputs=["DO"]), [4, 7], [FakeObservation(), FakeObservation()])
-    assert calls == [2]
-
-
 def test_unparseable_answers_fall_back_and_are_flagged() -> None:
     def answer(conversation: Sequence[ChatMessage]) -> str:
         return "I refuse." if "bad" in user_text(conversation) else "<think>x</think>ACTION: SLEEP"
@@ -119,7 +102,7 @@ def test_unparseable_answers_fall_back_and_are_flagged() -> None:
     agent = make_agent(fallback_action="do")
     agent.start_episode(0, "bad slot")
     agent.start_episode(1, "good slot")
-    decisions = agent.act(MockModel(outputs=answer), [0, 1], [FakeObservation()] * 2)
+    decisions = play_step(agent, MockModel(outputs=answer), [0, 1], [FakeObservation()] * 2)
     bad, good = decisions
     assert (bad.name, bad.action, bad.fallback_used, bad.parse.stage) == ("DO", 5, True, "invalid")
     assert (good.name, good.fallback_used, good.parse.stage) == ("SLEEP", False, "field")
@@ -129,8 +112,11 @@ def test_unparseable_answers_fall_back_and_are_flagged() -> None:
 def test_echoed_prompt_is_not_taken_as_an_answer() -> None:
     agent = make_agent()
     agent.start_episode(0, "place a table near the water")
-    decision = agent.act(
-        MockModel(outputs=lambda conversation: user_text(conversation)), [0], [FakeObservation()]
+    decision = play_step(
+        agent,
+        MockModel(outputs=lambda conversation: user_text(conversation)),
+        [0],
+        [FakeObservation()],
     )[0]
     assert decision.fallback_used and decision.name == "NOOP"
 
@@ -140,12 +126,12 @@ def test_prompt_hash_is_sha256_of_the_messages_sent() -> None:
     agent = make_agent()
     agent.start_episode(0, "eat a cow")
     agent.start_episode(1, "eat a cow")
-    same = agent.act(model, [0, 1], [FakeObservation(), FakeObservation()])
+    same = play_step(agent, model, [0, 1], [FakeObservation(), FakeObservation()])
     sent = model.requests[0][0]
     payload = json.dumps([[m.role, m.content] for m in sent], ensure_ascii=False)
     assert same[0].prompt_hash == hashlib.sha256(payload.encode()).hexdigest()
     assert same[0].prompt_hash == same[1].prompt_hash
-    other = agent.act(model, [0], [FakeObservation(label="a cow 1 north")])[0]
+    other = play_step(agent, model, [0], [FakeObservation(label="a cow 1 north")])[0]
     assert other.prompt_hash != same[0].prompt_hash
     assert other.observation_text == "You stand at (10, 10); a cow 1 north."
 
@@ -165,7 +151,7 @@ def test_history_records_outcomes_from_consecutive_observations() -> None:
     ]
     decisions: list[Decision] = []
     for observation in observations:
-        decisions += agent.act(model, [0], [observation])
+        decisions += play_step(agent, model, [0], [observation])
     outcomes = [(entry.step, entry.action, entry.outcome) for entry in agent.history(0)]
     assert outcomes == [
         (0, "LEFT", "moved west"),
@@ -189,11 +175,11 @@ def test_new_episode_in_a_slot_starts_a_fresh_history_and_plan() -> None:
     model = MockModel(outputs=["RIGHT"])
     agent = make_agent()
     agent.start_episode(0, "old goal")
-    agent.act(model, [0], [FakeObservation()])
-    agent.act(model, [0], [fake(x=11)])
+    play_step(agent, model, [0], [FakeObservation()])
+    play_step(agent, model, [0], [fake(x=11)])
     assert len(agent.history(0)) == 1
     agent.start_episode(0, "new goal", plan="1. find water\n2. drink")
-    agent.act(model, [0], [FakeObservation()])
+    play_step(agent, model, [0], [FakeObservation()])
     prompt = user_text(model.requests[-1][0])
     assert agent.history(0) == []
     assert "new goal" in prompt and "old goal" not in prompt
@@ -205,7 +191,7 @@ def test_choice_mode_passes_the_variant_action_names_and_the_rule(rule: ChoiceRu
     model = MockModel(outputs=["not a name"])
     agent = ZeroShotAgent(Variant.FULL, renderer=render_fake, choice_rule=rule)
     agent.start_episode(0, "descend")
-    decision = agent.act(model, [0], [FakeObservation()])[0]
+    decision = play_step(agent, model, [0], [FakeObservation()])[0]
     choices = model.requests[0][1]
     assert choices is not None and choices.rule == rule
     assert len(choices.options) == 43 and choices.options[18] == "DESCEND"
@@ -220,7 +206,7 @@ def test_user_mistakes_raise_user_error() -> None:
         make_agent(history_length=-1)
     agent = make_agent()
     with pytest.raises(UserError, match="slot 3"):
-        agent.act(MockModel(), [3], [FakeObservation()])
+        play_step(agent, MockModel(), [3], [FakeObservation()])
 
 
 def test_describe_outcome_of_a_non_move_action_ignores_position() -> None:

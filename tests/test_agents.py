@@ -7,6 +7,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
+from agent_steps import play_step
 from pydantic import BaseModel, Field
 
 from env.dataset import Goal
@@ -135,7 +136,7 @@ def test_cot_keeps_the_last_k_replies_as_assistant_turns() -> None:
     agent = ChainOfThoughtAgent(Variant.CLASSIC, renderer=text_of, steps=2)
     agent.start_episode(0, "collect wood")
     for observation in ["grass", "tree east", "tree north", "wood 1"]:
-        agent.act(model, [0], [Seen(text=observation)])
+        play_step(agent, model, [0], [Seen(text=observation)])
     last = model.requests[-1][0]
     assert [m.role for m in last] == ["system", "user", "assistant", "user", "assistant", "user"]
     assert last[2].content == "reasoning 1\nACTION: DO"
@@ -161,7 +162,9 @@ def test_cot_prompt_snapshot() -> None:
     agent = ChainOfThoughtAgent(Variant.CLASSIC, renderer=text_of, steps=2)
     agent.start_episode(0, "Collect wood.")
     for observation in ["A tree is 1 east.", "You face a tree."]:
-        agent.act(model, [0], [Seen(text=observation, position=_Position(x=len(observation)))])
+        play_step(
+            agent, model, [0], [Seen(text=observation, position=_Position(x=len(observation)))]
+        )
     messages, _ = agent.build_messages(0, Seen(text="You face a tree. Inventory: wood 1."))
     check_snapshot("prompt_cot_classic.txt", conversation_text(messages))
 
@@ -267,7 +270,7 @@ def test_few_shot_prompt_snapshot(tmp_path: Path) -> None:
     model = MockModel(outputs=["DO"])
     agent.start_episode(0, "Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)))
     agent.render_observation = text_of
-    agent.act(model, [0], [Seen(text="A tree is 1 east.")])
+    play_step(agent, model, [0], [Seen(text="A tree is 1 east.")])
     messages = model.requests[0][0]
     assert [m.role for m in messages] == ["system", "user"]
     assert "TABLE_AND_WOOD view 4" in messages[1].content

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from env.errors import UserError
-from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import (
     RunIdentity,
     append_records,
@@ -17,6 +17,7 @@ from llm_agents.run_data.store import (
     check_output_dir,
     complete_lines,
     read_episodes,
+    read_steps,
 )
 
 
@@ -77,6 +78,63 @@ def test_a_redone_episode_counts_once_with_its_last_outcome(tmp_path: Path) -> N
     append_records(path, [episode(1, success=True)])
     episodes = read_episodes(path)
     assert [(e.episode_id, e.success) for e in episodes] == [("ep0", False), ("ep1", True)]
+
+
+def step(episode_id: str, index: int) -> StepRecord:
+    return StepRecord(
+        episode_id=episode_id,
+        step=index,
+        observation=f"{episode_id} view {index}",
+        prompt_hash="",
+        raw_output="DO",
+        action_name="DO",
+        action_id=5,
+        parse_stage="exact",
+        fallback_used=False,
+        reward=0.0,
+        done=False,
+    )
+
+
+def test_steps_are_read_in_file_order_for_the_episodes_asked(tmp_path: Path) -> None:
+    path = tmp_path / "steps.jsonl"
+    append_records(path, [step("a", 0), step("b", 0), step("a", 1), step("c", 0)])
+    assert [(s.episode_id, s.step) for s in read_steps(path)] == [
+        ("a", 0),
+        ("b", 0),
+        ("a", 1),
+        ("c", 0),
+    ]
+    chosen = read_steps(path, {"a", "c"})
+    assert [(s.episode_id, s.observation) for s in chosen] == [
+        ("a", "a view 0"),
+        ("a", "a view 1"),
+        ("c", "c view 0"),
+    ]
+
+
+def test_reading_steps_skips_a_torn_last_line_and_leaves_the_file_as_it_is(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "steps.jsonl"
+    append_records(path, [step("a", 0)])
+    with path.open("a") as handle:
+        handle.write(step("a", 1).model_dump_json()[:40])
+    before = path.read_bytes()
+    assert [s.step for s in read_steps(path)] == [0]
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("line", ["not json", '{"episode_id": "a", "step": 1}', "[1, 2]"])
+def test_a_whole_line_that_is_no_step_record_is_an_error_naming_it(
+    tmp_path: Path, line: str
+) -> None:
+    path = tmp_path / "steps.jsonl"
+    append_records(path, [step("a", 0)])
+    with path.open("a") as handle:
+        handle.write(line + "\n")
+    with pytest.raises(UserError, match=r"steps\.jsonl, line 2: not a step record"):
+        list(read_steps(path))
 
 
 @pytest.mark.parametrize("contents", [b"", b"\n\n", b"   \n"])

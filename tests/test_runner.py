@@ -23,7 +23,8 @@ from llm_agents.backends.cache import CachedModel
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.runner import build_schedule, open_model, run_eval
+from llm_agents.evaluation.runner import open_model, run_eval
+from llm_agents.evaluation.schedule import build_schedule
 from llm_agents.run_data.store import read_episodes, read_results
 
 REPO = Path(__file__).resolve().parents[1]

@@ -8,6 +8,7 @@ vector, which can lose a visible mob when an off-screen one is written over it.
 """
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from functools import cache
 from typing import Any
 
@@ -205,31 +206,79 @@ def observe(state: Any, variant: Variant | str) -> Observation:
     full = variant is Variant.FULL
     level = int(state.player_level) if full else 0
     world = np.asarray(state.map)[level] if full else np.asarray(state.map)
-    mob_level = level if full else None
     row, col = (int(v) for v in np.asarray(state.player_position))
-
     blocks_window = _window(world, row, col, view, voc.OUT_OF_BOUNDS)
-    lit: np.ndarray | None = None
-    unlit: list[Offset] = []
-    items: dict[str, list[Offset]] = {}
-    if full:
-        light = _window(np.asarray(state.light_map)[level], row, col, view, 0.0)
-        lit = light > voc.LIGHT_THRESHOLD
-        lit_in_order = lit.ravel()[view.order].tolist()
-        unlit = [
-            offset for offset, seen in zip(view.offsets, lit_in_order, strict=True) if not seen
-        ]
-        hidden = -1
-        block_values = np.where(lit, blocks_window, hidden).ravel()[view.order].tolist()
-        item_window = _window(np.asarray(state.item_map)[level], row, col, view, 0)
-        item_values = np.where(lit, item_window, 0).ravel()[view.order].tolist()
-        items = _group(item_values, voc.ITEM_NAMES, view, skip=0)
-        blocks = _group(block_values, voc.BLOCK_NAMES, view, skip=hidden)
-    else:
-        blocks = _group(
-            blocks_window.ravel()[view.order].tolist(), voc.BLOCK_NAMES, view, skip=None
-        )
+    sight = (
+        _sight(state, view, level, row, col, blocks_window)
+        if full
+        else _classic_sight(view, blocks_window)
+    )
+    direction = int(state.player_direction)
+    player = _full_player(state, level) if full else _classic_player(state)
+    daylight = round(float(state.light_level), 3)
+    achieved = np.flatnonzero(np.asarray(state.achievements)).tolist()
+    return Observation(
+        variant=variant,
+        step=int(state.timestep),
+        position=Position(x=col, y=world.shape[0] - 1 - row),
+        floor=player.floor,
+        facing=voc.DIRECTION_NAMES[direction],
+        facing_block=_facing_block(direction, blocks_window, view, sight.lit),
+        vitals=player.vitals,
+        attributes=player.attributes,
+        sleeping=bool(state.is_sleeping),
+        resting=bool(state.is_resting) if full else False,
+        daylight=daylight,
+        night=level == 0 and daylight < 0.5,
+        inventory=player.inventory,
+        spells=player.spells,
+        achievements=[variant.achievement_names[i] for i in achieved],
+        view_size=view.size,
+        blocks=sight.blocks,
+        items=sight.items,
+        mobs=_mobs(state, full, level, row, col, view, sight.lit),
+        unlit=sight.unlit,
+    )
 
+
+@dataclass
+class _Sight:
+    """What the view shows of the world."""
+
+    lit: np.ndarray | None
+    """Which tiles of the view are lit (full Craftax); None in Classic, where all are seen."""
+    blocks: dict[str, list[Offset]]
+    items: dict[str, list[Offset]]
+    unlit: list[Offset]
+
+
+def _classic_sight(view: _View, blocks_window: np.ndarray) -> _Sight:
+    blocks = _group(blocks_window.ravel()[view.order].tolist(), voc.BLOCK_NAMES, view, skip=None)
+    return _Sight(lit=None, blocks=blocks, items={}, unlit=[])
+
+
+def _sight(
+    state: Any, view: _View, level: int, row: int, col: int, blocks_window: np.ndarray
+) -> _Sight:
+    light = _window(np.asarray(state.light_map)[level], row, col, view, 0.0)
+    lit = light > voc.LIGHT_THRESHOLD
+    lit_in_order = lit.ravel()[view.order].tolist()
+    unlit = [offset for offset, seen in zip(view.offsets, lit_in_order, strict=True) if not seen]
+    hidden = -1
+    block_values = np.where(lit, blocks_window, hidden).ravel()[view.order].tolist()
+    item_window = _window(np.asarray(state.item_map)[level], row, col, view, 0)
+    item_values = np.where(lit, item_window, 0).ravel()[view.order].tolist()
+    return _Sight(
+        lit=lit,
+        blocks=_group(block_values, voc.BLOCK_NAMES, view, skip=hidden),
+        items=_group(item_values, voc.ITEM_NAMES, view, skip=0),
+        unlit=unlit,
+    )
+
+
+def _mobs(
+    state: Any, full: bool, level: int, row: int, col: int, view: _View, lit: np.ndarray | None
+) -> list[Mob]:
     if full:
         player_shots = tuple(f"player_{name}" for name in voc.PROJECTILE_NAMES)
         groups: tuple[tuple[Any, tuple[str, ...], bool], ...] = (
@@ -246,79 +295,71 @@ def observe(state: Any, variant: Variant | str) -> Observation:
             (state.skeletons, ("skeleton",), True),
             (state.arrows, ("arrow",), False),
         )
+    mob_level = level if full else None
     mobs = [
         mob
         for group, names, with_health in groups
         for mob in _mobs_of(group, names, mob_level, row, col, view, lit, with_health)
     ]
     mobs.sort(key=_nearest_first)
+    return mobs
 
-    direction = int(state.player_direction)
+
+def _facing_block(
+    direction: int, blocks_window: np.ndarray, view: _View, lit: np.ndarray | None
+) -> str | None:
+    """The block the player faces; None when that tile is dark."""
     step_row, step_col = _ROW_COL_STEPS[direction]
     facing_row, facing_col = view.half_rows + step_row, view.half_cols + step_col
-    facing_block: str | None = voc.BLOCK_NAMES[int(blocks_window[facing_row, facing_col])]
     if lit is not None and not lit[facing_row, facing_col]:
-        facing_block = None
+        return None
+    return voc.BLOCK_NAMES[int(blocks_window[facing_row, facing_col])]
 
-    achieved = np.flatnonzero(np.asarray(state.achievements)).tolist()
-    daylight = round(float(state.light_level), 3)
-    if full:
-        strength, dexterity = int(state.player_strength), int(state.player_dexterity)
-        intelligence = int(state.player_intelligence)
-        vitals = _vitals(
+
+@dataclass
+class _Player:
+    """The player's own state, as the variant has it."""
+
+    vitals: Vitals
+    inventory: Inventory
+    attributes: Attributes | None = None
+    floor: Floor | None = None
+    spells: list[str] = field(default_factory=list)
+
+
+def _classic_player(state: Any) -> _Player:
+    return _Player(
+        vitals=_vitals(state, mana=None, max_health=9, max_food=9, max_mana=None),
+        inventory=_classic_inventory(state.inventory),
+    )
+
+
+def _full_player(state: Any, level: int) -> _Player:
+    strength, dexterity = int(state.player_strength), int(state.player_dexterity)
+    intelligence = int(state.player_intelligence)
+    learned = np.asarray(state.learned_spells).tolist()
+    return _Player(
+        vitals=_vitals(
             state,
             mana=int(state.player_mana),
             max_health=8 + strength,
             max_food=7 + 2 * dexterity,
             max_mana=6 + 3 * intelligence,
-        )
-        attributes: Attributes | None = Attributes(
+        ),
+        inventory=_full_inventory(state),
+        attributes=Attributes(
             xp=int(state.player_xp),
             dexterity=dexterity,
             strength=strength,
             intelligence=intelligence,
-        )
-        floor: Floor | None = Floor(
+        ),
+        floor=Floor(
             level=level,
             name=voc.FLOOR_NAMES[level],
             ladder_open=int(np.asarray(state.monsters_killed)[level])
             >= voc.MONSTERS_TO_OPEN_LADDER,
-        )
-        inventory = _full_inventory(state)
-        spells = [
-            name
-            for name, known in zip(
-                voc.SPELLS, np.asarray(state.learned_spells).tolist(), strict=True
-            )
-            if known
-        ]
-    else:
-        vitals = _vitals(state, mana=None, max_health=9, max_food=9, max_mana=None)
-        attributes, floor, spells = None, None, []
-        inventory = _classic_inventory(state.inventory)
-
-    achievements = [variant.achievement_names[i] for i in achieved]
-    return Observation(
-        variant=variant,
-        step=int(state.timestep),
-        position=Position(x=col, y=world.shape[0] - 1 - row),
-        floor=floor,
-        facing=voc.DIRECTION_NAMES[direction],
-        facing_block=facing_block,
-        vitals=vitals,
-        attributes=attributes,
-        sleeping=bool(state.is_sleeping),
-        resting=bool(state.is_resting) if full else False,
-        daylight=daylight,
-        night=level == 0 and daylight < 0.5,
-        inventory=inventory,
-        spells=spells,
-        achievements=achievements,
-        view_size=view.size,
-        blocks=blocks,
-        items=items,
-        mobs=mobs,
-        unlit=unlit,
+        ),
+        spells=[name for name, known in zip(voc.SPELLS, learned, strict=True) if known],
     )
 
 

@@ -19,7 +19,7 @@ from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 if TYPE_CHECKING:
     from env.dataset import Goal
     from llm_agents.agents.registry import AgentSettings
-    from llm_agents.agents.zero_shot import Decision, StepPrompt
+    from llm_agents.agents.types import Decision, StepPrompt
 
 __all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
 
@@ -28,7 +28,7 @@ __all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
 class Agent(Protocol):
     """What the runner needs of an agent: episodes begin and end per slot; each step of a slot
     is a prompt built from its observation (`prepare`), the model's answer to it, and the
-    decision read from that answer (`decide`). `act` does both for many slots with one call."""
+    decision read from that answer (`decide`)."""
 
     needs_model: ClassVar[bool]
     """False for agents that never call the model (the runner then opens none)."""
@@ -52,10 +52,6 @@ class Agent(Protocol):
     def prepare(self, slot: int, observation: Any) -> StepPrompt: ...
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision: ...
-
-    def act(
-        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
-    ) -> list[Decision]: ...
 
 
 def agent_class(name: str) -> type[Agent]:

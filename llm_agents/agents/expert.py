@@ -21,7 +21,6 @@ from __future__ import annotations
 import heapq
 import importlib
 import math
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError
@@ -41,8 +40,8 @@ from llm_agents.agents.expert_plan import (
     next_task,
 )
 from llm_agents.agents.parser import ParseResult
-from llm_agents.agents.zero_shot import Decision, StepPrompt, messages_hash
-from llm_agents.backends.base import ModelAPI, ModelOutput
+from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.backends.base import ModelOutput
 from textualizer.observation import Observation
 
 if TYPE_CHECKING:
@@ -166,18 +165,6 @@ class ExpertAgent:
             prompt_hash=messages_hash([]),
             fallback_used=False,
         )
-
-    def act(
-        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
-    ) -> list[Decision]:
-        """Choose an action for every slot; `model` is never called."""
-        if len(slots) != len(observations):
-            raise ValueError(f"{len(slots)} slots but {len(observations)} observations")
-        empty = ModelOutput(text="")
-        return [
-            self.decide(self.prepare(slot, obs), empty)
-            for slot, obs in zip(slots, observations, strict=True)
-        ]
 
     # ------------------------------------------------------------------ one step of one slot
 

@@ -10,7 +10,6 @@ goal (the steps that reach its achievements), continuing with the next episode w
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,7 +19,14 @@ from pydantic import BaseModel, ConfigDict
 from env.errors import UserError
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage
-from llm_agents.run_data.store import read_episodes, read_results
+from llm_agents.run_data.store import (
+    EPISODES_FILE,
+    RESULTS_FILE,
+    STEPS_FILE,
+    read_episodes,
+    read_results,
+    read_steps,
+)
 from prompts import render_template
 
 if TYPE_CHECKING:
@@ -68,9 +74,9 @@ def load_demonstrations(run_dir: str | Path, renderer: str, variant: str) -> lis
     """Successful training-goal episodes of an expert run, shortest first."""
     folder = Path(run_dir)
     results_path, episodes_path, steps_path = (
-        folder / "results.json",
-        folder / "episodes.jsonl",
-        folder / "steps.jsonl",
+        folder / RESULTS_FILE,
+        folder / EPISODES_FILE,
+        folder / STEPS_FILE,
     )
     for path in (results_path, episodes_path, steps_path):
         if not path.is_file():
@@ -91,17 +97,10 @@ def load_demonstrations(run_dir: str | Path, renderer: str, variant: str) -> lis
         if e.success and e.category in TRAINING_CATEGORIES
     }
     steps: dict[str, list[DemoStep]] = {key: [] for key in wanted}
-    with steps_path.open(encoding="utf-8") as handle:
-        for line in handle:
-            record = json.loads(line)
-            if record.get("episode_id") in steps:
-                steps[record["episode_id"]].append(
-                    DemoStep(
-                        step=record["step"],
-                        observation=record["observation"],
-                        action=record["action_name"],
-                    )
-                )
+    for record in read_steps(steps_path, wanted):
+        steps[record.episode_id].append(
+            DemoStep(step=record.step, observation=record.observation, action=record.action_name)
+        )
     ordered = sorted(wanted.values(), key=lambda e: (e.steps, e.episode_id))
     return [
         _DemoEpisode(

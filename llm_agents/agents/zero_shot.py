@@ -2,19 +2,16 @@
 
 For each slot's observation it builds [system, user] messages from the templates (`prepare`),
 and turns the model's answer into a decision (`decide`): parse, or fall back to a fixed action
-on an unparseable answer. `act` does both for a batch with one `model.generate` call; the runner
-calls the halves itself, so each episode moves on as soon as its own answer arrives. It remembers, per slot, the last actions and what they
-visibly did (moved or blocked, items gained or spent, achievements, health lost), read off
-consecutive observations.
+on an unparseable answer. The runner sends the prompt and calls `decide` when its answer
+arrives, so each episode moves on as soon as its own answer is in. It remembers, per slot, the
+last actions and what they visibly did (moved or blocked, items gained or spent, achievements,
+health lost), read off consecutive observations.
 """
 
 from __future__ import annotations
 
-import hashlib
 import importlib
-import json
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self
 
@@ -23,8 +20,9 @@ from pydantic import BaseModel, ConfigDict
 from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
-from llm_agents.agents.parser import ParseResult, parse_action
-from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelAPI, ModelOutput
+from llm_agents.agents.parser import parse_action
+from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOutput
 from prompts import render_template
 
 if TYPE_CHECKING:
@@ -88,41 +86,6 @@ class HistoryEntry(BaseModel):
     """What changed between the observation before it and the one after it."""
 
 
-class Decision(BaseModel):
-    """The agent's choice for one slot at one step, with everything needed to audit it."""
-
-    model_config = ConfigDict(frozen=True)
-
-    slot: int
-    """The slot (episode index in the batch)."""
-    action: int
-    """The action id sent to the environment."""
-    name: str
-    """The action's name."""
-    parse: ParseResult
-    """What the parser read from the model's answer."""
-    output: ModelOutput
-    """The model's output as the backend returned it."""
-    observation_text: str
-    """The rendered observation shown to the model."""
-    prompt_hash: str
-    """sha256 of the rendered messages (roles and contents) sent for this decision."""
-    fallback_used: bool
-    """True when the answer was unparseable and the fallback action was taken."""
-
-
-@dataclass(frozen=True)
-class StepPrompt:
-    """One slot's prompt for one step, waiting for the model's answer."""
-
-    slot: int
-    observation: Any
-    """The observation the prompt shows (the next step's outcome is read against it)."""
-    messages: list[ChatMessage]
-    text: str
-    """The rendered observation."""
-
-
 class _Episode:
     def __init__(self, instruction: str, plan: str | None, goal: Goal | None = None):
         self.instruction = instruction
@@ -171,15 +134,8 @@ def _textualizer_renderer(style: str) -> Renderer:
     return render_style
 
 
-def messages_hash(messages: Sequence[ChatMessage]) -> str:
-    """sha256 over the messages' roles and contents, stable across processes."""
-    payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
-    return hashlib.sha256(payload.encode("utf-8")).hexdigest()
-
-
 class ZeroShotAgent:
-    """Plays many episodes (slots) at once: `act` for a batch in one call, or `prepare` and
-    `decide` per slot."""
+    """Plays many episodes (slots) at once: `prepare` a slot's prompt, `decide` on the answer."""
 
     needs_model: ClassVar[bool] = True
     step_template: ClassVar[str] = STEP_TEMPLATE
@@ -334,12 +290,12 @@ class ZeroShotAgent:
         return [self.system_message, user]
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt:
-        """The slot's prompt for this observation (first half of `act`)."""
+        """The slot's prompt for this observation."""
         messages, text = self.build_messages(slot, observation)
         return StepPrompt(slot=slot, observation=observation, messages=messages, text=text)
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
-        """Turn the model's answer to `prompt` into the slot's decision (second half of `act`)."""
+        """Turn the model's answer to `prompt` into the slot's decision."""
         slot, observation, messages, text = (
             prompt.slot,
             prompt.observation,
@@ -363,21 +319,3 @@ class ZeroShotAgent:
             prompt_hash=messages_hash(messages),
             fallback_used=fallback,
         )
-
-    def act(
-        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
-    ) -> list[Decision]:
-        """Choose an action for every slot with one model call."""
-        if len(slots) != len(observations):
-            raise ValueError(f"{len(slots)} slots but {len(observations)} observations")
-        if len(set(slots)) != len(slots):
-            raise ValueError(f"slots repeat: {list(slots)}")
-        built = [self.prepare(slot, obs) for slot, obs in zip(slots, observations, strict=True)]
-        conversations = [prompt.messages for prompt in built]
-        outputs = model.generate(conversations, choices=self.choices)
-        if len(outputs) != len(conversations):
-            raise RuntimeError(
-                f"backend {model.backend_name} returned {len(outputs)} outputs "
-                f"for {len(conversations)} conversations"
-            )
-        return [self.decide(prompt, output) for prompt, output in zip(built, outputs, strict=True)]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import queue
 import threading
 
-from llm_agents.agents.zero_shot import StepPrompt
+from llm_agents.agents.types import StepPrompt
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 
 Answer = tuple[StepPrompt, ModelOutput]

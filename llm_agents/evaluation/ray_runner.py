@@ -4,7 +4,7 @@ The driver (this process) prepares the run as a local run does and owns the run 
 through the same `run_schedule`: the same files, the same resume, the same failure rules. The
 episodes are played by `ray_workers` Ray actors, spread over the cluster's nodes, each with its
 own env and backend (an in-process engine on its node's GPU, or an `openai:` spec). A worker
-plays with the runner's own `_play`, `batch_size` episodes at once under continuous scheduling;
+plays with the runner's own play loop (`play_episodes`), `batch_size` episodes at once under continuous scheduling;
 the driver hands it episodes so that it always holds a batch beyond the one it plays, and
 collects each episode's records when it ends.
 
@@ -27,23 +27,23 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, Field
 
 from env.errors import UserError
-from llm_agents.agents.zero_shot import Decision
+from llm_agents.agents.types import Decision
 from llm_agents.backends.endpoints import EndpointStats, merge_endpoint_stats
 from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.play import play_episodes
 from llm_agents.evaluation.runner import (
     PreparedRun,
     ProgressFactory,
     RunOutcome,
-    ScheduledEpisode,
-    _play,
     run_schedule,
     versions,
 )
+from llm_agents.evaluation.schedule import ScheduledEpisode
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 
 if TYPE_CHECKING:
     from llm_agents.backends.base import ModelAPI
-    from llm_agents.evaluation.runner import _Sink
+    from llm_agents.evaluation.sink import RunSink
 
 logger = logging.getLogger(__name__)
 
@@ -105,7 +105,7 @@ def _failure(err: BaseException) -> WorkerFailure:
 
 
 class _WorkerSink:
-    """The runner's sink inside a worker: episodes come from the driver, records go back to it.
+    """The run's sink inside a worker: episodes come from the driver, records go back to it.
 
     `take` waits while the worker has nothing to play (rather than ending the play loop), and an
     episode's steps are held until it ends, so that a worker lost mid-episode leaves no trace.
@@ -206,7 +206,7 @@ class EpisodeWorker:
     def _play(self) -> None:
         try:
             assert self._model is not None, "exchange before a successful start"
-            _play(self._config, self._env, self._model, self._sink)
+            play_episodes(self._config, self._env, self._model, self._sink)
         except BaseException as err:
             self._failure = _failure(err)
         finally:
@@ -228,7 +228,7 @@ class _Driver:
     def endpoint_stats(self) -> list[EndpointStats]:
         return merge_endpoint_stats([self.endpoints_of_lost, *self.endpoints])
 
-    def play(self, sink: _Sink) -> None:
+    def play(self, sink: RunSink) -> None:
         calls: dict[Any, int] = {}
         idle: set[int] = set()
         alive = set(range(len(self.workers)))
@@ -274,7 +274,7 @@ class _Driver:
                 return
             feed(index)
 
-    def _lost(self, index: int, sink: _Sink, err: BaseException) -> None:
+    def _lost(self, index: int, sink: RunSink, err: BaseException) -> None:
         """A worker died (or cannot be reached): its episodes go back to the schedule."""
         self.deaths[index] += 1
         lost = list(self.held[index].values())

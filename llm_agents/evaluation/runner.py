@@ -1,14 +1,15 @@
-"""The evaluation runner: up to N episodes in flight, resumable, written as it goes.
+"""A run from start to end: checked before anything is written, the model opened, the run
+directory opened or resumed, the episodes played, the results saved.
 
 A run has two phases. `prepare_run` does every cheap check (settings, dataset, plans, templates,
 fallback action, output directory, the identity of a run already in that directory) and writes
-nothing; only then is the model loaded and probed, and `execute_run` plays. Scheduling is
-continuous: each episode takes its next step as soon as its own answer arrives, never waiting
-for slower ones, and a finished episode's slot is refilled from the schedule at once. Model
-requests go through one `Dispatcher` (many concurrent requests to a server, whatever is ready
-in one batch to an in-process engine); the env work of the episodes whose answers arrived
-together is one masked, batched env step. Results never depend on timing: an episode's world
-and randomness derive from its own key and step index.
+nothing; only then is the model loaded and probed, and `execute_run` plays. `run_schedule` is the
+part that is the same wherever the episodes are played (here, or on Ray workers): it opens the
+directory, keeps what finished there, and has the episodes still to play played through the
+run's sink (`sink`). The episodes themselves are played by the play loop (`play`), in the order
+of the schedule (`schedule`): continuously, each episode stepping as soon as its own answer
+arrives. Results never depend on timing: an episode's world and randomness derive from its own
+key and step index.
 
 A model answer that failed (after the backend's retries) is data, not an answer: the step is
 recorded with its error, its episode is cut short and not counted, and a rerun plays it again.
@@ -26,41 +27,32 @@ import importlib.metadata
 import logging
 import signal
 import threading
-import time
-from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any
 
-import numpy as np
-
-from env.dataset import Instruction, load_dataset
+from env.dataset import load_dataset
 from env.errors import UserError
 from llm_agents.agents import Agent, build_agent
-from llm_agents.agents.zero_shot import Decision
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
-from llm_agents.evaluation.dispatch import Dispatcher
-from llm_agents.run_data.metrics import Summary, summarize
-from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.evaluation.play import play_episodes
+from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode, build_schedule
+from llm_agents.evaluation.sink import RunSink, drop_unfinished_steps, finished_episodes
+from llm_agents.run_data.metrics import Summary
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
     STEPS_FILE,
     RunIdentity,
     RunResults,
-    append_records,
     check_output_dir,
-    episode_ids_of_steps,
     file_sha256,
     make_output_dir,
-    read_episodes,
     read_results,
-    rewrite_lines,
-    write_results,
 )
 
 logger = logging.getLogger(__name__)
@@ -68,38 +60,6 @@ logger = logging.getLogger(__name__)
 
 class BackendFailure(Exception):
     """The backend failed too often in a row; the run stopped with status `failed`."""
-
-
-@dataclass(frozen=True)
-class ScheduledEpisode:
-    """One episode of the run's schedule."""
-
-    index: int
-    instruction: Instruction
-    repeat: int
-    plan: str | None
-
-    @property
-    def category(self) -> str:
-        return self.instruction.goal.category
-
-    @property
-    def episode_id(self) -> str:
-        return (
-            f"{self.category}/{self.instruction.goal.id}/{self.instruction.variant}/{self.repeat}"
-        )
-
-
-@dataclass
-class _Live:
-    """Bookkeeping of the episode running in one slot."""
-
-    spec: ScheduledEpisode
-    episode_return: float = 0.0
-    invalid: int = 0
-    prompt_tokens: int = 0
-    completion_tokens: int = 0
-    achievements: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -130,46 +90,6 @@ class PreparedRun:
 
 
 ProgressFactory = Callable[[int, int], Any]
-GameOver = Literal["death", "timeout"] | None
-
-
-def build_schedule(
-    config: EvalConfig, instructions: Sequence[Instruction], plans: dict[str, str] | None
-) -> list[ScheduledEpisode]:
-    """Every (instruction, repeat) of the run in a fixed order, cut to `config.limit`.
-
-    The order interleaves categories and puts original instructions before paraphrases, so a
-    run cut short by `limit` still samples every category and goal.
-    """
-    rank_in_category: dict[tuple[str, str], int] = {}
-    goals_seen: Counter[str] = Counter()
-    keyed = []
-    for instruction in instructions:
-        category = instruction.goal.category
-        goal_key = (category, instruction.goal.id)
-        if goal_key not in rank_in_category:
-            rank_in_category[goal_key] = goals_seen[category]
-            goals_seen[category] += 1
-        for repeat in range(config.episodes_per_instruction):
-            order = (
-                repeat,
-                instruction.variant,
-                rank_in_category[goal_key],
-                config.splits.index(category),
-            )
-            keyed.append((order, instruction, repeat))
-    keyed.sort(key=lambda item: item[0])
-    if config.limit:
-        keyed = keyed[: config.limit]
-    return [
-        ScheduledEpisode(
-            index=index,
-            instruction=instruction,
-            repeat=repeat,
-            plan=(plans or {}).get(instruction.text),
-        )
-        for index, (_, instruction, repeat) in enumerate(keyed)
-    ]
 
 
 def versions(model: ModelAPI) -> dict[str, str]:
@@ -362,7 +282,7 @@ def execute_run(
     return run_schedule(
         prepared,
         versions(model),
-        lambda sink: _play(config, env, model, sink),
+        lambda sink: play_episodes(config, env, model, sink),
         progress=progress,
         endpoint_stats=model.endpoint_stats,
     )
@@ -371,7 +291,7 @@ def execute_run(
 def run_schedule(
     prepared: PreparedRun,
     model_versions: dict[str, str],
-    play: Callable[[_Sink], None],
+    play: Callable[[RunSink], None],
     *,
     progress: ProgressFactory | None = None,
     endpoint_stats: Callable[[], list[EndpointStats]] = list,
@@ -384,10 +304,9 @@ def run_schedule(
     """
     config, out = prepared.config, prepared.output_dir
     make_output_dir(out)
-    scheduled_ids = {spec.episode_id for spec in prepared.schedule}
-    finished = _finished_episodes(out)
-    _drop_unfinished_steps(out / STEPS_FILE, {e.episode_id for e in finished})
+    finished = finished_episodes(out)
     done_ids = {e.episode_id for e in finished}
+    drop_unfinished_steps(out, done_ids)
     pending = [spec for spec in prepared.schedule if spec.episode_id not in done_ids]
 
     results = RunResults(
@@ -399,8 +318,13 @@ def run_schedule(
         schedule=[spec.episode_id for spec in prepared.schedule],
         started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
     )
-    sink = _Sink(
-        out, results, scheduled_ids, finished, list(reversed(pending)), config, endpoint_stats
+    sink = RunSink(
+        out,
+        results,
+        finished,
+        EpisodeQueue(pending),
+        config.max_consecutive_failures,
+        endpoint_stats,
     )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None
@@ -411,7 +335,7 @@ def run_schedule(
     except KeyboardInterrupt:
         # The interrupt may land between an episode's line and its count in memory: the
         # summary is rebuilt from the file, so the two always agree.
-        sink.episodes = _finished_episodes(out)
+        sink.episodes = finished_episodes(out)
         sink.save()
         raise
     finally:
@@ -456,335 +380,9 @@ def _latched_interrupts() -> Iterator[threading.Event]:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-class _Sink:
-    """Where finished work goes: the schedule queue, the output files, failure accounting and
-    the progress bar."""
-
-    def __init__(
-        self,
-        out: Path,
-        results: RunResults,
-        scheduled_ids: set[str],
-        finished: list[EpisodeRecord],
-        queue: list[ScheduledEpisode],
-        config: EvalConfig,
-        endpoint_stats: Callable[[], list[EndpointStats]] = list,
-    ):
-        self.out = out
-        self.endpoint_stats = endpoint_stats
-        self.results = results
-        self.scheduled_ids = scheduled_ids
-        self.episodes = finished
-        self.queue = queue
-        self.max_failures = config.max_consecutive_failures
-        self.bar: Any = None
-        self.stopped = False
-        self.interrupted = threading.Event()
-        self.failure: str | None = None
-        self._failures_in_a_row = 0
-        self._started = time.perf_counter()
-        self._agent_steps = 0
-        self._tokens = 0
-
-    @property
-    def counted(self) -> int:
-        return sum(e.episode_id in self.scheduled_ids for e in self.episodes)
-
-    def take(self, count: int) -> list[ScheduledEpisode]:
-        if self.stopped:
-            return []
-        return [self.queue.pop() for _ in range(min(count, len(self.queue)))]
-
-    def put_back(self, specs: Sequence[ScheduledEpisode]) -> None:
-        """Episodes taken but lost unplayed (a Ray worker died): they are taken again first."""
-        self.queue.extend(sorted(specs, key=lambda spec: spec.index, reverse=True))
-
-    def record(
-        self,
-        decisions: list[Decision],
-        steps: list[StepRecord],
-        ended: list[EpisodeRecord],
-        aborted: list[str],
-    ) -> None:
-        if steps:
-            # Steps of unfinished episodes are dropped on resume, so only an episode's end needs
-            # its steps on disk (before its line): an fsync per round would stall every round.
-            append_records(self.out / STEPS_FILE, steps, durable=bool(ended))
-        if ended:
-            append_records(self.out / EPISODES_FILE, ended)
-            self.episodes.extend(ended)
-        self._count_failures(decisions, aborted)
-        if ended or aborted:
-            self.save()
-        self._agent_steps += len(decisions)
-        self._tokens += sum(d.output.prompt_tokens + d.output.completion_tokens for d in decisions)
-        if self.bar is not None:
-            elapsed = max(time.perf_counter() - self._started, 1e-9)
-            self.bar.update(len(ended))
-            self.bar.set_postfix(
-                success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
-                steps_s=f"{self._agent_steps / elapsed:.1f}",
-                tok_s=f"{self._tokens / elapsed:.0f}",
-                errors=self.results.backend_errors.failed_calls,
-                refresh=False,
-            )
-        if self.interrupted.is_set():
-            raise KeyboardInterrupt
-
-    def _count_failures(self, decisions: list[Decision], aborted: list[str]) -> None:
-        errors = self.results.backend_errors
-        errors.aborted_episodes.extend(aborted)
-        for decision in decisions:
-            if decision.output.finish_reason != "error":
-                self._failures_in_a_row = 0
-                continue
-            errors.failed_calls += 1
-            errors.last_error = decision.output.error or "unknown backend error"
-            self._failures_in_a_row += 1
-            if self._failures_in_a_row >= self.max_failures and self.failure is None:
-                self.failure = errors.last_error
-                self.stopped = True
-
-    def save(self, failure: str | None = None) -> None:
-        results = self.results
-        counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
-        results.finished = len(counted)
-        results.endpoints = self.endpoint_stats()
-        results.summary = summarize(counted) if counted else None
-        if failure is not None:
-            results.status, results.failure = "failed", failure
-        elif results.finished == results.scheduled:
-            results.status, results.failure = "complete", None
-        else:
-            results.status, results.failure = "partial", None
-        results.finished_at = datetime.now(UTC) if results.status == "complete" else None
-        write_results(self.out / RESULTS_FILE, results)
-
-
-class EpisodeSink(Protocol):
-    """What `_play` takes episodes from and hands records to: the run's `_Sink` here, or a Ray
-    worker's, which ships them to the driver's."""
-
-    stopped: bool
-
-    def take(self, count: int) -> list[ScheduledEpisode]: ...
-
-    def record(
-        self,
-        decisions: list[Decision],
-        steps: list[StepRecord],
-        ended: list[EpisodeRecord],
-        aborted: list[str],
-    ) -> None: ...
-
-
-def _play(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSink) -> None:
-    """Continuous scheduling: up to `batch_size` episodes in flight, each stepping as soon as
-    its own answer arrives, a finished one's slot refilled at once.
-
-    Each round takes every answer that has arrived, steps those episodes together (one masked
-    env step over the slots; the waiting ones are left untouched, so timing never changes a
-    trajectory), writes their records, refills finished slots and sends the next prompts.
-    """
-    from env import VectorEnv, episode_key, goal_masks
-    from textualizer import observe_batch
-
-    agent: Agent = build_agent(config)
-    first = sink.take(config.batch_size)
-    if not first:
-        return
-    slots = len(first)
-    vector = VectorEnv(env, slots)
-
-    def task_rows(specs: Sequence[ScheduledEpisode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        keys = np.stack(
-            [
-                episode_key(config.seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
-                for s in specs
-            ]
-        )
-        required, forbidden = goal_masks([s.instruction.goal for s in specs])
-        return keys, required, forbidden
-
-    host = vector.reset(*task_rows(first))
-    live: dict[int, _Live] = {}
-    for slot, spec in enumerate(first):
-        live[slot] = _Live(spec)
-        agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
-
-    dispatcher = Dispatcher(model, agent.choices)
-
-    def send(host: Any, ready: list[int]) -> None:
-        if ready:
-            observations = observe_batch(host.game, config.variant, indices=ready)
-            dispatcher.submit(
-                [agent.prepare(s, o) for s, o in zip(ready, observations, strict=True)]
-            )
-
-    fallback = agent.fallback_id
-    try:
-        send(host, list(range(slots)))
-        while not sink.stopped:
-            if dispatcher.in_flight == 0:
-                return
-            decisions = [agent.decide(prompt, output) for prompt, output in dispatcher.wait()]
-            actions = np.full(slots, fallback, dtype=np.int32)
-            active = np.zeros(slots, dtype=bool)
-            for decision in decisions:
-                actions[decision.slot] = decision.action
-                active[decision.slot] = True
-            host = vector.step(actions, active)
-
-            step_records = []
-            ended: list[EpisodeRecord] = []
-            aborted: list[str] = []
-            continuing = []
-            for decision in decisions:
-                slot = decision.slot
-                state = live[slot]
-                new = _names(host.new_achievements[slot])
-                reward = float(host.reward[slot])
-                _account(state, decision, reward, new)
-                if config.record_steps:
-                    step_records.append(_step_record(state, decision, host, slot, reward, new))
-                if decision.output.finish_reason == "error":
-                    # The backend failed, not the agent: not scored; a rerun plays it again.
-                    aborted.append(state.spec.episode_id)
-                elif host.done[slot]:
-                    game_over: GameOver = None
-                    if host.goal_at_game_over[slot]:
-                        game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
-                    ended.append(
-                        _episode_record(
-                            state,
-                            int(host.steps[slot]),
-                            int(host.termination[slot]),
-                            config.seed,
-                            game_over,
-                        )
-                    )
-                else:
-                    continuing.append(slot)
-                    continue
-                agent.end_episode(slot)
-                del live[slot]
-            # A server answers each request on its own: the continuing episodes' prompts go out
-            # before anything is written or a new world generated (tens of ms on a busy CPU). An
-            # engine batches what it is handed at once, so it gets them with the refilled ones.
-            to_prompt = sorted(continuing)
-            if model.concurrent_requests:
-                send(host, to_prompt)
-                to_prompt = []
-            sink.record(decisions, step_records, ended, aborted)
-
-            free = [s for s in range(slots) if s not in live]
-            specs = sink.take(len(free)) if free else []
-            if specs:
-                refill_slots = free[: len(specs)]
-                host = vector.refill(refill_slots, *task_rows(specs))
-                for slot, spec in zip(refill_slots, specs, strict=True):
-                    live[slot] = _Live(spec)
-                    agent.start_episode(
-                        slot, spec.instruction.text, spec.plan, spec.instruction.goal
-                    )
-                to_prompt = sorted(to_prompt + refill_slots)
-            send(host, to_prompt)
-    finally:
-        dispatcher.close()
-
-
-def _names(mask: np.ndarray) -> list[str]:
-    from env.achievements import ACHIEVEMENTS
-
-    return [ACHIEVEMENTS[i] for i in np.flatnonzero(mask)]
-
-
-def _account(state: _Live, decision: Decision, reward: float, new: list[str]) -> None:
-    state.episode_return += reward
-    state.invalid += int(decision.fallback_used)
-    state.prompt_tokens += decision.output.prompt_tokens
-    state.completion_tokens += decision.output.completion_tokens
-    state.achievements.extend(new)
-
-
-def _step_record(
-    state: _Live, decision: Decision, host: Any, slot: int, reward: float, new: list[str]
-) -> StepRecord:
-    return StepRecord(
-        episode_id=state.spec.episode_id,
-        step=int(host.steps[slot]) - 1,
-        observation=decision.observation_text,
-        prompt_hash=decision.prompt_hash,
-        raw_output=decision.output.text,
-        reasoning=decision.output.reasoning,
-        action_name=decision.name,
-        action_id=decision.action,
-        parse_stage=decision.parse.stage,
-        fallback_used=decision.fallback_used,
-        reward=reward,
-        done=bool(host.done[slot]),
-        new_achievements=new,
-        prompt_tokens=decision.output.prompt_tokens,
-        completion_tokens=decision.output.completion_tokens,
-        latency_s=decision.output.latency_s,
-        finish_reason=decision.output.finish_reason,
-        error=decision.output.error,
-        cached=decision.output.cached,
-        followups=decision.output.followups,
-    )
-
-
-def _episode_record(
-    state: _Live, steps: int, termination: int, seed: int, goal_at_game_over: GameOver = None
-) -> EpisodeRecord:
-    from env import Termination, episode_key
-
-    spec = state.spec
-    return EpisodeRecord(
-        episode_id=spec.episode_id,
-        goal_id=spec.instruction.goal.id,
-        instruction=spec.instruction.text,
-        instruction_variant=spec.instruction.variant,
-        category=spec.category,
-        seed=seed,
-        episode_index=spec.index,
-        success=termination == Termination.SUCCESS,
-        steps=steps,
-        termination=Termination(termination).label,
-        episode_return=state.episode_return,
-        invalid_actions=state.invalid,
-        prompt_tokens=state.prompt_tokens,
-        completion_tokens=state.completion_tokens,
-        achievements=state.achievements,
-        plan_given=spec.plan is not None,
-        goal_at_game_over=goal_at_game_over,
-        reset_key=episode_key(
-            seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
-        ).tolist(),
-    )
-
-
 def _load_plans(path: str | None) -> dict[str, str] | None:
     if path is None:
         return None
     from llm_agents.run_data.plans import load_plans
 
     return load_plans(path)
-
-
-def _finished_episodes(out: Path) -> list[EpisodeRecord]:
-    path = out / EPISODES_FILE
-    if not path.exists():
-        return []
-    episodes = read_episodes(path, repair=True)
-    # Rewritten without duplicates, so later appends extend a clean file.
-    rewrite_lines(path, [e.model_dump_json() for e in episodes])
-    return episodes
-
-
-def _drop_unfinished_steps(path: Path, finished_ids: set[str]) -> None:
-    """Forget the steps of episodes that did not finish: they are replayed from the start."""
-    if path.exists():
-        rewrite_lines(
-            path, [line for id_, line in episode_ids_of_steps(path) if id_ in finished_ids]
-        )

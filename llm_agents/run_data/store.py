@@ -18,7 +18,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Iterator, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_fie
 from env.errors import UserError
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.run_data.metrics import Summary
-from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
 
 logger = logging.getLogger(__name__)
 
@@ -290,6 +290,34 @@ def read_episodes(path: Path, *, repair: bool = False) -> list[EpisodeRecord]:
     for record in read_records(path, EpisodeRecord, repair=repair):
         by_id[record.episode_id] = record
     return list(by_id.values())
+
+
+def read_steps(path: Path, episodes: Collection[str] | None = None) -> Iterator[StepRecord]:
+    """The step records of `steps.jsonl` in file order, only those of `episodes` when given.
+
+    The file is read line by line (a long run's steps need not fit in memory) and never
+    changed: a torn last line, left by a run killed mid-append, is skipped; any other line that
+    is not a step record is an error (UserError).
+    """
+    try:
+        handle = path.open(encoding="utf-8")
+    except OSError as err:
+        raise UserError(f"cannot read {path}: {err.strerror}") from err
+    with handle:
+        try:
+            for number, line in enumerate(handle, start=1):
+                if not line.endswith("\n") or not line.strip():
+                    continue
+                try:
+                    raw = json.loads(line)
+                    if episodes is not None and raw.get("episode_id") not in episodes:
+                        continue
+                    record = StepRecord.model_validate(raw)
+                except (json.JSONDecodeError, AttributeError, ValidationError) as err:
+                    raise UserError(f"{path}, line {number}: not a step record: {err}") from err
+                yield record
+        except UnicodeDecodeError as err:
+            raise UserError(f"{path} is not UTF-8 text: {err}") from err
 
 
 def episode_ids_of_steps(path: Path) -> list[tuple[str, str]]:

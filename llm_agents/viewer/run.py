@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import ValidationError
 
 from env.dataset import Goal, load_dataset
 from env.errors import UserError
@@ -20,6 +18,7 @@ from llm_agents.run_data.store import (
     STEPS_FILE,
     RunResults,
     read_results,
+    read_steps,
 )
 
 
@@ -138,28 +137,12 @@ def _read_steps(
     latencies: list[float] = []
     if not path.is_file():
         return steps, errors, stages, latencies
-    with path.open(encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            if not line.strip():
-                continue
-            try:
-                raw = json.loads(line)
-            except json.JSONDecodeError:
-                # Only the line being written when a run was killed can be torn, and its
-                # episode had not finished.
-                continue
-            if not isinstance(raw, dict) or raw.get("episode_id") not in finished:
-                continue
-            try:
-                step = StepRecord.model_validate(raw)
-            except ValidationError as exc:
-                raise UserError(f"{path}, line {number}: not a step record: {exc}") from exc
-            steps.setdefault(step.episode_id, []).append(step)
-            # Backend errors are kept when the step records carry them (`error` text).
-            if raw.get("error"):
-                errors.setdefault(step.episode_id, []).append(str(raw["error"]))
-            stages[step.parse_stage] = stages.get(step.parse_stage, 0) + 1
-            latencies.append(step.latency_s)
+    for step in read_steps(path, finished):
+        steps.setdefault(step.episode_id, []).append(step)
+        if step.error:
+            errors.setdefault(step.episode_id, []).append(step.error)
+        stages[step.parse_stage] = stages.get(step.parse_stage, 0) + 1
+        latencies.append(step.latency_s)
     return steps, errors, stages, latencies
 
 

@@ -1,0 +1,56 @@
+"""The records every strategy and the runner share: a step's prompt and the decision read from
+the answer to it."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+from llm_agents.agents.parser import ParseResult
+from llm_agents.backends.base import ChatMessage, ModelOutput
+
+
+@dataclass(frozen=True)
+class StepPrompt:
+    """One slot's prompt for one step, waiting for the model's answer."""
+
+    slot: int
+    observation: Any
+    """The observation the prompt shows (the next step's outcome is read against it)."""
+    messages: list[ChatMessage]
+    text: str
+    """The rendered observation."""
+
+
+class Decision(BaseModel):
+    """The agent's choice for one slot at one step, with everything needed to audit it."""
+
+    model_config = ConfigDict(frozen=True)
+
+    slot: int
+    """The slot (episode index in the batch)."""
+    action: int
+    """The action id sent to the environment."""
+    name: str
+    """The action's name."""
+    parse: ParseResult
+    """What the parser read from the model's answer."""
+    output: ModelOutput
+    """The model's output as the backend returned it."""
+    observation_text: str
+    """The rendered observation shown to the model."""
+    prompt_hash: str
+    """sha256 of the rendered messages (roles and contents) sent for this decision."""
+    fallback_used: bool
+    """True when the answer was unparseable and the fallback action was taken."""
+
+
+def messages_hash(messages: Sequence[ChatMessage]) -> str:
+    """sha256 over the messages' roles and contents, stable across processes."""
+    payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
+    return hashlib.sha256(payload.encode("utf-8")).hexdigest()

@@ -1,0 +1,267 @@
+"""The play loop: up to `batch_size` episodes in flight, each stepping as soon as its own answer
+arrives, a finished one's slot refilled at once, every step and episode handed to a sink as a
+record.
+
+Each round takes every answer that has arrived, steps those episodes together (one masked env
+step over the slots; the waiting ones are left untouched, so timing never changes a
+trajectory), hands their records to the sink, refills finished slots and sends the next prompts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import numpy as np
+
+from llm_agents.agents import Agent, build_agent
+from llm_agents.agents.types import Decision, StepPrompt
+from llm_agents.backends.base import ModelAPI
+from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.dispatch import Dispatcher
+from llm_agents.evaluation.schedule import ScheduledEpisode
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
+
+GameOver = Literal["death", "timeout"] | None
+
+
+class EpisodeSink(Protocol):
+    """What the play loop takes episodes from and hands records to: the run's `RunSink`, or a
+    Ray worker's sink, which ships them to the driver's."""
+
+    stopped: bool
+
+    def take(self, count: int) -> list[ScheduledEpisode]: ...
+
+    def record(
+        self,
+        decisions: list[Decision],
+        steps: list[StepRecord],
+        ended: list[EpisodeRecord],
+        aborted: list[str],
+    ) -> None: ...
+
+
+def play_episodes(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSink) -> None:
+    """Play the episodes `sink` hands out until it has none left or stops (see the module)."""
+    agent: Agent = build_agent(config)
+    first = sink.take(config.batch_size)
+    if not first:
+        return
+    slots = _Slots(config, env, agent, first)
+    dispatcher = Dispatcher(model, agent.choices)
+    try:
+        dispatcher.submit(slots.prompts(list(range(slots.size))))
+        while not sink.stopped and dispatcher.in_flight:
+            decisions = [agent.decide(prompt, output) for prompt, output in dispatcher.wait()]
+            slots.step(decisions)
+            outcome = slots.settle(decisions)
+            # A server answers each request on its own: the continuing episodes' prompts go out
+            # before anything is written or a new world generated (tens of ms on a busy CPU). An
+            # engine batches what it is handed at once, so it gets them with the refilled ones.
+            to_prompt = outcome.continuing
+            if model.concurrent_requests:
+                dispatcher.submit(slots.prompts(to_prompt))
+                to_prompt = []
+            sink.record(decisions, outcome.steps, outcome.ended, outcome.aborted)
+            free = slots.free()
+            refilled = slots.refill(sink.take(len(free))) if free else []
+            dispatcher.submit(slots.prompts(sorted(to_prompt + refilled)))
+    finally:
+        dispatcher.close()
+
+
+@dataclass
+class _Tally:
+    """What an episode in a slot has collected so far."""
+
+    spec: ScheduledEpisode
+    episode_return: float = 0.0
+    invalid: int = 0
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+    achievements: list[str] = field(default_factory=list)
+
+    def add(self, decision: Decision, reward: float, new: list[str]) -> None:
+        self.episode_return += reward
+        self.invalid += int(decision.fallback_used)
+        self.prompt_tokens += decision.output.prompt_tokens
+        self.completion_tokens += decision.output.completion_tokens
+        self.achievements.extend(new)
+
+
+@dataclass
+class _Settled:
+    """What became of the episodes whose answers a round took."""
+
+    steps: list[StepRecord] = field(default_factory=list)
+    ended: list[EpisodeRecord] = field(default_factory=list)
+    aborted: list[str] = field(default_factory=list)
+    continuing: list[int] = field(default_factory=list)
+    """Slots whose episode goes on, in slot order."""
+
+
+class _Slots:
+    """The episodes in flight: which slot plays which, their worlds (one batched env) and the
+    agent's episodes, kept in step."""
+
+    def __init__(
+        self, config: EvalConfig, env: Any, agent: Agent, first: Sequence[ScheduledEpisode]
+    ):
+        from env import VectorEnv
+
+        self.config = config
+        self.agent = agent
+        self.size = len(first)
+        self.vector = VectorEnv(env, self.size)
+        self.host = self.vector.reset(*self._task_rows(first))
+        self.live: dict[int, _Tally] = {}
+        self._start(list(range(self.size)), first)
+
+    def _task_rows(
+        self, specs: Sequence[ScheduledEpisode]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        from env import episode_key, goal_masks
+
+        seed = self.config.seed
+        keys = np.stack(
+            [
+                episode_key(seed, s.instruction.goal.id, s.instruction.variant, s.repeat)
+                for s in specs
+            ]
+        )
+        required, forbidden = goal_masks([s.instruction.goal for s in specs])
+        return keys, required, forbidden
+
+    def _start(self, slots: list[int], specs: Sequence[ScheduledEpisode]) -> None:
+        for slot, spec in zip(slots, specs, strict=True):
+            self.live[slot] = _Tally(spec)
+            self.agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
+
+    def prompts(self, ready: list[int]) -> list[StepPrompt]:
+        """The prompts of the slots in `ready`, from their current observations."""
+        if not ready:
+            return []
+        from textualizer import observe_batch
+
+        observations = observe_batch(self.host.game, self.config.variant, indices=ready)
+        return [self.agent.prepare(s, o) for s, o in zip(ready, observations, strict=True)]
+
+    def step(self, decisions: list[Decision]) -> None:
+        """Step the decided slots' worlds together; the others stay as they are."""
+        actions = np.full(self.size, self.agent.fallback_id, dtype=np.int32)
+        active = np.zeros(self.size, dtype=bool)
+        for decision in decisions:
+            actions[decision.slot] = decision.action
+            active[decision.slot] = True
+        self.host = self.vector.step(actions, active)
+
+    def settle(self, decisions: list[Decision]) -> _Settled:
+        """Tally the stepped slots, record their steps, and close the episodes that ended."""
+        host, settled = self.host, _Settled()
+        for decision in decisions:
+            slot = decision.slot
+            tally = self.live[slot]
+            new = _names(host.new_achievements[slot])
+            reward = float(host.reward[slot])
+            tally.add(decision, reward, new)
+            if self.config.record_steps:
+                settled.steps.append(_step_record(tally, decision, host, slot, reward, new))
+            if decision.output.finish_reason == "error":
+                # The backend failed, not the agent: not scored; a rerun plays it again.
+                settled.aborted.append(tally.spec.episode_id)
+            elif host.done[slot]:
+                settled.ended.append(self._episode_record(tally, slot))
+            else:
+                settled.continuing.append(slot)
+                continue
+            self.agent.end_episode(slot)
+            del self.live[slot]
+        settled.continuing.sort()
+        return settled
+
+    def _episode_record(self, tally: _Tally, slot: int) -> EpisodeRecord:
+        host = self.host
+        game_over: GameOver = None
+        if host.goal_at_game_over[slot]:
+            game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
+        return _episode_record(
+            tally, int(host.steps[slot]), int(host.termination[slot]), self.config.seed, game_over
+        )
+
+    def free(self) -> list[int]:
+        """Slots without an episode, in order."""
+        return [s for s in range(self.size) if s not in self.live]
+
+    def refill(self, specs: Sequence[ScheduledEpisode]) -> list[int]:
+        """Start `specs` in the first free slots (fresh worlds); the slots they took."""
+        if not specs:
+            return []
+        slots = self.free()[: len(specs)]
+        self.host = self.vector.refill(slots, *self._task_rows(specs))
+        self._start(slots, specs)
+        return slots
+
+
+def _names(mask: np.ndarray) -> list[str]:
+    from env.achievements import ACHIEVEMENTS
+
+    return [ACHIEVEMENTS[i] for i in np.flatnonzero(mask)]
+
+
+def _step_record(
+    tally: _Tally, decision: Decision, host: Any, slot: int, reward: float, new: list[str]
+) -> StepRecord:
+    return StepRecord(
+        episode_id=tally.spec.episode_id,
+        step=int(host.steps[slot]) - 1,
+        observation=decision.observation_text,
+        prompt_hash=decision.prompt_hash,
+        raw_output=decision.output.text,
+        reasoning=decision.output.reasoning,
+        action_name=decision.name,
+        action_id=decision.action,
+        parse_stage=decision.parse.stage,
+        fallback_used=decision.fallback_used,
+        reward=reward,
+        done=bool(host.done[slot]),
+        new_achievements=new,
+        prompt_tokens=decision.output.prompt_tokens,
+        completion_tokens=decision.output.completion_tokens,
+        latency_s=decision.output.latency_s,
+        finish_reason=decision.output.finish_reason,
+        error=decision.output.error,
+        cached=decision.output.cached,
+        followups=decision.output.followups,
+    )
+
+
+def _episode_record(
+    tally: _Tally, steps: int, termination: int, seed: int, goal_at_game_over: GameOver = None
+) -> EpisodeRecord:
+    from env import Termination, episode_key
+
+    spec = tally.spec
+    return EpisodeRecord(
+        episode_id=spec.episode_id,
+        goal_id=spec.instruction.goal.id,
+        instruction=spec.instruction.text,
+        instruction_variant=spec.instruction.variant,
+        category=spec.category,
+        seed=seed,
+        episode_index=spec.index,
+        success=termination == Termination.SUCCESS,
+        steps=steps,
+        termination=Termination(termination).label,
+        episode_return=tally.episode_return,
+        invalid_actions=tally.invalid,
+        prompt_tokens=tally.prompt_tokens,
+        completion_tokens=tally.completion_tokens,
+        achievements=tally.achievements,
+        plan_given=spec.plan is not None,
+        goal_at_game_over=goal_at_game_over,
+        reset_key=episode_key(
+            seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
+        ).tolist(),
+    )

@@ -1,0 +1,156 @@
+"""Where a run's finished work goes: step and episode records appended to the run directory,
+backend failures counted, `results.json` saved, progress shown."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from llm_agents.agents.types import Decision
+from llm_agents.backends.endpoints import EndpointStats
+from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode
+from llm_agents.run_data.metrics import summarize
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.store import (
+    EPISODES_FILE,
+    RESULTS_FILE,
+    STEPS_FILE,
+    RunResults,
+    append_records,
+    episode_ids_of_steps,
+    read_episodes,
+    rewrite_lines,
+    write_results,
+)
+
+
+class RunSink:
+    """The run's sink: hands out the episodes still to play, writes what comes back, stops the
+    run when the backend fails too often in a row, and keeps `results.json` current."""
+
+    def __init__(
+        self,
+        out: Path,
+        results: RunResults,
+        finished: list[EpisodeRecord],
+        queue: EpisodeQueue,
+        max_failures: int,
+        endpoint_stats: Callable[[], list[EndpointStats]] = list,
+    ):
+        self.out = out
+        self.endpoint_stats = endpoint_stats
+        self.results = results
+        self.scheduled_ids = set(results.schedule)
+        self.episodes = finished
+        self.queue = queue
+        self.max_failures = max_failures
+        self.bar: Any = None
+        self.stopped = False
+        self.interrupted = threading.Event()
+        self.failure: str | None = None
+        self._failures_in_a_row = 0
+        self._started = time.perf_counter()
+        self._agent_steps = 0
+        self._tokens = 0
+
+    @property
+    def counted(self) -> int:
+        return sum(e.episode_id in self.scheduled_ids for e in self.episodes)
+
+    def take(self, count: int) -> list[ScheduledEpisode]:
+        """The next episodes to play; none once the run has stopped."""
+        return [] if self.stopped else self.queue.take(count)
+
+    def put_back(self, specs: Sequence[ScheduledEpisode]) -> None:
+        """Episodes taken but lost unplayed (a Ray worker died): they are taken again first."""
+        self.queue.put_back(specs)
+
+    def record(
+        self,
+        decisions: list[Decision],
+        steps: list[StepRecord],
+        ended: list[EpisodeRecord],
+        aborted: list[str],
+    ) -> None:
+        """Write a round's records, count its backend failures, and show progress."""
+        if steps:
+            # Steps of unfinished episodes are dropped on resume, so only an episode's end needs
+            # its steps on disk (before its line): an fsync per round would stall every round.
+            append_records(self.out / STEPS_FILE, steps, durable=bool(ended))
+        if ended:
+            append_records(self.out / EPISODES_FILE, ended)
+            self.episodes.extend(ended)
+        self._count_failures(decisions, aborted)
+        if ended or aborted:
+            self.save()
+        self._agent_steps += len(decisions)
+        self._tokens += sum(d.output.prompt_tokens + d.output.completion_tokens for d in decisions)
+        if self.bar is not None:
+            self._show_progress(len(ended))
+        if self.interrupted.is_set():
+            raise KeyboardInterrupt
+
+    def _show_progress(self, ended: int) -> None:
+        elapsed = max(time.perf_counter() - self._started, 1e-9)
+        self.bar.update(ended)
+        self.bar.set_postfix(
+            success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
+            steps_s=f"{self._agent_steps / elapsed:.1f}",
+            tok_s=f"{self._tokens / elapsed:.0f}",
+            errors=self.results.backend_errors.failed_calls,
+            refresh=False,
+        )
+
+    def _count_failures(self, decisions: list[Decision], aborted: list[str]) -> None:
+        errors = self.results.backend_errors
+        errors.aborted_episodes.extend(aborted)
+        for decision in decisions:
+            if decision.output.finish_reason != "error":
+                self._failures_in_a_row = 0
+                continue
+            errors.failed_calls += 1
+            errors.last_error = decision.output.error or "unknown backend error"
+            self._failures_in_a_row += 1
+            if self._failures_in_a_row >= self.max_failures and self.failure is None:
+                self.failure = errors.last_error
+                self.stopped = True
+
+    def save(self, failure: str | None = None) -> None:
+        """Write `results.json` for the episodes finished so far."""
+        results = self.results
+        counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
+        results.finished = len(counted)
+        results.endpoints = self.endpoint_stats()
+        results.summary = summarize(counted) if counted else None
+        if failure is not None:
+            results.status, results.failure = "failed", failure
+        elif results.finished == results.scheduled:
+            results.status, results.failure = "complete", None
+        else:
+            results.status, results.failure = "partial", None
+        results.finished_at = datetime.now(UTC) if results.status == "complete" else None
+        write_results(self.out / RESULTS_FILE, results)
+
+
+def finished_episodes(out: Path) -> list[EpisodeRecord]:
+    """The episodes that finished in `out`, its episodes file rewritten without duplicates, so
+    later appends extend a clean file."""
+    path = out / EPISODES_FILE
+    if not path.exists():
+        return []
+    episodes = read_episodes(path, repair=True)
+    rewrite_lines(path, [e.model_dump_json() for e in episodes])
+    return episodes
+
+
+def drop_unfinished_steps(out: Path, finished_ids: set[str]) -> None:
+    """Forget the steps of episodes that did not finish: they are replayed from the start."""
+    path = out / STEPS_FILE
+    if path.exists():
+        rewrite_lines(
+            path, [line for id_, line in episode_ids_of_steps(path) if id_ in finished_ids]
+        )
