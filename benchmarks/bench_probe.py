@@ -11,50 +11,33 @@ is the best of `--repeats` probes, with the one-line error the user sees.
 from __future__ import annotations
 
 import argparse
-import json
 import socket
-import threading
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 from typing import Any
 
 from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
 SERVED = ["HuggingFaceTB/SmolLM2-135M-Instruct", "Qwen/QwQ-32B", "meta/llama-3-8b"]
 
 
 @contextmanager
 def models_server(require_key: str | None = None) -> Iterator[str]:
-    """A loopback server answering `GET /v1/models` with SERVED (401 without the right key)."""
+    """The tests' loopback server, listing SERVED on `GET /v1/models` (401 without the right key)."""
+    from fault_server import FaultServer
 
-    class Handler(BaseHTTPRequestHandler):
-        def log_message(self, format: str, *args: Any) -> None:
-            return None
-
-        def do_GET(self) -> None:
-            payload: dict[str, Any]
-            if require_key and self.headers.get("Authorization") != f"Bearer {require_key}":
-                status, payload = 401, {"error": {"message": "invalid API key"}}
-            else:
-                status, payload = 200, {"data": [{"id": model} for model in SERVED]}
-            data = json.dumps(payload).encode()
-            self.send_response(status)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True).start()
+    server = FaultServer(models=SERVED, required_key=require_key).start()
     try:
-        yield f"http://127.0.0.1:{httpd.server_address[1]}/v1"
+        yield server.url
     finally:
-        httpd.shutdown()
-        httpd.server_close()
+        server.stop()
 
 
 @contextmanager

@@ -26,19 +26,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
-import os
 import random
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
+
+# The tests' loopback server and `vllm serve` launcher are the benchmark's too.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 MEDIAN_S = 0.2
 SIGMA = 1.0
@@ -50,13 +49,13 @@ FIRST_STEP_MARK = "first step"
 
 
 def serve(seed: int, upstream: str | None) -> None:
-    """The server process: prints its port, answers chat completions (itself, or through
-    `upstream` with a drawn `max_tokens`), reports on GET /stats."""
+    """The server process: the tests' loopback server answering itself after a lognormal time,
+    or through `upstream` with a drawn `max_tokens`; prints its URL."""
     import httpx
+    from fault_server import FaultServer
 
     rng = random.Random(seed)
     lock = threading.Lock()
-    answers: list[tuple[float, float, bool]] = []
     client = httpx.Client(base_url=upstream, timeout=600) if upstream else None
 
     def answer(body: dict[str, Any]) -> dict[str, Any]:
@@ -65,110 +64,19 @@ def serve(seed: int, upstream: str | None) -> None:
                 delay = rng.lognormvariate(math.log(MEDIAN_S), SIGMA)
                 text = rng.choice(ANSWERS)
             time.sleep(delay)
-            return {
-                "choices": [
-                    {"message": {"role": "assistant", "content": text}, "finish_reason": "stop"}
-                ],
-                "usage": {"prompt_tokens": 1, "completion_tokens": 2},
-            }
+            return {"role": "assistant", "content": text}
         with lock:
             tokens = rng.lognormvariate(math.log(MEDIAN_TOKENS), SIGMA)
         body |= {"max_tokens": max(1, min(MAX_TOKENS, round(tokens))), "ignore_eos": True}
-        reply: dict[str, Any] = client.post("/chat/completions", json=body).json()
-        return reply
+        [choice] = client.post("/chat/completions", json=body).json()["choices"]
+        return {**choice["message"], "finish_reason": choice["finish_reason"]}
 
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
-        # As real servers do: with Nagle's algorithm on, the body written after the headers waits
-        # for the client's delayed ACK, 40 ms per answer that no model spent.
-        disable_nagle_algorithm = True
-
-        def log_message(self, format: str, *args: Any) -> None:
-            return None
-
-        def do_POST(self) -> None:
-            start = time.monotonic()
-            body = json.loads(self.rfile.read(int(self.headers.get("Content-Length") or 0)))
-            first = FIRST_STEP_MARK in body["messages"][-1]["content"]
-            self._send(answer(body))
-            with lock:
-                answers.append((start, time.monotonic(), first))
-
-        def do_GET(self) -> None:
-            with lock:
-                taken = list(answers)
-                answers.clear()
-            self._send(taken)
-
-        def _send(self, payload: Any) -> None:
-            data = json.dumps(payload).encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            self.wfile.write(data)
-
-    class Server(ThreadingHTTPServer):
-        # A burst of new connections (each backend call opens its own) must not overflow the
-        # default backlog of 5, which a real server's is far above.
-        request_queue_size = 1024
-        daemon_threads = True
-
-    httpd = Server(("127.0.0.1", 0), Handler)
-    print(httpd.server_address[1], flush=True)
-    httpd.serve_forever()
+    server = FaultServer(answer=answer, max_requests=10**9).start()
+    print(server.url, flush=True)
+    threading.Event().wait()
 
 
 SERVED_NAME = "smollm2"
-VLLM_START_TIMEOUT_S = 600
-
-
-@contextlib.contextmanager
-def vllm_serve(max_seqs: int) -> Iterator[str]:
-    """`vllm serve` of the embedded model from the vLLM environment; yields its /v1 URL."""
-    import socket
-
-    import httpx
-
-    from llm_agents.backends.embedded import embedded_model_dir
-
-    venv = Path(os.environ.get("VLLM_VENV") or Path(__file__).parents[1] / ".venv-vllm")
-    if not (venv / "bin" / "vllm").exists():
-        sys.exit(f"no vLLM environment at {venv}: build it with scripts/setup_vllm_cpu.sh")
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    command = [
-        str(venv / "bin" / "vllm"), "serve", str(embedded_model_dir()),
-        "--served-model-name", SERVED_NAME, "--host", "127.0.0.1", "--port", str(port),
-        "--enforce-eager", "--dtype", "float32", "--max-model-len", "4096",
-        "--max-num-seqs", str(max_seqs),
-    ]  # fmt: skip
-    with tempfile.NamedTemporaryFile("w+", suffix=".log") as log:
-        server = subprocess.Popen(
-            command,
-            env={**os.environ, "VLLM_CPU_KVCACHE_SPACE": "2"},
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-        try:
-            deadline = time.monotonic() + VLLM_START_TIMEOUT_S
-            while True:
-                if server.poll() is not None or time.monotonic() > deadline:
-                    log.seek(0)
-                    sys.exit(f"vllm serve did not start:\n{log.read()[-3000:]}")
-                with contextlib.suppress(httpx.TransportError):
-                    health = httpx.get(f"http://127.0.0.1:{port}/health", timeout=2)
-                    if health.status_code == 200:
-                        break
-                time.sleep(1)
-            yield f"http://127.0.0.1:{port}/v1"
-        finally:
-            server.terminate()
-            try:
-                server.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                server.kill()
 
 
 def efficiency(answers: list[list[Any]], in_flight: int) -> dict[str, float]:
@@ -264,9 +172,26 @@ def main() -> None:
     from llm_agents.evaluation.runner import run_eval
 
     with contextlib.ExitStack() as stack:
-        upstream = (
-            stack.enter_context(vllm_serve(args.in_flight)) if args.server == "vllm" else None
-        )
+        upstream = None
+        if args.server == "vllm":
+            from vllm_serve import VLLM_VENV, ServerDidNotStart, vllm_serve
+
+            from llm_agents.backends.embedded import embedded_model_dir
+
+            if not (VLLM_VENV / "bin" / "vllm").exists():
+                sys.exit(
+                    f"no vLLM environment at {VLLM_VENV}: build it with scripts/setup_vllm_cpu.sh"
+                )
+            log = stack.enter_context(tempfile.TemporaryDirectory())
+            try:
+                upstream = stack.enter_context(
+                    vllm_serve(
+                        embedded_model_dir(), Path(log) / "vllm.log", served_name=SERVED_NAME,
+                        max_model_len=4096, max_num_seqs=args.in_flight, kv_cache_gib=2,
+                    )
+                )  # fmt: skip
+            except ServerDidNotStart as err:
+                sys.exit(str(err))
         server = subprocess.Popen(
             [sys.executable, __file__, "--serve", "--seed", str(args.seed)]
             + (["--upstream", upstream] if upstream else []),
@@ -276,7 +201,7 @@ def main() -> None:
         stack.callback(server.wait)
         stack.callback(server.terminate)
         assert server.stdout is not None
-        url = f"http://127.0.0.1:{server.stdout.readline().strip()}/v1"
+        url = server.stdout.readline().strip()
         model_name = SERVED_NAME if upstream else "bench"
         env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
 
@@ -297,7 +222,8 @@ def main() -> None:
 
         def stats() -> dict[str, float]:
             answers = httpx.get(f"{url}/stats", timeout=30).json()
-            return efficiency(answers, args.in_flight)
+            timings = [[start, end, FIRST_STEP_MARK in key] for start, end, key in answers]
+            return efficiency(timings, args.in_flight)
 
         with tempfile.TemporaryDirectory() as tmp:
             config = settings(args.lockstep_episodes, f"{tmp}/lockstep")

@@ -8,6 +8,9 @@ refuses to serve more than `max_requests` requests, so a retry loop gone wrong s
 Run as a script (`python tests/fault_server.py --latency 0.05 --capacity 4`) it is a server of its
 own process, printing its URL: one that can be killed like a real one (`--die-after N` exits on
 the Nth chat request, dropping every connection), or a fixed-latency server for benchmarks.
+Benchmarks that need their own answers (a heavy-tailed latency, a proxy to `vllm serve`) start it
+in a process of theirs with an `answer` function; `GET /stats` hands such a process's caller the
+answers' timings. This is the one OpenAI-compatible loopback server of the tests and benchmarks.
 """
 
 from __future__ import annotations
@@ -57,6 +60,15 @@ class Request:
     connection: tuple[str, int] = ("", 0)
 
 
+@dataclass(frozen=True)
+class Answer:
+    """When one normal answer was worked on (monotonic seconds of the server's process)."""
+
+    key: str
+    started_at: float
+    ended_at: float
+
+
 #: Request body -> the answer's message; a `finish_reason` key in it sets the choice's.
 Answerer = Callable[[dict[str, Any]], dict[str, Any]]
 
@@ -99,6 +111,8 @@ class FaultServer:
     port: int = 0
     """Port to bind on 127.0.0.1; 0 picks a free one."""
     requests: list[Request] = field(default_factory=list)
+    answers: list[Answer] = field(default_factory=list)
+    """Normal answers, in the order they ended; `GET /stats` returns and clears them."""
     in_flight: int = 0
     max_in_flight: int = 0
     url: str = ""
@@ -143,6 +157,11 @@ class FaultServer:
                     )
                 if not self._authorised():
                     return
+                if self.path.rstrip("/").endswith("/stats"):
+                    with state._lock:
+                        taken, state.answers = state.answers, []
+                    self._send(200, [[a.started_at, a.ended_at, a.key] for a in taken])
+                    return
                 if self.path.rstrip("/").endswith("/models") and state.models is not None:
                     listing = [{"id": model, "object": "model"} for model in state.models]
                     self._send(200, {"object": "list", "data": listing})
@@ -175,14 +194,15 @@ class FaultServer:
                     state.in_flight += 1
                     state.max_in_flight = max(state.max_in_flight, state.in_flight)
                 try:
-                    self._serve(body, fault)
+                    self._serve(key, body, fault)
                 except (BrokenPipeError, ConnectionResetError):
                     pass  # the client gave up first, as a timed-out client does
                 finally:
                     with state._lock:
                         state.in_flight -= 1
 
-            def _serve(self, body: dict[str, Any], fault: Fault | None) -> None:
+            def _serve(self, key: str, body: dict[str, Any], fault: Fault | None) -> None:
+                started = time.monotonic()
                 if fault is not None and fault.kind == "drop":
                     self.close_connection = True
                     self.connection.shutdown(socket.SHUT_RDWR)
@@ -216,6 +236,8 @@ class FaultServer:
                             time.sleep(state.latency_s)
                 message = dict(state.answer(body))
                 finish = message.pop("finish_reason", "stop")
+                with state._lock:
+                    state.answers.append(Answer(key, started, time.monotonic()))
                 self._send(
                     200,
                     {

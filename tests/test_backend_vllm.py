@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -16,8 +15,15 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
+from vllm_serve import (
+    REPO,
+    START_TIMEOUT_S,
+    VLLM_VENV,
+    ServerDidNotStart,
+    vllm_environment,
+    vllm_serve,
+)
 
 from env.errors import UserError
 from llm_agents.backends import get_model
@@ -25,12 +31,7 @@ from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.embedded import embedded_model_dir
 from llm_agents.backends.openai import OpenAIModel
 
-REPO = Path(__file__).resolve().parents[1]
-#: Same default and override as scripts/setup_vllm_cpu.sh (CI may keep the environment outside the clone).
-VLLM_VENV = Path(os.environ.get("VLLM_VENV") or REPO / ".venv-vllm")
 VLLM_PYTHON = VLLM_VENV / "bin" / "python"
-#: Engine start on 2 busy cores takes one to three minutes.
-START_TIMEOUT_S = 480
 ACTIONS = ["NOOP", "MOVE_LEFT", "MOVE_RIGHT", "DO"]
 SERVED_NAME = "smollm2"
 
@@ -83,11 +84,6 @@ if __name__ == "__main__":
 """
 
 
-def vllm_env() -> dict[str, str]:
-    # A small KV cache fits the test model and keeps memory low on a shared 2-core machine.
-    return {**os.environ, "VLLM_CPU_KVCACHE_SPACE": "1", "PYTHONPATH": str(REPO)}
-
-
 @pytest.fixture(scope="module")
 def model_dir() -> Path:
     return embedded_model_dir()
@@ -102,7 +98,7 @@ def test_offline_engine_generates_free_text_and_constrained_choices(
     run = subprocess.run(
         [str(VLLM_PYTHON), str(script), str(model_dir), str(out), json.dumps(ACTIONS)],
         cwd=tmp_path,
-        env=vllm_env(),
+        env=vllm_environment(),
         capture_output=True,
         text=True,
         timeout=START_TIMEOUT_S + 120,
@@ -214,7 +210,7 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     run = subprocess.run(
         [str(VLLM_PYTHON), str(script), str(model_dir), str(request), str(out)],
         cwd=tmp_path,
-        env=vllm_env(),
+        env=vllm_environment(),
         capture_output=True,
         text=True,
         timeout=START_TIMEOUT_S + 300,
@@ -254,64 +250,16 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     assert len({max(range(len(options)), key=row.__getitem__) for row in hf_scores}) > 1
 
 
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port: int = probe.getsockname()[1]
-        return port
-
-
 @pytest.fixture(scope="module")
 def vllm_server(model_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    port = free_port()
     log_path = tmp_path_factory.mktemp("vllm-serve") / "server.log"
-    # The command the README documents, with the venv's own `vllm` script.
-    command = [
-        str(VLLM_VENV / "bin" / "vllm"),
-        "serve",
-        str(model_dir),
-        "--served-model-name",
-        SERVED_NAME,
-        "--host",
-        "127.0.0.1",
-        "--port",
-        str(port),
-        "--enforce-eager",
-        "--dtype",
-        "float32",
-        "--max-model-len",
-        "512",
-        "--max-num-seqs",
-        "8",
-    ]
-    with log_path.open("w") as log:
-        server = subprocess.Popen(command, env=vllm_env(), stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            if server.poll() is not None:
-                pytest.fail(
-                    f"vllm serve exited with {server.returncode}:\n{log_path.read_text()[-4000:]}"
-                )
-            if time.monotonic() > deadline:
-                pytest.fail(
-                    f"vllm serve not ready in {START_TIMEOUT_S} s:\n{log_path.read_text()[-4000:]}"
-                )
-            try:
-                if httpx.get(f"{base}/health", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(2)
-        yield f"{base}/v1"
-    finally:
-        server.terminate()
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
+        with vllm_serve(
+            model_dir, log_path, served_name=SERVED_NAME, max_model_len=512, max_num_seqs=8
+        ) as url:
+            yield url
+    except ServerDidNotStart as err:
+        pytest.fail(str(err))
 
 
 def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
