@@ -87,7 +87,7 @@ def main() -> None:
             {
                 "agent": "expert",
                 "variant": args.variant,
-                "splits": args.splits,
+                "categories": args.splits,
                 "dataset": dataset,
                 "paraphrases": False,
                 "episodes_per_instruction": args.episodes,

@@ -68,7 +68,7 @@ def timed_run(
     settings = {
         "model": f"mock:{SCRIPT}",
         "variant": env.variant.value,
-        "splits": ["one", "combo", "paraphrased", "new_objects"],
+        "categories": ["one", "combo", "paraphrased", "new_objects"],
         "max_steps": env.config.max_steps,
         "batch_size": in_flight,
         "probe": False,

@@ -45,7 +45,7 @@ def _eval(args: argparse.Namespace, model: str, out: Path, *extra: str) -> tuple
 
     argv = [
         sys.executable, "-m", "llm_agents.cli", "eval", "--model", model, "--variant", "classic",
-        "--splits", "combo", "new_objects", "--limit", str(args.episodes),
+        "--categories", "combo", "new_objects", "--limit", str(args.episodes),
         "--max-steps", str(args.max_steps), "--batch-size", str(args.batch_size),
         "--output-dir", str(out), "--no-progress", *extra,
     ]  # fmt: skip

@@ -107,7 +107,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
     from llm_agents.evaluation.schedule import build_schedule
     from textualizer import observe_batch
 
-    instructions = load_dataset(config.dataset).instructions(config.splits)
+    instructions = load_dataset(config.dataset).instructions(config.categories)
     queue = list(reversed(build_schedule(config, instructions, None)))
     agent = ZeroShotAgent(config.variant, renderer=config.renderer, choice_rule=config.choice)
     batch = min(config.batch_size, len(queue))
@@ -210,7 +210,7 @@ def main() -> None:
                 {
                     "model": f"openai:{model_name}@{url}",
                     "variant": args.variant,
-                    "splits": ["one", "combo", "paraphrased", "new_objects"],
+                    "categories": ["one", "combo", "paraphrased", "new_objects"],
                     "max_steps": args.max_steps,
                     "batch_size": args.in_flight,
                     "limit": episodes,

@@ -52,7 +52,7 @@ def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> Timing:
         {
             "model": f"mock:{SCRIPT}",
             "variant": env.variant.value,
-            "splits": ["combo", "paraphrased", "new_objects"],
+            "categories": ["combo", "paraphrased", "new_objects"],
             "max_steps": env.config.max_steps,
             "batch_size": batch,
             "limit": episodes,

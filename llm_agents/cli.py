@@ -121,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
         PlannerConfig,
         help="generate step-by-step plans for instructions (the input of PPO-T+)",
         description="Ask a planner model for a plan of at most --max-steps numbered steps for "
-        "every instruction and paraphrase of the chosen splits. Resumes by default.",
+        "every instruction and paraphrase of the chosen categories. Resumes by default.",
     )
     return parser
 
@@ -154,7 +154,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     player = config.model if needs_model else "the scripted expert"
     where = f" on Ray ({config.ray_workers} workers)" if config.ray else ""
     banner = (
-        f"evaluating {player} ({config.agent}) on {', '.join(config.splits)} "
+        f"evaluating {player} ({config.agent}) on {', '.join(config.categories)} "
         f"({config.variant.value} Craftax) -> {config.output_dir}{where}"
     )
     progress = _progress_bar(not args.no_progress)

@@ -22,7 +22,11 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
 #: Extra spellings kept so that a flag reads naturally when repeated.
-ALIASES: dict[str, tuple[str, ...]] = {"backend_options": ("--backend-option",)}
+ALIASES: dict[str, tuple[str, ...]] = {
+    "backend_options": ("--backend-option",),
+    # The setting's name before it was named for what it holds; scripts still pass it.
+    "categories": ("--splits",),
+}
 
 
 @dataclass(frozen=True)

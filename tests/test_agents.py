@@ -300,7 +300,7 @@ def test_a_broken_template_of_any_strategy_stops_the_run_before_anything_is_writ
     out = tmp_path / "run"
     argv = [
         "eval", "--model", "mock:", "--agent", agent, "--demos", str(demos),
-        "--variant", "classic", "--splits", "combo", "--max-steps", "2", "--limit", "1",
+        "--variant", "classic", "--categories", "combo", "--max-steps", "2", "--limit", "1",
         "--templates-dir", str(templates), "--output-dir", str(out), "--no-progress",
     ]  # fmt: skip
     assert main(argv) == EXIT_USER_ERROR

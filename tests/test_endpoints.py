@@ -158,7 +158,7 @@ def test_stats_of_several_workers_add_up_per_url() -> None:
 
 def eval_argv(model: str, out: Path, *extra: str) -> list[str]:
     return [
-        "eval", "--model", model, "--variant", "classic", "--splits", "combo",
+        "eval", "--model", model, "--variant", "classic", "--categories", "combo",
         "--max-steps", "6", "--limit", "4", "--batch-size", "2", "--max-concurrency", "2",
         "--timeout-s", "5", "--output-dir", str(out), "--no-progress",
         "--backend-option", "backoff_initial_s=0.01", "--backend-option", "jitter_s=0",

@@ -218,7 +218,7 @@ def test_an_expert_run_collects_wood_and_places_a_table(classic_env: Any, tmp_pa
         {
             "agent": "expert",
             "variant": "classic",
-            "splits": ["one"],
+            "categories": ["one"],
             "dataset": str(path),
             "paraphrases": False,
             "episodes_per_instruction": 2,

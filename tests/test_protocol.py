@@ -50,7 +50,7 @@ def test_the_paper_protocol_sets_the_official_evaluation() -> None:
 
 def test_explicit_settings_win_and_are_recorded_as_overrides() -> None:
     config = build_config(
-        {"protocol": "paper", "history_length": 4, "splits": "one,combo,new_objects"},
+        {"protocol": "paper", "history_length": 4, "categories": "one,combo,new_objects"},
         {"max_steps": 100, "variant": "classic", "generation": {"temperature": 0.0}},
     )
     assert config.max_steps == 100 and config.generation.temperature == 0.0
@@ -92,7 +92,7 @@ def test_a_paper_run_plays_the_official_world_and_records_its_protocol(tmp_path:
         {
             "protocol": "paper",
             "model": "mock:hash:ACTION: LEFT|ACTION: DO|ACTION: UP",
-            "splits": ["combo", "new_objects"],
+            "categories": ["combo", "new_objects"],
             "max_steps": 6,
             "batch_size": 2,
             "limit": 4,
@@ -106,7 +106,7 @@ def test_a_paper_run_plays_the_official_world_and_records_its_protocol(tmp_path:
         run_eval(config, model, env=env)
     saved = read_results(tmp_path / "results.json").config
     assert saved["protocol"] == "paper"
-    assert saved["protocol_overrides"] == ["splits", "max_steps"]
+    assert saved["protocol_overrides"] == ["categories", "max_steps"]
     assert (saved["success_rule"], saved["world_seeding"]) == ("official", "official")
     assert len(read_episodes(tmp_path / "episodes.jsonl")) == 4
     steps = [json.loads(line) for line in (tmp_path / "steps.jsonl").read_text().splitlines()]

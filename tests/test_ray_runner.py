@@ -56,7 +56,7 @@ def config(out: Path, **overrides: Any) -> Any:
     settings = {
         "model": SCRIPT,
         "variant": "classic",
-        "splits": ["combo", "new_objects"],
+        "categories": ["combo", "new_objects"],
         "max_steps": MAX_STEPS,
         "batch_size": 2,
         "limit": EPISODES,
@@ -175,7 +175,7 @@ def test_a_killed_driver_is_resumed_by_the_same_command(
 ) -> None:
     argv = [
         sys.executable, "-m", "llm_agents.cli", "eval", "--ray", "--model", SCRIPT,
-        "--variant", "classic", "--splits", "combo", "new_objects", "--max-steps", str(MAX_STEPS),
+        "--variant", "classic", "--categories", "combo", "new_objects", "--max-steps", str(MAX_STEPS),
         "--batch-size", "2", "--limit", str(EPISODES), "--ray-workers", "2",
         "--backend-option", "latency_s=0.1", "--output-dir", str(tmp_path), "--no-progress",
     ]  # fmt: skip

@@ -31,7 +31,7 @@ def config(out: Path, **overrides: Any) -> Any:
     settings = {
         "model": SCRIPT,
         "variant": "classic",
-        "splits": ["combo", "new_objects"],
+        "categories": ["combo", "new_objects"],
         "max_steps": MAX_STEPS,
         "batch_size": 3,
         "limit": 6,
@@ -119,7 +119,7 @@ def test_a_backend_that_keeps_failing_exits_non_zero_with_one_line(
     tmp_path: Path, capsys: Any
 ) -> None:
     argv = [
-        "eval", "--model", "mock:list:NOOP", "--variant", "classic", "--splits", "combo",
+        "eval", "--model", "mock:list:NOOP", "--variant", "classic", "--categories", "combo",
         "--max-steps", str(MAX_STEPS), "--limit", "2", "--batch-size", "1",
         "--max-consecutive-failures", "2", "--output-dir", str(tmp_path), "--no-progress",
     ]  # fmt: skip
@@ -145,7 +145,7 @@ def test_a_changed_template_is_refused_on_resume_and_nothing_changes(
 
     def argv(max_steps: int) -> list[str]:
         return [
-            "eval", "--model", SCRIPT, "--variant", "classic", "--splits", "combo", "new_objects",
+            "eval", "--model", SCRIPT, "--variant", "classic", "--categories", "combo", "new_objects",
             "--max-steps", str(max_steps), "--batch-size", "3", "--limit", "2",
             "--templates-dir", str(templates), "--output-dir", str(out), "--no-progress",
         ]  # fmt: skip

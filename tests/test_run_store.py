@@ -201,7 +201,7 @@ OTHER_VALUES: dict[str, object] = {
     "variant": "classic",
     "probe": False,
     "choice": "guided",
-    "splits": ("combo",),
+    "categories": ("combo",),
     "paraphrases": False,
     "episodes_per_instruction": 2,
     "max_steps": 9,

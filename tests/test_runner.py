@@ -42,7 +42,7 @@ def config(out: Path, **overrides: Any) -> Any:
     settings = {
         "model": SCRIPT,
         "variant": "classic",
-        "splits": ["combo", "new_objects"],
+        "categories": ["combo", "new_objects"],
         "max_steps": MAX_STEPS,
         "batch_size": 3,
         "limit": 7,
@@ -95,8 +95,8 @@ def test_run_writes_consistent_steps_episodes_and_results(
 def test_limited_schedule_samples_every_category_originals_first(tmp_path: Path) -> None:
     from env.dataset import load_dataset
 
-    cfg = config(tmp_path, splits=["combo", "paraphrased", "new_objects"], limit=6)
-    instructions = load_dataset(None).instructions(cfg.splits)
+    cfg = config(tmp_path, categories=["combo", "paraphrased", "new_objects"], limit=6)
+    instructions = load_dataset(None).instructions(cfg.categories)
     schedule = build_schedule(cfg, instructions, None)
     assert [s.category for s in schedule] == ["combo", "paraphrased", "new_objects"] * 2
     assert all(s.instruction.variant == 0 for s in schedule)
@@ -112,7 +112,7 @@ def test_results_do_not_depend_on_batch_size(tmp_path: Path, short_env: CrafText
 def _cli(out: Path, *extra: str) -> list[str]:
     return [
         sys.executable, "-m", "llm_agents.cli", "eval", "--model", SCRIPT, "--variant", "classic",
-        "--splits", "combo", "new_objects", "--max-steps", str(MAX_STEPS), "--batch-size", "2",
+        "--categories", "combo", "new_objects", "--max-steps", str(MAX_STEPS), "--batch-size", "2",
         "--limit", "10", "--output-dir", str(out), "--no-progress", *extra,
     ]  # fmt: skip
 
@@ -131,7 +131,7 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(
     tmp_path: Path, short_env: CrafTextEnv
 ) -> None:
     reference = tmp_path / "reference"
-    run(config(reference, limit=10, batch_size=2, splits=["combo", "new_objects"]), short_env)
+    run(config(reference, limit=10, batch_size=2, categories=["combo", "new_objects"]), short_env)
 
     killed = tmp_path / "killed"
     process = subprocess.Popen(
@@ -224,7 +224,7 @@ def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:
         'model = "mock:noop"\nmax_steps = 40\nsplits = ["combo"]\n[generation]\ntemperature = 0.5\n'
     )
     cfg = build_config(load_config_file(file), {"max_steps": 20, "generation": {"max_tokens": 32}})
-    assert (cfg.model, cfg.max_steps, cfg.splits) == ("mock:noop", 20, ("combo",))
+    assert (cfg.model, cfg.max_steps, cfg.categories) == ("mock:noop", 20, ("combo",))
     assert (cfg.generation.temperature, cfg.generation.max_tokens) == (0.5, 32)
     yaml_file = tmp_path / "run.yaml"
     yaml_file.write_text("variant: classic\nbatch_size: 4\n")
@@ -387,7 +387,7 @@ def test_episodes_do_not_depend_on_episodes_in_flight_or_answer_timing(
 def test_backend_options_reach_the_backend_and_the_saved_config(tmp_path: Path) -> None:
     out = tmp_path / "run"
     argv = [
-        "eval", "--model", "mock:noop", "--variant", "classic", "--splits", "combo",
+        "eval", "--model", "mock:noop", "--variant", "classic", "--categories", "combo",
         "--max-steps", str(MAX_STEPS), "--batch-size", "1", "--limit", "1",
         "--output-dir", str(out), "--no-progress", "--backend-option", "latency_s=0.001",
     ]  # fmt: skip
@@ -399,3 +399,27 @@ def test_backend_options_reach_the_backend_and_the_saved_config(tmp_path: Path) 
     with pytest.raises(SystemExit) as exit_info:
         main([*argv[:-1], "latency_s"])
     assert exit_info.value.code == 2
+
+
+def test_a_run_recorded_before_categories_were_named_so_still_resumes(tmp_path: Path) -> None:
+    # Runs made when the setting was `splits` (flag, config key, identity) keep working.
+    out = tmp_path / "run"
+    argv = [
+        "eval", "--model", "mock:noop", "--variant", "classic", "--splits", "combo",
+        "--max-steps", "3", "--batch-size", "1", "--limit", "2", "--output-dir", str(out),
+        "--no-progress",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    results_file = out / "results.json"
+    recorded = json.loads(results_file.read_text())
+    assert recorded["config"]["categories"] == ["combo"]
+    for table in (recorded["config"], recorded["identity"]["settings"]):
+        table["splits"] = table.pop("categories")
+    results_file.write_text(json.dumps(recorded))
+
+    assert main(argv) == 0
+    resumed = read_results(results_file)
+    assert (resumed.scheduled, resumed.finished) == (2, 2)
+    assert resumed.identity.settings["categories"] == ["combo"]
+    # The old name still names the setting: another category is still another run.
+    assert main([*argv[:5], "--splits", "new_objects", *argv[7:]]) == EXIT_USER_ERROR

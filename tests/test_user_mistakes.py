@@ -22,7 +22,7 @@ from llm_agents.cli import main
 
 #: A valid, tiny mock evaluation; rows append the mistake.
 EVAL = [
-    "eval", "--model", "mock:", "--variant", "classic", "--splits", "combo", "--max-steps", "2",
+    "eval", "--model", "mock:", "--variant", "classic", "--categories", "combo", "--max-steps", "2",
     "--limit", "1", "--batch-size", "1", "--output-dir", "{tmp}/run", "--no-progress",
 ]  # fmt: skip
 PLAN = ["plan", "--model", "mock:", "--output", "{tmp}/plans.json", "--no-progress", "--limit", "1"]
@@ -91,7 +91,7 @@ MISTAKES: dict[str, Mistake] = {
     "not a number": Mistake([*EVAL, "--max-steps", "many"], "invalid int value"),
     # names
     "unknown variant": Mistake([*EVAL, "--variant", "huge"], "invalid choice"),
-    "unknown split": Mistake([*EVAL, "--splits", "combo", "hard"], "hard"),
+    "unknown category": Mistake([*EVAL, "--categories", "combo", "hard"], "hard"),
     "unknown renderer": Mistake([*EVAL, "--renderer", "pixels"], "pixels"),
     "unknown fallback action": Mistake([*EVAL, "--fallback-action", "JUMP"], "JUMP"),
     "fallback action of the other variant": Mistake(

@@ -43,7 +43,7 @@ def _settings(out: Path, **settings: Any) -> Any:
     return build_config(
         {
             "variant": "classic",
-            "splits": ["combo", "new_objects"],
+            "categories": ["combo", "new_objects"],
             "max_steps": MAX_STEPS,
             "batch_size": 4,
             "output_dir": str(out),

@@ -12,7 +12,7 @@ from __future__ import annotations
 import difflib
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, TypeVar
 
 import yaml
 from pydantic import (
@@ -34,6 +34,7 @@ from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import CHANGES_RESULTS, ChoiceRule, GenerateConfig, result_values
 from llm_agents.evaluation.protocol import ProtocolName, apply_protocol
+from llm_agents.run_data.store import RENAMED_SETTINGS, with_current_names
 from textualizer import RENDERERS
 
 if TYPE_CHECKING:
@@ -49,6 +50,8 @@ class ModelSettings(BaseModel):
     model_config = ConfigDict(
         extra="forbid", validate_assignment=True, use_attribute_docstrings=True
     )
+    renamed_settings: ClassVar[dict[str, str]] = {}
+    """Old setting name -> current name, accepted in config files and recorded runs."""
 
     model: Annotated[str, CHANGES_RESULTS] = "hf:smollm2-135m"
     """Model spec: hf:NAME_OR_PATH, vllm:NAME_OR_PATH, openai:MODEL@URL or mock:SCRIPT."""
@@ -101,12 +104,15 @@ class ModelSettings(BaseModel):
 class EvalConfig(ModelSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
+    renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
+
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
-    splits: Annotated[tuple[str, ...], CHANGES_RESULTS] = PAPER_CATEGORIES
-    """Instruction categories to run: one, combo, paraphrased, new_objects."""
+    categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = PAPER_CATEGORIES
+    """Instruction categories to run: one, combo, paraphrased, new_objects (`--splits` and a
+    config file's `splits`, this setting's name before, still work)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Run every paraphrase of each goal as well as its original instruction."""
     episodes_per_instruction: Annotated[int, CHANGES_RESULTS] = Field(1, ge=1)
@@ -196,9 +202,9 @@ class EvalConfig(ModelSettings):
             raise ValueError("the few-shot agent needs demos: the run directory of an expert run")
         return self
 
-    @field_validator("splits", mode="before")
+    @field_validator("categories", mode="before")
     @classmethod
-    def _known_splits(cls, value: Any) -> tuple[str, ...]:
+    def _known_categories(cls, value: Any) -> tuple[str, ...]:
         return tuple(parse_categories(value))
 
     @field_validator("renderer")
@@ -224,7 +230,8 @@ class EvalConfig(ModelSettings):
     def recorded(cls, settings: dict[str, Any]) -> EvalConfig:
         """The config a run recorded (`RunResults.config`), as it was: not validated again (the
         paths it names may not exist here), defaults for the settings the run predates."""
-        return cls.model_construct(**{k: v for k, v in settings.items() if k in cls.model_fields})
+        current = with_current_names(settings)
+        return cls.model_construct(**{k: v for k, v in current.items() if k in cls.model_fields})
 
     def env_config(self) -> EnvConfig:
         """The `EnvConfig` of the env this run's episodes are played (and replayed) in."""
@@ -288,7 +295,8 @@ def build_settings(
     Nested tables (`generation`, `backend_options`, ...) are merged key by key, so a flag
     changes one generation setting without dropping the file's others.
     """
-    merged = _merge(dict(base or {}), overrides or {}, cls)
+    current = with_current_names(dict(base or {}), cls.renamed_settings)
+    merged = _merge(current, overrides or {}, cls)
     unknown = sorted(set(merged) - set(cls.model_fields))
     if not unknown:
         merged = cls.with_presets(merged)

@@ -62,7 +62,7 @@ _OFFICIAL = "official CrafText code (AIRI-Institute/CrafText at 1c518ae)"
 _LOOP = "the official LLM baseline loop"
 # Both protocols take these two from the paper.
 _PAPER_SPLITS = ProtocolChoice(
-    setting="splits",
+    setting="categories",
     value=PAPER_CATEGORIES,
     source="the paper's zero-shot table (Achievements one / combo, New objects)",
 )
@@ -193,7 +193,7 @@ def apply_protocol(
 
 
 def _normalised(setting: str, value: Any) -> Any:
-    if setting == "splits":
+    if setting == "categories":
         return parse_categories(value)
     if isinstance(value, Enum):
         return value.value

@@ -126,11 +126,13 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     out = Path(config.output_dir)
     check_output_dir(out)
     dataset = load_dataset(config.dataset)
-    instructions = dataset.instructions(config.splits, include_paraphrases=config.paraphrases)
+    instructions = dataset.instructions(config.categories, include_paraphrases=config.paraphrases)
     if not instructions:
-        raise UserError(f"the dataset has no instructions in categories {', '.join(config.splits)}")
+        raise UserError(
+            f"the dataset has no instructions in categories {', '.join(config.categories)}"
+        )
     present = {i.goal.category for i in instructions}
-    for category in config.splits:
+    for category in config.categories:
         if category not in present:
             logger.warning(
                 "the dataset (%s) has no %r goals; the official CrafText data has them: run "

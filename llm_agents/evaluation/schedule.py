@@ -56,7 +56,7 @@ def build_schedule(
                 repeat,
                 instruction.variant,
                 rank_in_category[goal_key],
-                config.splits.index(category),
+                config.categories.index(category),
             )
             keyed.append((order, instruction, repeat))
     keyed.sort(key=lambda item: item[0])

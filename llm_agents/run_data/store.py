@@ -23,7 +23,14 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    computed_field,
+    field_validator,
+)
 
 from env.errors import UserError
 from llm_agents.backends.endpoints import EndpointStats
@@ -163,10 +170,32 @@ def make_output_dir(directory: Path) -> None:
 # ------------------------------------------------------------------------------ identity
 
 
+#: Settings renamed since runs were first recorded: old name -> current name. A run recorded
+#: under an old name still resumes, reports and replays.
+RENAMED_SETTINGS = {"splits": "categories"}
+
+
+def with_current_names(
+    settings: dict[str, Any], renamed: dict[str, str] = RENAMED_SETTINGS
+) -> dict[str, Any]:
+    """`settings` with every renamed setting under its current name (a current name given as
+    well wins)."""
+    current = {key: value for key, value in settings.items() if key not in renamed}
+    for old, new in renamed.items():
+        if old in settings:
+            current.setdefault(new, settings[old])
+    return current
+
+
 class RunIdentity(BaseModel):
     """What must be equal for two processes to write into one run directory."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
+
+    @field_validator("settings", mode="before")
+    @classmethod
+    def _current_names(cls, value: Any) -> Any:
+        return with_current_names(value) if isinstance(value, dict) else value
 
     settings: dict[str, Any]
     """Every setting that changes results (not batching, caching or the output path)."""
