@@ -23,7 +23,7 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
-from env.dataset import Dataset, DatasetSource, Goal, category_of
+from env.dataset import CATEGORIES, Dataset, DatasetSource, Goal, category_of
 from llm_agents.agents import NoModel
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval
@@ -104,7 +104,7 @@ def main() -> None:
         notes = last_notes(out / STEPS_FILE)
         from env.dataset import load_dataset
 
-        goals = {goal.id: goal for goal in load_dataset(dataset).goals}
+        goals = {goal.id: goal for goal in load_dataset(dataset).select(CATEGORIES)}
 
     by_category: dict[str, list[bool]] = defaultdict(list)
     by_goal: dict[tuple[str, str], list[bool]] = defaultdict(list)

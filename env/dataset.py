@@ -52,8 +52,11 @@ from env.errors import UserError
 # The records are re-exported: `env.dataset` is where callers get goals from.
 from env.goals import CATEGORIES as CATEGORIES
 from env.goals import CATEGORY_SPLIT as CATEGORY_SPLIT
+from env.goals import DIFFICULTIES as DIFFICULTIES
+from env.goals import GOAL_KINDS as GOAL_KINDS
 from env.goals import PAPER_CATEGORIES as PAPER_CATEGORIES
 from env.goals import SPLITS as SPLITS
+from env.goals import AnyGoal as AnyGoal
 from env.goals import Category as Category
 from env.goals import Dataset as Dataset
 from env.goals import DatasetSource as DatasetSource
@@ -74,17 +77,22 @@ WHEEL_REQUIREMENT = "craftext==0.2.2"
 WHEEL_FILENAME = "craftext-0.2.2-py3-none-any.whl"
 WHEEL_SHA256 = "a7d13bc8c6af94496d187a702e50cf621ff9940ac45ed2ac6e8ef6c5474e52cc"
 # Bump when parsing changes what a cached JSON would contain, so stale caches are not reused.
-_CACHE_FORMAT = 1
+_CACHE_FORMAT = 2
 
 OFFICIAL_REPOSITORY = "AIRI-Institute/CrafText"
 OFFICIAL_COMMIT = "1c518aeaaf729d0e04b768d907593fb9980efe4e"
 #: The code host's zip archive of a repository at a commit; `{base}` is `code_host()`.
 OFFICIAL_ARCHIVE_URL = "{base}/{repository}/archive/{commit}.zip"
-#: `Dataset.split_sha256` of the official EASY splits at `OFFICIAL_COMMIT`, as a clone parses.
+#: `Dataset.split_sha256` of the official splits at `OFFICIAL_COMMIT`, as a clone parses. The
+#: Hard test splits are absent: `SMALL/test.py` defines none, so the official loader yields none.
 OFFICIAL_SPLIT_SHA256: dict[Split, str] = {
     "easy_train": "7db0c11d0b363d52baa9467e936e511d12cdc259476e0707a11baa0f0d3fe77e",
     "easy_test_paraphrased": "500deecdffe39bc82edd45c7eda470408509041674397eb222bade14ea5c2c4f",
     "easy_test_other_params": "c677decd7de1223f1a2bbaad1e72f4ff1c4538b237e18e31051a9f6f9bf38fc6",
+    "medium_train": "1bf30d556a1f52d3245e191cc0036afd2fec2ab63790a1889369691efd41c56a",
+    "medium_test_paraphrased": "0e12aa073a39f521bd5f28c82e3fa811e19f2a8a88159456203f9d6cf6d39346",
+    "medium_test_other_params": "7058da123729637e008573302f0903e2ac2a6b0a39f37467192599f2a3f099e1",
+    "hard_train": "ef1b95fdbbec8d145defe01717329bdc02e34ac329407e941ab53b29939d9981",
 }
 #: Goals per category in the official EASY splits at `OFFICIAL_COMMIT`.
 OFFICIAL_GOALS: dict[Category, int] = {"one": 20, "combo": 37, "paraphrased": 41, "new_objects": 44}
@@ -95,7 +103,11 @@ _ARCHIVE_MAX_BYTES = 64 << 20
 def official_splits(dataset: Dataset) -> list[str]:
     """The splits of `dataset` whose content equals the official data at `OFFICIAL_COMMIT`."""
     digests = dataset.split_sha256()
-    return [split for split in SPLITS if digests.get(split) == OFFICIAL_SPLIT_SHA256[split]]
+    return [
+        split
+        for split in SPLITS
+        if split in digests and digests[split] == OFFICIAL_SPLIT_SHA256.get(split)
+    ]
 
 
 def load_dataset(source: str | Path | None = None) -> Dataset:
@@ -218,9 +230,15 @@ def _load_user_json(path: Path) -> Dataset:
 
 def describe_shortfall(dataset: Dataset) -> str:
     """What `dataset` lacks against the official data, in words (for warnings and reports)."""
-    differing = [split for split in SPLITS if split not in official_splits(dataset)]
+    matching = official_splits(dataset)
+    differing = [split for split in OFFICIAL_SPLIT_SHA256 if split not in matching]
     if not differing:
         return "which equals the official data"
+    missing_splits = [split for split in differing if not dataset.has_split(split)]
+    differing = [split for split in differing if split not in missing_splits]
+    absent = f"; it has no {', '.join(missing_splits)} goals" if missing_splits else ""
+    if not differing:
+        return f"which equals the official data where present{absent}"
     counts = dataset.category_goals()
     missing = [
         f"{counts[category]} of {OFFICIAL_GOALS[category]} `{category}` goals"
@@ -229,7 +247,7 @@ def describe_shortfall(dataset: Dataset) -> str:
     ]
     has = f" (it has {', '.join(missing)})" if missing else ""
     verb = "s differ" if len(differing) > 1 else " differs"
-    return f"whose {', '.join(differing)} split{verb} from the official one{has}"
+    return f"whose {', '.join(differing)} split{verb} from the official one{has}{absent}"
 
 
 # --- the official data ------------------------------------------------------------------------
@@ -245,7 +263,7 @@ def official_archive_url() -> str:
 def official_cache_file(cache: Path | None = None) -> Path:
     """Where the parsed official data is cached."""
     root = cache_root() if cache is None else cache
-    return root / f"CrafText-{OFFICIAL_COMMIT[:12]}.easy.v{_CACHE_FORMAT}.json"
+    return root / f"CrafText-{OFFICIAL_COMMIT[:12]}.v{_CACHE_FORMAT}.json"
 
 
 def load_official(cache: Path | None = None, *, refresh: bool = False) -> Dataset:
@@ -277,11 +295,18 @@ def load_official(cache: Path | None = None, *, refresh: bool = False) -> Datase
 def _verify_official(dataset: Dataset, origin: str) -> None:
     matching = official_splits(dataset)
     differing = [split for split in SPLITS if split not in matching]
+    differing = [
+        split for split in differing if split in OFFICIAL_SPLIT_SHA256 or dataset.has_split(split)
+    ]
+    missing = [split for split in differing if not dataset.has_split(split)]
+    changed = [split for split in differing if split not in missing]
     if differing:
+        reasons = [f"its {', '.join(changed)} content digest differs from the pinned one"] * bool(
+            changed
+        ) + [f"it has no {', '.join(missing)} goals"] * bool(missing)
         raise UserError(
             f"the data from {origin} is not the official CrafText data at commit "
-            f"{OFFICIAL_COMMIT[:7]}: its {', '.join(differing)} content digest differs from the "
-            "pinned one"
+            f"{OFFICIAL_COMMIT[:7]}: {'; '.join(reasons)}"
         )
 
 
@@ -291,7 +316,7 @@ def _verify_official(dataset: Dataset, origin: str) -> None:
 def wheel_cache_file(cache: Path | None = None) -> Path:
     """Where the parsed `craftext==0.2.2` wheel data is cached."""
     root = cache_root() if cache is None else cache
-    return root / f"{WHEEL_FILENAME.removesuffix('.whl')}.easy.v{_CACHE_FORMAT}.json"
+    return root / f"{WHEEL_FILENAME.removesuffix('.whl')}.v{_CACHE_FORMAT}.json"
 
 
 def load_wheel(cache: Path | None = None) -> Dataset:

@@ -12,20 +12,61 @@ import os
 import uuid
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Literal, cast, get_args
+from typing import Annotated, Literal, cast, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    field_validator,
+    model_validator,
+)
 
 from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS, NUM_ACHIEVEMENTS
 from env.errors import UserError
 
-Split = Literal["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
+Split = Literal[
+    "easy_train",
+    "easy_test_paraphrased",
+    "easy_test_other_params",
+    "medium_train",
+    "medium_test_paraphrased",
+    "medium_test_other_params",
+    "hard_train",
+    "hard_test_paraphrased",
+    "hard_test_other_params",
+]
+"""`<difficulty>_<part>`: the official `SMALL` subsets (EASY, Medium on Craftax-Classic, Hard on
+full Craftax), each a train split and two test splits (paraphrased instructions, other
+parameters)."""
+Difficulty = Literal["easy", "medium", "hard"]
 Category = Literal["one", "combo", "paraphrased", "new_objects"]
 """CrafText goal sets: single achievements, combinations, paraphrased instructions, unseen objects."""
 SourceKind = Literal["archive", "directory", "wheel", "json"]
+GoalKind = Literal[
+    "achievements",
+    "conditional_placing",
+    "localization_placing",
+    "build_line",
+    "build_square",
+    "build_star",
+]
+"""What a goal asks, one per official checker that the data uses (`Scenarios.X`)."""
+ScenarioClass = Literal["Achievements", "Conditional", "Localization", "Build"]
+"""The paper's grouping of scenarios (its Table 2)."""
+Side = Literal["right", "left", "up", "down"]
+"""Where the placed block is from the target block (the official side codes 0-3, in order)."""
+CrossType = Literal["straight", "diagonal", "combined"]
+"""The official `CrossType` codes 0-2, in order."""
 
 SPLITS: tuple[Split, ...] = get_args(Split)
+DIFFICULTIES: tuple[Difficulty, ...] = get_args(Difficulty)
+GOAL_KINDS: tuple[GoalKind, ...] = get_args(GoalKind)
+SIDES: tuple[Side, ...] = get_args(Side)
+CROSS_TYPES: tuple[CrossType, ...] = get_args(CrossType)
 CATEGORIES: tuple[Category, ...] = get_args(Category)
 #: The goal sets of the paper's zero-shot table (Achievements one / combo, New objects): what a
 #: run plays unless told otherwise, and the columns published numbers exist for.
@@ -39,11 +80,17 @@ CATEGORY_SPLIT: dict[Category, Split] = {
 
 
 def category_of(split: Split, required: Sequence[str], forbidden: Sequence[str]) -> Category:
-    """The category of a goal: in EASY train, `one` (exactly one required achievement and no
-    forbidden one) or `combo` (any other); in the test splits, the split's own category."""
-    if split == "easy_train":
+    """The category of an achievements goal: in a train split, `one` (exactly one required
+    achievement and no forbidden one) or `combo` (any other); in the test splits, the split's own
+    category."""
+    if split.endswith("_train"):
         return "one" if len(required) == 1 and not forbidden else "combo"
-    return "paraphrased" if split == "easy_test_paraphrased" else "new_objects"
+    return "paraphrased" if split.endswith("_test_paraphrased") else "new_objects"
+
+
+def difficulty_of(split: Split) -> Difficulty:
+    """The difficulty a split belongs to (its name's first part)."""
+    return cast(Difficulty, split.split("_", 1)[0])
 
 
 def parse_categories(spec: str | Iterable[str]) -> tuple[Category, ...]:
@@ -69,23 +116,50 @@ def check_split(name: str) -> Split:
     return cast(Split, name)
 
 
-class Goal(BaseModel):
-    """One CrafText goal: achievements to reach and to avoid, described by an instruction."""
+class _GoalText(BaseModel):
+    """What every goal has: where it is in the dataset and its instruction texts."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     id: str
     """The goal's key in the official dataset, e.g. `EAT_PLANT_NO_EAT_COW` (unique in its split)."""
     scenario: str = "easy"
-    """The CrafText difficulty scenario the goal belongs to."""
+    """The CrafText difficulty the goal belongs to (`easy`, `medium`, `hard`)."""
     split: Split
-    """The dataset split: `easy_train`, `easy_test_paraphrased` or `easy_test_other_params`."""
-    category: Category
-    """`one` or `combo` (train), `paraphrased` or `new_objects` (test); see `category_of`."""
+    """The dataset split, e.g. `easy_train` or `medium_test_other_params`."""
     instruction: str
     """The original instruction text."""
     paraphrases: tuple[str, ...]
     """The official paraphrases of the instruction (5 for nearly every goal; a few have fewer)."""
+
+    @model_validator(mode="after")
+    def _scenario_is_the_splits(self) -> _GoalText:
+        if self.scenario != difficulty_of(self.split):
+            raise ValueError(f"goal {self.id!r} in {self.split} has scenario {self.scenario!r}")
+        return self
+
+    @property
+    def texts(self) -> tuple[str, ...]:
+        """The instruction followed by its paraphrases: index = variant."""
+        return (self.instruction, *self.paraphrases)
+
+    @property
+    def difficulty(self) -> Difficulty:
+        return difficulty_of(self.split)
+
+    def parameters(self) -> list[object]:
+        """The goal's own parameters, in field order (what the split digest covers)."""
+        common = set(_GoalText.model_fields) | {"kind", "category"}
+        return [getattr(self, name) for name in type(self).model_fields if name not in common]
+
+
+class Goal(_GoalText):
+    """A conditional-achievements goal: achievements to reach and to avoid (all of EASY, and part
+    of Medium)."""
+
+    kind: Literal["achievements"] = "achievements"
+    category: Category
+    """`one` or `combo` (train), `paraphrased` or `new_objects` (test); see `category_of`."""
     required: tuple[str, ...]
     """Achievement names that must all be reached, in achievement-id order."""
     forbidden: tuple[str, ...] = ()
@@ -114,9 +188,8 @@ class Goal(BaseModel):
         return self
 
     @property
-    def texts(self) -> tuple[str, ...]:
-        """The instruction followed by its paraphrases: index = variant."""
-        return (self.instruction, *self.paraphrases)
+    def scenario_class(self) -> ScenarioClass:
+        return "Achievements"
 
     def required_mask(self) -> np.ndarray:
         """Boolean mask over the 22 achievement ids, True where the achievement is required."""
@@ -125,6 +198,96 @@ class Goal(BaseModel):
     def forbidden_mask(self) -> np.ndarray:
         """Boolean mask over the 22 achievement ids, True where the achievement is forbidden."""
         return _mask(self.forbidden)
+
+
+class ConditionalPlacingGoal(_GoalText):
+    """Collect an item, then have blocks of a kind on the map (official `conditional_placing`)."""
+
+    kind: Literal["conditional_placing"] = "conditional_placing"
+    collect: str
+    """The inventory field the official checker counts (e.g. `iron`; its enum codes 6-11, 14 and
+    15 all count `diamond`)."""
+    collect_count: int = Field(ge=0)
+    place: str
+    """The block that must stand on the map (Craftax block name)."""
+    place_count: int = Field(ge=0)
+
+    @property
+    def scenario_class(self) -> ScenarioClass:
+        return "Conditional"
+
+
+class LocalizationGoal(_GoalText):
+    """Place a block at a side and distance from another (official `localization_placing`)."""
+
+    kind: Literal["localization_placing"] = "localization_placing"
+    place: str
+    """The block to place (Craftax block name)."""
+    target: str
+    """The block it is placed relative to."""
+    side: Side
+    distance: int = Field(ge=0)
+
+    @property
+    def scenario_class(self) -> ScenarioClass:
+        return "Localization"
+
+
+class BuildLineGoal(_GoalText):
+    """A straight or diagonal line of blocks (official `build_line`)."""
+
+    kind: Literal["build_line"] = "build_line"
+    block: str
+    size: int = Field(ge=1)
+    diagonal: bool
+
+    @property
+    def scenario_class(self) -> ScenarioClass:
+        return "Build"
+
+
+class BuildSquareGoal(_GoalText):
+    """A filled square of blocks (official `build_square`)."""
+
+    kind: Literal["build_square"] = "build_square"
+    block: str
+    size: int = Field(ge=1)
+
+    @property
+    def scenario_class(self) -> ScenarioClass:
+        return "Build"
+
+
+class BuildStarGoal(_GoalText):
+    """A cross of blocks (official `build_star`)."""
+
+    kind: Literal["build_star"] = "build_star"
+    block: str
+    size: int = Field(ge=1)
+    cross: CrossType
+
+    @property
+    def scenario_class(self) -> ScenarioClass:
+        return "Build"
+
+
+def _goal_kind(value: object) -> str:
+    # Datasets saved before Medium and Hard existed have achievements goals with no `kind`.
+    if isinstance(value, dict):
+        return str(value.get("kind", "achievements"))
+    return str(getattr(value, "kind", "achievements"))
+
+
+AnyGoal = Annotated[
+    Annotated[Goal, Tag("achievements")]
+    | Annotated[ConditionalPlacingGoal, Tag("conditional_placing")]
+    | Annotated[LocalizationGoal, Tag("localization_placing")]
+    | Annotated[BuildLineGoal, Tag("build_line")]
+    | Annotated[BuildSquareGoal, Tag("build_square")]
+    | Annotated[BuildStarGoal, Tag("build_star")],
+    Discriminator(_goal_kind),
+]
+"""Any CrafText goal, told apart by its `kind`."""
 
 
 def _mask(names: Iterable[str]) -> np.ndarray:
@@ -149,7 +312,7 @@ class Instruction(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     goal: Goal
-    """The goal the text describes."""
+    """The goal the text describes (an EASY-path achievements goal)."""
     variant: int
     """0 for the original instruction, 1..n for the goal's paraphrases (n is usually 5)."""
     text: str
@@ -190,13 +353,13 @@ class DatasetSource(BaseModel):
 
 
 class Dataset(BaseModel):
-    """The EASY goals of all three splits, and the source they came from."""
+    """The goals of every split, and the source they came from."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     source: DatasetSource
     """Where the goals were read from."""
-    goals: tuple[Goal, ...]
+    goals: tuple[AnyGoal, ...]
     """All goals, split by split, in the official order."""
 
     @model_validator(mode="after")
@@ -208,15 +371,27 @@ class Dataset(BaseModel):
             seen.add((goal.split, goal.id))
         return self
 
-    def split(self, name: str) -> list[Goal]:
-        """The goals of one split."""
+    def split(self, name: str) -> list[AnyGoal]:
+        """The goals of one split; a `UserError` when this dataset has none."""
         wanted = check_split(name)
-        return [goal for goal in self.goals if goal.split == wanted]
+        goals = [goal for goal in self.goals if goal.split == wanted]
+        if not goals:
+            present = ", ".join(split for split in SPLITS if self.has_split(split))
+            raise UserError(f"this dataset has no {wanted} goals; it has: {present}")
+        return goals
+
+    def has_split(self, name: Split) -> bool:
+        return any(goal.split == name for goal in self.goals)
 
     def select(self, categories: str | Iterable[str]) -> list[Goal]:
-        """The goals of the given categories (names or a comma-separated string), in dataset order."""
+        """The EASY goals of the given categories (names or a comma-separated string), in
+        dataset order."""
         wanted = set(parse_categories(categories))
-        return [goal for goal in self.goals if goal.category in wanted]
+        return [
+            goal
+            for goal in self.goals
+            if isinstance(goal, Goal) and goal.difficulty == "easy" and goal.category in wanted
+        ]
 
     def instructions(
         self, categories: str | Iterable[str], include_paraphrases: bool = True
@@ -231,7 +406,19 @@ class Dataset(BaseModel):
     def split_sha256(self) -> dict[str, str]:
         """A content digest of each split present: its goals' ids, texts and achievements in
         order, whatever file or format they were read from."""
-        return {split: split_digest(goals) for split in SPLITS if (goals := self.split(split))}
+        return {
+            split: split_digest([goal for goal in self.goals if goal.split == split])
+            for split in SPLITS
+            if self.has_split(split)
+        }
+
+    def scenario_goals(self) -> dict[str, dict[str, int]]:
+        """Goals per split and goal kind, for the splits present."""
+        counts: dict[str, dict[str, int]] = {}
+        for goal in self.goals:
+            per_kind = counts.setdefault(goal.split, {})
+            per_kind[goal.kind] = per_kind.get(goal.kind, 0) + 1
+        return counts
 
     def category_goals(self) -> dict[str, int]:
         """Goals per category, zeros included."""
@@ -244,20 +431,20 @@ class Dataset(BaseModel):
         return target
 
 
-def split_digest(goals: Sequence[Goal]) -> str:
-    """SHA-256 of goals' ids, instruction texts and achievements, in order (see `split_sha256`)."""
+def split_digest(goals: Sequence[AnyGoal]) -> str:
+    """SHA-256 of goals' ids, instruction texts and parameters, in order (see `split_sha256`)."""
     content = [
-        [
-            goal.id,
-            goal.instruction,
-            list(goal.paraphrases),
-            list(goal.required),
-            list(goal.forbidden),
-        ]
-        for goal in goals
+        [goal.id, goal.instruction, list(goal.paraphrases), *_digested(goal)] for goal in goals
     ]
     text = json.dumps(content, ensure_ascii=False, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _digested(goal: AnyGoal) -> list[object]:
+    if isinstance(goal, Goal):
+        # As before other kinds existed, so EASY digests stay what they were.
+        return [list(goal.required), list(goal.forbidden)]
+    return [goal.kind, *goal.parameters()]
 
 
 # --- files: writing ------------------------------------------------------------------------

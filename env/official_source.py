@@ -22,15 +22,26 @@ from typing import Any, Protocol
 from pydantic import ValidationError
 
 from env.achievements import ACHIEVEMENT_IDS
+from env.craftax_names import FULL_BLOCKS
 from env.downloads import sha256_file
 from env.errors import UserError
 from env.goals import (
+    CROSS_TYPES,
+    SIDES,
+    AnyGoal,
+    BuildLineGoal,
+    BuildSquareGoal,
+    BuildStarGoal,
+    ConditionalPlacingGoal,
     Dataset,
     DatasetSource,
     Goal,
+    GoalKind,
+    LocalizationGoal,
     SourceKind,
     Split,
     category_of,
+    difficulty_of,
 )
 
 
@@ -114,8 +125,9 @@ class _ZipFiles:
 _MAX_MODULE_BYTES = 16 << 20
 
 
-# Where each split lives, relative to the `scenarious` package. The released wheel and the
-# official repository spell the "new objects" split differently.
+# Where each split lives, relative to the `scenarious` package, under each spelling the released
+# wheel and the official repository use ("parafrased", "paramets"). The official loader reads a
+# missing name as an empty split (`hasattr`), so only the EASY ones must be there.
 _SPLIT_BINDINGS: dict[Split, tuple[str, tuple[str, ...]]] = {
     "easy_train": ("SMALL.instructions", ("easy",)),
     "easy_test_paraphrased": ("SMALL.test", ("easy_test_paraphrased",)),
@@ -123,6 +135,134 @@ _SPLIT_BINDINGS: dict[Split, tuple[str, tuple[str, ...]]] = {
         "SMALL.test",
         ("easy_test_other_params", "easy_test_other_paramets"),
     ),
+    "medium_train": ("SMALL.instructions", ("medium",)),
+    "medium_test_paraphrased": (
+        "SMALL.test",
+        ("medium_test_parafrased", "medium_test_paraphrased"),
+    ),
+    "medium_test_other_params": (
+        "SMALL.test",
+        ("medium_test_other_paramets", "medium_test_other_params"),
+    ),
+    "hard_train": ("SMALL.instructions", ("hard",)),
+    "hard_test_paraphrased": ("SMALL.test", ("hard_test_parafrased", "hard_test_paraphrased")),
+    "hard_test_other_params": (
+        "SMALL.test",
+        ("hard_test_other_paramets", "hard_test_other_params"),
+    ),
+}
+_OFFICIAL_MISSING_INSTRUCTION = "Unknown instruction"
+_REQUIRED_SPLITS = ("easy_train", "easy_test_paraphrased", "easy_test_other_params")
+
+# The official enums the goals name (craftext_constants at 1c518ae). BlockType is Craftax's own.
+_ENUMS: dict[str, dict[str, int]] = {
+    "BlockType": {name: index for index, name in enumerate(FULL_BLOCKS)},
+    "InventoryItems": {
+        name: index
+        for index, name in enumerate(
+            [
+                "WOOD",
+                "STONE",
+                "COAL",
+                "IRON",
+                "DIAMOND",
+                "SAPLING",
+                "WOOD_PICKAXE",
+                "STONE_PICKAXE",
+                "IRON_PICKAXE",
+                "WOOD_SWORD",
+                "STONE_SWORD",
+                "IRON_SWORD",
+            ]
+        )
+    },
+    "MediumInventoryItems": {
+        name: index
+        for index, name in enumerate(
+            [
+                "WOOD",
+                "STONE",
+                "COAL",
+                "IRON",
+                "DIAMOND",
+                "SAPLING",
+                "PICKAXE",
+                "SWORD",
+                "BOW",
+                "ARROWS",
+                "ARMOUR",
+                "TORCHES",
+                "RUBY",
+                "SAPPHIRE",
+                "POTIONS",
+                "BOOKS",
+            ]
+        )
+    },
+    "CrossType": {"STRAIGHT": 0, "DIAGONAL": 1, "COMBINED": 2},
+    "Scenarios": {
+        "CONDITIONAL_ACHIEVEMENTS": 0,
+        "CONDITIONAL_PLACING": 1,
+        "LOCALIZATION_PLACE": 2,
+        "BUILD_LINE": 3,
+        "BUILD_SQUARE": 4,
+        "BUILD_STAR": 5,
+        "TIME_CONSTRAINED_PLACEMENT": 6,
+        "EXPLORE": 7,
+    },
+}
+# The official checker's inventory lookup by enum code (`check_inventory`): codes 6-11, 14 and 15
+# count diamonds, and lax.switch clamps codes past the end to the last branch.
+_COUNTED_ITEM = [
+    "wood",
+    "stone",
+    "coal",
+    "iron",
+    "diamond",
+    "sapling",
+    "diamond",
+    "diamond",
+    "diamond",
+    "diamond",
+    "diamond",
+    "diamond",
+    "ruby",
+    "sapphire",
+    "diamond",
+    "diamond",
+]
+# The target-state records' fields in constructor order (target_state.py), with their defaults.
+_STATE_FIELDS: dict[str, dict[str, Any]] = {
+    "ConditionalPlacingState": {
+        "object_inventory_enum": -1,
+        "object_to_place": 0,
+        "count_to_collect": 0,
+        "count_to_stand": 1,
+    },
+    "LocalizaPlacingState": {
+        "object_name": -1,
+        "target_object_name": -1,
+        "side": -1,
+        "distance": 5,
+    },
+    "BuildLineState": {"block_type": 0, "size": 3, "radius": 3, "is_diagonal": False},
+    "BuildSquareState": {"block_type": 0, "size": 3, "radius": 5},
+    "BuildStarState": {"block_type": 0, "size": 3, "radius": 3, "cross_type": -1},
+}
+_SCENARIO_KINDS: dict[str, GoalKind] = {
+    "CONDITIONAL_ACHIEVEMENTS": "achievements",
+    "CONDITIONAL_PLACING": "conditional_placing",
+    "LOCALIZATION_PLACE": "localization_placing",
+    "BUILD_LINE": "build_line",
+    "BUILD_SQUARE": "build_square",
+    "BUILD_STAR": "build_star",
+}
+_STATE_KINDS: dict[str, GoalKind] = {
+    "ConditionalPlacingState": "conditional_placing",
+    "LocalizaPlacingState": "localization_placing",
+    "BuildLineState": "build_line",
+    "BuildSquareState": "build_square",
+    "BuildStarState": "build_star",
 }
 _SCENARIOS_PACKAGE = "craftext.dataset.scenarious"
 # Where the `scenarious` package may sit below the given root: repository clone or unpacked
@@ -160,7 +300,7 @@ def parse_archive(archive: Path, url: str, commit: str) -> Dataset:
     )
 
 
-def _parse_tree(files: _SourceFiles, kind: SourceKind, label: str | Path) -> Dataset:
+def _open_tree(files: _SourceFiles, label: str | Path) -> _SourceTree:
     prefix = next(
         (
             candidate
@@ -175,8 +315,12 @@ def _parse_tree(files: _SourceFiles, kind: SourceKind, label: str | Path) -> Dat
             f"craftext/dataset/scenarious/SMALL/instructions.py (a clone of the official CrafText "
             "repository or an unpacked craftext wheel)"
         )
-    tree = _SourceTree(files, prefix, label)
-    goals: list[Goal] = []
+    return _SourceTree(files, prefix, label)
+
+
+def _parse_tree(files: _SourceFiles, kind: SourceKind, label: str | Path) -> Dataset:
+    tree = _open_tree(files, label)
+    goals: list[AnyGoal] = []
     for split, (module_name, variables) in _SPLIT_BINDINGS.items():
         goals.extend(tree.split_goals(split, module_name, variables))
     metadata = files.dist_info_metadata()
@@ -215,9 +359,27 @@ class _AchievementRef:
 
 
 @dataclass(frozen=True)
+class _EnumRef:
+    """`Enum.MEMBER` of one of the official constant classes (`_ENUMS`)."""
+
+    enum: str
+    member: str
+    where: str
+
+
+@dataclass(frozen=True)
 class _TargetState:
     required: list[Any]
     forbidden: list[Any]
+    where: str
+
+
+@dataclass(frozen=True)
+class _StateRecord:
+    """A target-state record other than achievements: its class and its fields' values."""
+
+    name: str
+    fields: dict[str, Any]
     where: str
 
 
@@ -254,13 +416,16 @@ class _Module:
                 f"cannot parse {self.display}{f':{line}' if line else ''}: {message}"
             ) from None
         self.bindings: dict[str, ast.expr | _ModuleRef | _ImportedName] = {}
+        self.functions: dict[str, ast.FunctionDef] = {}
         for statement in syntax.body:
             self._bind(statement)
         self._values: dict[str, Any] = {}
         self._evaluating: set[str] = set()
 
     def _bind(self, statement: ast.stmt) -> None:
-        if isinstance(statement, ast.Assign):
+        if isinstance(statement, ast.FunctionDef):
+            self.functions[statement.name] = statement
+        elif isinstance(statement, ast.Assign):
             for target in statement.targets:
                 if isinstance(target, ast.Name):
                     self.bindings[target.id] = statement.value
@@ -330,7 +495,7 @@ class _Module:
         if isinstance(node, ast.BinOp) and isinstance(node.op, ast.BitOr):
             left, right = self.evaluate(node.left), self.evaluate(node.right)
             if isinstance(left, dict) and isinstance(right, dict):
-                return _merge(_merge(_Table(), left, where), right, where)
+                return _merge(_merge(_Table(), left, where), right, where, self.tree.notes)
             return _Opaque(ast.unparse(node), where)
         if isinstance(node, ast.Name):
             return self.lookup(node.id, where)
@@ -344,11 +509,15 @@ class _Module:
         table = _Table()
         for key_node, value_node in zip(node.keys, node.values, strict=True):
             if key_node is None:
-                _merge(table, self.evaluate(value_node), self.where(value_node))
+                _merge(table, self.evaluate(value_node), self.where(value_node), self.tree.notes)
                 continue
             key = self.evaluate(key_node)
             if isinstance(key, _Opaque):
                 raise UserError(f"{key.where}: unsupported dict key {key.text!r}")
+            if key in table:
+                self.tree.notes.append(
+                    f"duplicate key {key!r}: {self.where(key_node)} replaces {table.locations[key]}"
+                )
             # Like Python: a repeated key keeps its first position and takes the last value.
             table[key] = self.evaluate(value_node)
             table.locations[key] = self.where(key_node)
@@ -361,6 +530,8 @@ class _Module:
             enum_name = binding.name if isinstance(binding, _ImportedName) else base.id
             if enum_name == _ACHIEVEMENT_ENUM and not isinstance(binding, ast.expr):
                 return _AchievementRef(node.attr, where)
+            if enum_name in _ENUMS and not isinstance(binding, ast.expr):
+                return _EnumRef(enum_name, node.attr, where)
             if isinstance(binding, _ImportedName) and not self.tree.is_module(binding):
                 # A class or constant from another module (e.g. `Scenarios.X`): not dataset data.
                 return _Opaque(ast.unparse(node), where)
@@ -374,6 +545,9 @@ class _Module:
         name = function.id if isinstance(function, ast.Name) else getattr(function, "attr", None)
         if name != _TARGET_STATE_FUNCTION:
             return _Opaque(ast.unparse(node), where)
+        definition = self.functions.get(name)
+        if definition is not None and (record := self._state_record(definition, node, where)):
+            return record
         arguments: dict[str, Any] = {"required": [], "forbidden": []}
         for parameter, value in zip(("required", "forbidden"), node.args, strict=False):
             arguments[parameter] = self.evaluate(value)
@@ -385,12 +559,73 @@ class _Module:
             arguments[keyword.arg] = self.evaluate(keyword.value)
         return _TargetState(arguments["required"], arguments["forbidden"], where)
 
+    def _state_record(
+        self, definition: ast.FunctionDef, call: ast.Call, where: str
+    ) -> _StateRecord | None:
+        """A module's own `create_target_state` applied to `call`'s arguments, when its body
+        builds one of the records in `_STATE_FIELDS` (EASY's builds an achievement mask, read
+        by the caller)."""
+        constructor = next(
+            (
+                node
+                for node in ast.walk(definition)
+                if isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and self._class_name(node.func.id) in _STATE_FIELDS
+            ),
+            None,
+        )
+        if constructor is None:
+            return None
+        assert isinstance(constructor.func, ast.Name)
+        parameters = [argument.arg for argument in definition.args.args]
+        bound: dict[str, Any] = {}
+        defaults = definition.args.defaults
+        for parameter, default in zip(
+            parameters[len(parameters) - len(defaults) :], defaults, strict=True
+        ):
+            bound[parameter] = self.evaluate(default)
+        if len(call.args) > len(parameters):
+            raise UserError(f"{where}: too many arguments to {_TARGET_STATE_FUNCTION}")
+        for parameter, value in zip(parameters, call.args, strict=False):
+            bound[parameter] = self.evaluate(value)
+        for keyword in call.keywords:
+            if keyword.arg not in parameters:
+                raise UserError(
+                    f"{where}: unexpected argument {keyword.arg!r} to {_TARGET_STATE_FUNCTION}"
+                )
+            bound[keyword.arg] = self.evaluate(keyword.value)
 
-def _merge(table: _Table, other: Any, where: str) -> _Table:
+        def value_of(node: ast.expr) -> Any:
+            if isinstance(node, ast.Name) and node.id in parameters:
+                if node.id not in bound:
+                    raise UserError(f"{where}: {_TARGET_STATE_FUNCTION} needs {node.id!r}")
+                return bound[node.id]
+            return self.evaluate(node)
+
+        class_name = self._class_name(constructor.func.id)
+        fields = dict(_STATE_FIELDS[class_name])
+        names = list(fields)
+        for index, value in enumerate(constructor.args):
+            fields[names[index]] = value_of(value)
+        for keyword in constructor.keywords:
+            if keyword.arg in fields:
+                fields[keyword.arg] = value_of(keyword.value)
+        return _StateRecord(class_name, fields, where)
+
+    def _class_name(self, local: str) -> str:
+        binding = self.bindings.get(local)
+        return binding.name if isinstance(binding, _ImportedName) else local
+
+
+def _merge(table: _Table, other: Any, where: str, notes: list[str] | None = None) -> _Table:
     if not isinstance(other, dict):
         text = other.text if isinstance(other, _Opaque) else repr(other)
         raise UserError(f"{where}: cannot resolve {text!r} to a dict of goals")
     for key, value in other.items():
+        if notes is not None and key in table:
+            added = other.locations[key] if isinstance(other, _Table) else where
+            notes.append(f"key {key!r} from {added} replaces {table.locations[key]} at {where}")
         table[key] = value
         table.locations[key] = other.locations[key] if isinstance(other, _Table) else where
     return table
@@ -405,6 +640,9 @@ class _SourceTree:
         self.label = label
         self._modules: dict[str, _Module] = {}
         self._read: dict[str, bytes] = {}
+        self.notes: list[str] = []
+        """What the modules do that changes the goals the official loader yields (repeated
+        keys, merges where a later dict replaces an earlier goal)."""
 
     def _relpaths(self, dotted: str) -> Iterator[tuple[str, bool]]:
         parts = dotted.split(".")
@@ -452,17 +690,28 @@ class _SourceTree:
             return _Opaque(f"{name.module}.{name.name}", wanted_at)
         return self.module(name.module, wanted_at).lookup(name.name, wanted_at)
 
-    def split_goals(self, split: Split, module_name: str, variables: tuple[str, ...]) -> list[Goal]:
+    def split_goals(
+        self, split: Split, module_name: str, variables: tuple[str, ...]
+    ) -> list[AnyGoal]:
         module = self.module(f"{_SCENARIOS_PACKAGE}.{module_name}", str(self.label))
         variable = next((name for name in variables if name in module.bindings), None)
         if variable is None:
+            if split not in _REQUIRED_SPLITS:
+                return []
             raise UserError(
                 f"{module.display} defines none of {', '.join(variables)} (the {split} split)"
             )
         table = module.lookup(variable, module.display)
         if not isinstance(table, _Table):
             raise UserError(f"{module.display}: {variable} is not a dict of goals")
-        return [_goal(split, key, entry, table.locations[key]) for key, entry in table.items()]
+        goals = []
+        for key, entry in table.items():
+            if isinstance(entry, dict) and isinstance(entry.get("arguments"), str):
+                # Code quoted as a string: the official loader cannot build its target at all.
+                self.notes.append(f"goal {key!r} at {table.locations[key]} has quoted arguments")
+                continue
+            goals.append(_goal(split, key, entry, table.locations[key]))
+        return goals
 
     def digest(self) -> str:
         digest = hashlib.sha256()
@@ -478,11 +727,15 @@ def _canonical(dotted: str) -> str:
     return dotted
 
 
-def _goal(split: Split, key: Any, entry: Any, where: str) -> Goal:
+def _goal(split: Split, key: Any, entry: Any, where: str) -> AnyGoal:
     if not isinstance(key, str) or not isinstance(entry, dict):
         raise UserError(f"{where}: goal {key!r} is not a string key with a dict of fields")
     instruction = entry.get("instruction")
     paraphrases = entry.get("instruction_paraphrases", [])
+    if instruction is None and "Instruction" in entry:
+        # The official loader reads only the lower-case keys and falls back to this text (the
+        # craftext 0.2.2 wheel's localization test goals are spelt "Instruction").
+        instruction, paraphrases = _OFFICIAL_MISSING_INSTRUCTION, []
     target = entry.get("arguments")
     if not isinstance(instruction, str):
         raise UserError(f"{where}: goal {key!r} has no literal 'instruction' string")
@@ -490,6 +743,22 @@ def _goal(split: Split, key: Any, entry: Any, where: str) -> Goal:
         raise UserError(
             f"{where}: goal {key!r} has 'instruction_paraphrases' that are not literal strings"
         )
+    checker = entry.get("scenario_checker")
+    if isinstance(checker, _EnumRef) and checker.enum == "Scenarios":
+        kind = _SCENARIO_KINDS.get(checker.member)
+        if kind is None:
+            raise UserError(
+                f"{where}: goal {key!r} uses the {checker.member} checker, which is not supported"
+            )
+        stated = "achievements" if isinstance(target, _TargetState) else None
+        if isinstance(target, _StateRecord):
+            stated = _STATE_KINDS[target.name]
+        if stated is not None and stated != kind:
+            raise UserError(
+                f"{where}: goal {key!r} names the {checker.member} checker but builds a {stated} target"
+            )
+    if isinstance(target, _StateRecord):
+        return _record_goal(split, key, instruction, paraphrases, target)
     if not isinstance(target, _TargetState):
         raise UserError(
             f"{where}: goal {key!r} has no {_TARGET_STATE_FUNCTION}(required=..., forbidden=...)"
@@ -499,6 +768,7 @@ def _goal(split: Split, key: Any, entry: Any, where: str) -> Goal:
     try:
         return Goal(
             id=key,
+            scenario=difficulty_of(split),
             split=split,
             category=category_of(split, required, forbidden),
             instruction=instruction,
@@ -508,6 +778,84 @@ def _goal(split: Split, key: Any, entry: Any, where: str) -> Goal:
         )
     except ValidationError as error:
         raise UserError(f"{where}: goal {key!r} is invalid: {error.errors()[0]['msg']}") from None
+
+
+def _record_goal(
+    split: Split, key: str, instruction: str, paraphrases: list[str], record: _StateRecord
+) -> AnyGoal:
+    values = {
+        name: _integer(value, key, name, record.where) for name, value in record.fields.items()
+    }
+    common: dict[str, Any] = {
+        "id": key,
+        "scenario": difficulty_of(split),
+        "split": split,
+        "instruction": instruction,
+        "paraphrases": tuple(paraphrases),
+    }
+    try:
+        if record.name == "ConditionalPlacingState":
+            code = values["object_inventory_enum"]
+            return ConditionalPlacingGoal(
+                **common,
+                collect=_COUNTED_ITEM[min(max(code, 0), len(_COUNTED_ITEM) - 1)],
+                collect_count=values["count_to_collect"],
+                place=_block(values["object_to_place"], key, record.where),
+                place_count=values["count_to_stand"],
+            )
+        if record.name == "LocalizaPlacingState":
+            side = values["side"]
+            if not 0 <= side < len(SIDES):
+                raise UserError(f"{record.where}: goal {key!r} has side {side}, not 0-3")
+            return LocalizationGoal(
+                **common,
+                place=_block(values["object_name"], key, record.where),
+                target=_block(values["target_object_name"], key, record.where),
+                side=SIDES[side],
+                distance=values["distance"],
+            )
+        if record.name == "BuildLineState":
+            return BuildLineGoal(
+                **common,
+                block=_block(values["block_type"], key, record.where),
+                size=values["size"],
+                diagonal=bool(values["is_diagonal"]),
+            )
+        if record.name == "BuildSquareState":
+            return BuildSquareGoal(
+                **common, block=_block(values["block_type"], key, record.where), size=values["size"]
+            )
+        cross = values["cross_type"]
+        if not 0 <= cross < len(CROSS_TYPES):
+            raise UserError(f"{record.where}: goal {key!r} has cross type {cross}, not 0-2")
+        return BuildStarGoal(
+            **common,
+            block=_block(values["block_type"], key, record.where),
+            size=values["size"],
+            cross=CROSS_TYPES[cross],
+        )
+    except ValidationError as error:
+        raise UserError(
+            f"{record.where}: goal {key!r} is invalid: {error.errors()[0]['msg']}"
+        ) from None
+
+
+def _integer(value: Any, goal: str, field: str, where: str) -> int:
+    if isinstance(value, _EnumRef):
+        members = _ENUMS[value.enum]
+        if value.member not in members:
+            raise UserError(f"{value.where}: goal {goal!r}: unknown {value.enum}.{value.member}")
+        return members[value.member]
+    if isinstance(value, bool | int):
+        return int(value)
+    text = value.text if isinstance(value, _Opaque) else repr(value)
+    raise UserError(f"{where}: goal {goal!r}: {field} is {text!r}, not a number or a known enum")
+
+
+def _block(code: int, goal: str, where: str) -> str:
+    if not 0 <= code < len(FULL_BLOCKS):
+        raise UserError(f"{where}: goal {goal!r}: block code {code} is not a Craftax block")
+    return FULL_BLOCKS[code]
 
 
 def _achievement_names(values: Any, goal: str, role: str, where: str) -> tuple[str, ...]:
@@ -524,3 +872,16 @@ def _achievement_names(values: Any, goal: str, role: str, where: str) -> tuple[s
 def parse_directory(path: Path) -> Dataset:
     """Parse a clone of the official repository or an unpacked `craftext` wheel."""
     return _parse_tree(_DirectoryFiles(path), kind="directory", label=path)
+
+
+def parsing_notes(path: Path) -> list[str]:
+    """Where the dataset modules of a clone or unpacked wheel replace a goal by another of the
+    same key (a repeated key in a dict literal, or a later `**spread`): the official loader,
+    like this parser, keeps the key's first position and the last value."""
+    tree = _open_tree(_DirectoryFiles(path), path)
+    for module_name, variables in _SPLIT_BINDINGS.values():
+        module = tree.module(f"{_SCENARIOS_PACKAGE}.{module_name}", str(path))
+        for variable in variables:
+            if variable in module.bindings:
+                module.lookup(variable, module.display)
+    return list(dict.fromkeys(tree.notes))

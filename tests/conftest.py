@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,19 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"reference data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def official_repository(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The official CrafText repository at 1c518ae, unpacked from the shared reference zip."""
+    archive = shared_data / "craftext_official_1c518ae.zip"
+    if not archive.is_file():
+        pytest.skip(f"reference archive {archive} is absent")
+    target = tmp_path_factory.mktemp("official-repository")
+    with zipfile.ZipFile(archive) as opened:
+        opened.extractall(target)
+    (root,) = target.iterdir()
+    return root
 
 
 @dataclass

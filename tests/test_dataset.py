@@ -24,11 +24,11 @@ import env.downloads as downloads_module
 from env.achievements import ACHIEVEMENT_IDS
 from env.dataset import (
     CACHE_ENV_VAR,
+    CATEGORIES,
     OFFICIAL_COMMIT,
     OFFICIAL_GOALS,
     OFFICIAL_REPOSITORY,
     OFFICIAL_SPLIT_SHA256,
-    SPLITS,
     WHEEL_FILENAME,
     WHEEL_SHA256,
     Dataset,
@@ -174,7 +174,7 @@ def write_official_clone(root: Path, reference: dict[str, Any]) -> Path:
         "    instructions as atom,\n)\n"
         "from craftext.dataset.scenarious.jax_conditional_achievements_combo import instructions as combo\n\n"
         "easy = {\n    **atom.easy,\n    **combo.easy,\n}\n\n"
-        "medium = {**build_line.medium, **combo.medium}\n",
+        "explore = {**build_line.medium, **combo.medium}\n",
     )
     _write(
         package / "SMALL" / "test.py",
@@ -216,7 +216,8 @@ def test_wheel_counts_per_category(wheel_dataset: Dataset) -> None:
         "new_objects": (44, 264),
     }
     assert len(wheel_dataset.split("easy_train")) == 12
-    assert all(len(goal.paraphrases) == 5 for goal in wheel_dataset.goals)
+    easy = wheel_dataset.select(CATEGORIES)
+    assert all(len(goal.paraphrases) == 5 for goal in easy)
 
 
 def test_wheel_test_splits_equal_reference(
@@ -317,7 +318,7 @@ def test_directory_sha256_follows_content(
 
 
 def test_masks_match_achievement_ids(wheel_dataset: Dataset) -> None:
-    goals = list(wheel_dataset.goals)
+    goals = wheel_dataset.select(CATEGORIES)
     required, forbidden = goal_masks(goals)
     assert required.shape == forbidden.shape == (len(goals), 22)
     assert required.dtype == forbidden.dtype == np.bool_
@@ -406,8 +407,10 @@ def test_invalid_json_names_the_file(official_dataset: Dataset, tmp_path: Path) 
 
 
 def test_unknown_split_and_category(wheel_dataset: Dataset) -> None:
-    with pytest.raises(UserError, match="hard_train"):
-        wheel_dataset.split("hard_train")
+    with pytest.raises(UserError, match="unknown split 'insane_train'"):
+        wheel_dataset.split("insane_train")
+    with pytest.raises(UserError, match="no hard_test_paraphrased goals; it has: easy_train"):
+        wheel_dataset.split("hard_test_paraphrased")
     with pytest.raises(UserError, match="new_object'"):
         wheel_dataset.select("one,new_object")
     with pytest.raises(UserError, match="no category"):
@@ -637,34 +640,42 @@ def test_default_source_downloads_checks_and_caches_the_official_archive(
     status = {entry.name: entry for entry in cache_status(cache)}
     assert status["official"].present and status["official"].source == first.source
     assert status["official"].goals == {"one": 1, "combo": 1, "paraphrased": 1, "new_objects": 1}
-    assert status["official"].official_splits == list(SPLITS)
+    assert status["official"].official_splits == list(dataset_module.OFFICIAL_SPLIT_SHA256)
 
 
 def test_the_pin_equals_the_official_data(
     code_host: _CodeHost,
-    official_clone: Path,
+    official_repository: Path,
     reference: dict[str, Any],
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    # The archive is built from the reference copy of the official splits: the pinned digests
-    # (not patched here) must accept it, and it must hold all 57 train goals.
+    # The real repository at the pinned commit: the pinned digests (not patched here) must
+    # accept it, with all 57 EASY train goals and the Medium and Hard goals the official loader
+    # yields (no Hard test split: SMALL/test.py defines none).
     monkeypatch.setenv(CACHE_ENV_VAR, str(tmp_path))
-    code_host.serve_repository(official_clone)
+    code_host.serve_repository(official_repository)
     dataset = load_dataset()
     assert dataset.source.kind == "archive"
+    assert official_splits(dataset) == list(OFFICIAL_SPLIT_SHA256)
     assert (
         dataset.category_goals()
         == OFFICIAL_GOALS
-        == {
-            "one": 20,
-            "combo": 37,
-            "paraphrased": 41,
-            "new_objects": 44,
-        }
+        == {"one": 20, "combo": 37, "paraphrased": 41, "new_objects": 44}
     )
     for split, goals in reference["splits"].items():
         assert _parsed(dataset.split(split)) == _comparable(goals), split
+    assert {split: sum(kinds.values()) for split, kinds in dataset.scenario_goals().items()} == {
+        "easy_train": 57,
+        "easy_test_paraphrased": 41,
+        "easy_test_other_params": 44,
+        "medium_train": 117,
+        "medium_test_paraphrased": 75,
+        "medium_test_other_params": 79,
+        "hard_train": 69,
+    }
+    with pytest.raises(UserError, match="no hard_test_other_params goals"):
+        dataset.split("hard_test_other_params")
 
 
 def _copy_wheel_cache(cached_wheel: Path, cache: Path) -> None:
@@ -701,7 +712,10 @@ def test_default_source_falls_back_to_the_wheel_naming_what_is_missing(
     }[failure]
     assert reason in caplog.text
     assert "0 of 20 `one` goals, 12 of 37 `combo` goals" in caplog.text
-    assert "easy_train split differs" in caplog.text
+    assert (
+        "whose easy_train, medium_train, medium_test_paraphrased, medium_test_other_params, "
+        "hard_train splits differ from the official one" in caplog.text
+    )
     # A failed download or check caches nothing of the official data.
     assert not official_cache_file(cache).exists()
     assert sorted(path.name for path in cache.iterdir()) == [wheel_cache_file(cache).name]
@@ -732,9 +746,13 @@ def test_split_digests_follow_content_not_format(
     official_clone: Path, official_dataset: Dataset, wheel_dataset: Dataset, tmp_path: Path
 ) -> None:
     saved = load_dataset(official_dataset.save_json(tmp_path / "saved.json"))
-    assert saved.split_sha256() == official_dataset.split_sha256() == OFFICIAL_SPLIT_SHA256
+    easy = {split: OFFICIAL_SPLIT_SHA256[split] for split in saved.split_sha256()}
+    assert saved.split_sha256() == official_dataset.split_sha256() == easy
     assert official_splits(wheel_dataset) == list(TEST_SPLITS)
-    assert describe_shortfall(official_dataset) == "which equals the official data"
+    assert describe_shortfall(official_dataset) == (
+        "which equals the official data where present; it has no medium_train, "
+        "medium_test_paraphrased, medium_test_other_params, hard_train goals"
+    )
 
 
 def test_data_command_shows_fetches_and_exports(
@@ -758,7 +776,8 @@ def test_data_command_shows_fetches_and_exports(
     assert main(["data", "show"]) == 0
     shown = capsys.readouterr().out
     assert f"from archive {code_host.url}{route} (version {OFFICIAL_COMMIT})" in shown
-    assert "splits equal to the official data: " + ", ".join(SPLITS) in shown
+    pinned = dataset_module.OFFICIAL_SPLIT_SHA256
+    assert "splits equal to the official data: " + ", ".join(pinned) in shown
     assert main(["data", "fetch", "--refresh"]) == 0
     assert code_host.requests == [route, route]
 

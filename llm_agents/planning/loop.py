@@ -20,7 +20,7 @@ from typing import Any
 from pydantic import BaseModel, Field, field_validator
 from tqdm import tqdm
 
-from env.dataset import CATEGORY_SPLIT, Goal, check_split, load_dataset
+from env.dataset import CATEGORY_SPLIT, AnyGoal, check_split, load_dataset
 from env.variant import Variant
 from llm_agents.agents.actions import action_catalogue
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
@@ -291,7 +291,7 @@ def plan_instructions(
     return summary
 
 
-def goal_instructions(goals: Iterable[Goal]) -> list[str]:
+def goal_instructions(goals: Iterable[AnyGoal]) -> list[str]:
     """Every instruction and paraphrase of the goals, each once, in dataset order."""
     return list(dict.fromkeys(text for goal in goals for text in goal.texts))
 

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from env.dataset import Goal, load_dataset
+from env.dataset import CATEGORIES, Goal, load_dataset
 from env.errors import UserError
 from llm_agents.evaluation.report import scheduled_episodes
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
@@ -148,7 +148,7 @@ def _read_steps(
 
 def _goals(dataset: Any) -> dict[tuple[str, str], Goal]:
     data = load_dataset(dataset if isinstance(dataset, str) else None)
-    return {(goal.category, goal.id): goal for goal in data.goals}
+    return {(goal.category, goal.id): goal for goal in data.select(CATEGORIES)}
 
 
 def _why_unreplayable(view: EpisodeView, *, has_steps: bool) -> str | None:
