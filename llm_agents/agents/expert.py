@@ -81,9 +81,9 @@ def _direction(src: Cell, dst: Cell) -> str:
 
 
 class _ExpertEpisode:
-    def __init__(self, goal: Goal | None):
-        self.required: tuple[str, ...] = goal.required if goal is not None else ()
-        self.forbidden: tuple[str, ...] = goal.forbidden if goal is not None else ()
+    def __init__(self, required: Sequence[str], forbidden: Sequence[str]):
+        self.required = tuple(required)
+        self.forbidden = tuple(forbidden)
         self.world = WorldMap()
         self.explore_target: Cell | None = None
         self.heading: Cell = (1, 0)
@@ -122,7 +122,11 @@ class ExpertAgent:
         """Begin an episode; `goal` (the dataset record) is required, the text is ignored."""
         if goal is None:
             raise UserError("the expert agent needs the goal record, not only the instruction text")
-        self._episodes[slot] = _ExpertEpisode(goal)
+        self.start_goal(slot, goal.required, goal.forbidden)
+
+    def start_goal(self, slot: int, required: Sequence[str], forbidden: Sequence[str]) -> None:
+        """Begin an episode towards these achievements (the goal as another agent read it)."""
+        self._episodes[slot] = _ExpertEpisode(required, forbidden)
 
     def end_episode(self, slot: int) -> None:
         self._episodes.pop(slot, None)

@@ -16,6 +16,7 @@ AGENTS: dict[str, str] = {
     "cot": "llm_agents.agents.cot:ChainOfThoughtAgent",
     "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
     "expert": "llm_agents.agents.expert:ExpertAgent",
+    "guided": "llm_agents.agents.guided:GuidedAgent",
 }
 
 

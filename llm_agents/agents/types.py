@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict
 
 from llm_agents.agents.parser import ParseResult
 from llm_agents.backends.base import ChatMessage, ModelOutput
+from llm_agents.run_data.readings import Grounding
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,9 @@ class Decision(BaseModel):
     """sha256 of the rendered messages (roles and contents) sent for this decision."""
     fallback_used: bool
     """True when the answer was unparseable and the fallback action was taken."""
+    grounding: Grounding | None = None
+    """Set on an episode's first decision by agents that read the instruction into a goal
+    first (`guided`); an invalid one means the episode could not start."""
 
 
 def messages_hash(messages: Sequence[ChatMessage]) -> str:

@@ -37,6 +37,13 @@ class Dispatcher:
         if not prompts:
             return
         self.in_flight += len(prompts)
+        # A prompt without messages (a scripted step) needs no model: it is answered at once.
+        silent = [prompt for prompt in prompts if not prompt.messages]
+        if silent:
+            self._answers.put([(prompt, ModelOutput(text="")) for prompt in silent])
+            prompts = [prompt for prompt in prompts if prompt.messages]
+            if not prompts:
+                return
         if self.model.concurrent_requests:
             for prompt in prompts:
                 self._requests.put([prompt])

@@ -21,7 +21,8 @@ from llm_agents.backends.base import ModelAPI
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.dispatch import Dispatcher
 from llm_agents.evaluation.schedule import ScheduledEpisode
-from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.readings import Grounding, reading_of
+from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
 
 GameOver = Literal["death", "timeout"] | None
 
@@ -82,8 +83,10 @@ class _Tally:
     prompt_tokens: int = 0
     completion_tokens: int = 0
     achievements: list[str] = field(default_factory=list)
+    grounding: Grounding | None = None
 
     def add(self, decision: Decision, reward: float, new: list[str]) -> None:
+        self.grounding = decision.grounding or self.grounding
         self.episode_return += reward
         self.invalid += int(decision.fallback_used)
         self.prompt_tokens += decision.output.prompt_tokens
@@ -154,7 +157,8 @@ class _Slots:
         active = np.zeros(self.size, dtype=bool)
         for decision in decisions:
             actions[decision.slot] = decision.action
-            active[decision.slot] = True
+            # An episode whose goal the agent could not read is not played at all.
+            active[decision.slot] = not _not_started(decision)
         self.host = self.vector.step(actions, active)
 
     def settle(self, decisions: list[Decision]) -> _Settled:
@@ -163,14 +167,17 @@ class _Slots:
         for decision in decisions:
             slot = decision.slot
             tally = self.live[slot]
-            new = _names(host.new_achievements[slot])
-            reward = float(host.reward[slot])
+            started = not _not_started(decision)
+            new = _names(host.new_achievements[slot]) if started else []
+            reward = float(host.reward[slot]) if started else 0.0
             tally.add(decision, reward, new)
-            if self.config.record_steps:
+            if self.config.record_steps and started:
                 settled.steps.append(_step_record(tally, decision, host, slot, reward, new))
             if decision.output.finish_reason == "error":
                 # The backend failed, not the agent: not scored; a rerun plays it again.
                 settled.aborted.append(tally.spec.episode_id)
+            elif not started:
+                settled.ended.append(_episode_record(tally, 0, None, self.config.seed))
             elif host.done[slot]:
                 settled.ended.append(self._episode_record(tally, slot))
             else:
@@ -210,6 +217,10 @@ def _names(mask: np.ndarray) -> list[str]:
     return [ACHIEVEMENTS[i] for i in np.flatnonzero(mask)]
 
 
+def _not_started(decision: Decision) -> bool:
+    return decision.grounding is not None and decision.grounding.reading is None
+
+
 def _step_record(
     tally: _Tally, decision: Decision, host: Any, slot: int, reward: float, new: list[str]
 ) -> StepRecord:
@@ -238,11 +249,16 @@ def _step_record(
 
 
 def _episode_record(
-    tally: _Tally, steps: int, termination: int, seed: int, goal_at_game_over: GameOver = None
+    tally: _Tally,
+    steps: int,
+    termination: int | None,
+    seed: int,
+    goal_at_game_over: GameOver = None,
 ) -> EpisodeRecord:
+    """The record of a finished episode; `termination` None: it could not start."""
     from env import Termination, episode_key
 
-    spec = tally.spec
+    spec, grounding = tally.spec, tally.grounding
     return EpisodeRecord(
         episode_id=spec.episode_id,
         goal_id=spec.instruction.goal.id,
@@ -253,7 +269,7 @@ def _episode_record(
         episode_index=spec.index,
         success=termination == Termination.SUCCESS,
         steps=steps,
-        termination=Termination(termination).label,
+        termination=NOT_STARTED if termination is None else Termination(termination).label,
         episode_return=tally.episode_return,
         invalid_actions=tally.invalid,
         prompt_tokens=tally.prompt_tokens,
@@ -261,6 +277,10 @@ def _episode_record(
         achievements=tally.achievements,
         plan_given=spec.plan is not None,
         goal_at_game_over=goal_at_game_over,
+        grounding=grounding,
+        grounding_correct=None
+        if grounding is None
+        else grounding.matches(reading_of(spec.instruction.goal)),
         reset_key=episode_key(
             seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
         ).tolist(),

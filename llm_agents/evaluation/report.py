@@ -175,16 +175,34 @@ def format_table(
         if summary.steps_to_success_mean is not None and summary.steps_to_success_median is not None
         else "no successes"
     )
+    unstarted = f", not started {ends['not_started']}" if "not_started" in ends else ""
     footer = [
         "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split.",
         f"Episodes: {summary.overall.episodes} (success {ends['success']}, "
-        f"death {ends['death']}, timeout {ends['timeout']}).",
+        f"death {ends['death']}, timeout {ends['timeout']}{unstarted}).",
+        *understanding_lines(summary),
         f"Invalid-action rate: {summary.invalid_action_rate:.3f}. Steps to success: {steps}.",
         f"Tokens per step: {summary.prompt_tokens_per_step:.0f} prompt, "
         f"{summary.completion_tokens_per_step:.0f} completion.",
         *notes,
     ]
     return "\n".join([*table, "", *footer])
+
+
+def understanding_lines(summary: Summary) -> list[str]:
+    """Understanding beside success, for runs whose agent read each goal first (`guided`)."""
+    read = summary.understanding
+    if read is None:
+        return []
+
+    def rate(value: SuccessRate | None) -> str:
+        return "no episodes" if value is None else our_cell(value)
+
+    return [
+        f"Understanding: goal read exactly right in {our_cell(read.grounded)} "
+        f"(could not start: {read.not_started}). Success when read right: "
+        f"{rate(read.success_when_right)}; read wrong: {rate(read.success_when_wrong)}.",
+    ]
 
 
 def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:

@@ -126,6 +126,7 @@ class RunSink:
         results.finished = len(counted)
         results.endpoints = self.endpoint_stats()
         results.summary = summarize(counted) if counted else None
+        results.groundings = {e.episode_id: e.grounding for e in counted if e.grounding}
         if failure is not None:
             results.status, results.failure = "failed", failure
         elif results.finished == results.scheduled:

@@ -17,9 +17,9 @@ from pydantic import BaseModel, Field
 from env.errors import UserError
 from env.goals import CATEGORIES
 from env.termination import TERMINATIONS
-from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord
 
-__all__ = ["SuccessRate", "Summary", "summarize", "wilson_interval"]
+__all__ = ["SuccessRate", "Summary", "Understanding", "summarize", "wilson_interval"]
 
 
 def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -63,6 +63,37 @@ class SuccessRate(BaseModel):
         )
 
 
+class Understanding(BaseModel):
+    """How the goals an agent read before playing (`guided`) compare with the dataset's, and
+    what its success owed to reading them right."""
+
+    grounded: SuccessRate
+    """Episodes whose goal was read exactly right, out of every episode with a grounding."""
+    not_started: int = Field(ge=0)
+    """Episodes that could not start: the answer was not a well-formed goal."""
+    success_when_right: SuccessRate | None
+    """Success of the episodes whose goal was read right; None without any."""
+    success_when_wrong: SuccessRate | None
+    """Success of the episodes played on a wrong (but well-formed) goal; None without any."""
+
+
+def understanding(episodes: Sequence[EpisodeRecord]) -> Understanding | None:
+    """Understanding over the episodes that carry a grounding; None when none does."""
+    grounded = [e for e in episodes if e.grounding is not None]
+    if not grounded:
+        return None
+    right = [e.success for e in grounded if e.grounding_correct]
+    wrong = [
+        e.success for e in grounded if not e.grounding_correct and e.termination != NOT_STARTED
+    ]
+    return Understanding(
+        grounded=SuccessRate.of(len(right), len(grounded)),
+        not_started=sum(e.termination == NOT_STARTED for e in grounded),
+        success_when_right=SuccessRate.of(sum(right), len(right)) if right else None,
+        success_when_wrong=SuccessRate.of(sum(wrong), len(wrong)) if wrong else None,
+    )
+
+
 class Summary(BaseModel):
     """Metrics over a set of finished episodes."""
 
@@ -73,7 +104,8 @@ class Summary(BaseModel):
     by_goal: dict[str, SuccessRate]
     """Success per goal id."""
     terminations: dict[str, int]
-    """Episodes per termination reason (`success`, `death`, `timeout`), zeros included."""
+    """Episodes per termination reason (`success`, `death`, `timeout`), zeros included, and
+    `not_started` when some episode could not start."""
     invalid_action_rate: float = Field(ge=0.0, le=1.0)
     """Share of all steps whose action was the fallback because none could be parsed."""
     steps_to_success_mean: float | None
@@ -84,6 +116,8 @@ class Summary(BaseModel):
     """Prompt tokens per agent step, over all episodes."""
     completion_tokens_per_step: float = Field(ge=0.0)
     """Generated tokens (reasoning included) per agent step, over all episodes."""
+    understanding: Understanding | None = None
+    """The goals read before playing against the dataset's (`guided`); None for other agents."""
 
 
 def _success_rates(groups: dict[str, list[bool]]) -> dict[str, SuccessRate]:
@@ -112,10 +146,12 @@ def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
             {category: by_category[category] for category in CATEGORIES if category in by_category}
         ),
         by_goal=_success_rates(dict(sorted(by_goal.items()))),
-        terminations={reason: terminations[reason] for reason in TERMINATIONS},
+        terminations={reason: terminations[reason] for reason in TERMINATIONS}
+        | ({NOT_STARTED: terminations[NOT_STARTED]} if terminations[NOT_STARTED] else {}),
         invalid_action_rate=per_step(sum(episode.invalid_actions for episode in episodes)),
         steps_to_success_mean=statistics.fmean(success_steps) if success_steps else None,
         steps_to_success_median=statistics.median(success_steps) if success_steps else None,
         prompt_tokens_per_step=per_step(sum(episode.prompt_tokens for episode in episodes)),
         completion_tokens_per_step=per_step(sum(episode.completion_tokens for episode in episodes)),
+        understanding=understanding(episodes),
     )

@@ -10,21 +10,30 @@ from pydantic import AfterValidator, BaseModel, Field, computed_field, model_val
 
 from env.goals import Category
 from env.termination import TERMINATIONS
+from llm_agents.run_data.readings import Grounding
 
 __all__ = [
+    "EPISODE_ENDS",
+    "NOT_STARTED",
     "EpisodeRecord",
     "StepRecord",
 ]
 
+NOT_STARTED = "not_started"
+"""How an episode ends that the agent could not start (it read no goal from the instruction):
+never played, counted as a failure."""
+EPISODE_ENDS: tuple[str, ...] = (*TERMINATIONS, NOT_STARTED)
+"""Every way a recorded episode ends."""
+
 
 def _finished(label: str) -> str:
-    if label not in TERMINATIONS:
-        raise ValueError(f"termination must be one of {', '.join(TERMINATIONS)}, not {label!r}")
+    if label not in EPISODE_ENDS:
+        raise ValueError(f"termination must be one of {', '.join(EPISODE_ENDS)}, not {label!r}")
     return label
 
 
 FinishedTermination = Annotated[str, AfterValidator(_finished)]
-"""The label of `env.termination.Termination` a finished episode ended with."""
+"""The label of `env.termination.Termination` a finished episode ended with, or `NOT_STARTED`."""
 
 
 class StepRecord(BaseModel):
@@ -112,6 +121,11 @@ class EpisodeRecord(BaseModel):
     """Set when the goal was completed on the step the game ended (the episode's last step): how
     the game ended (`timeout`: Craftax's own time limit). Recorded under either success rule, so
     `report --success-rule` can re-score the episode both ways without replaying it."""
+    grounding: Grounding | None = None
+    """The goal the agent read from the instruction before playing (`guided`); None for agents
+    that read none."""
+    grounding_correct: bool | None = None
+    """Whether `grounding` is exactly the dataset's goal; None without a grounding."""
     reset_key: list[int] | None = Field(None, min_length=2, max_length=2)
     """The raw PRNG key (two uint32 words) the episode's world was reset with; None in records
     written before it was stored (replays then derive it the way the runner did)."""
@@ -135,6 +149,14 @@ class EpisodeRecord(BaseModel):
             raise ValueError(
                 f"goal_at_game_over={self.goal_at_game_over!r} contradicts "
                 f"termination={self.termination!r}"
+            )
+        if (self.grounding is None) != (self.grounding_correct is None):
+            raise ValueError("grounding_correct is set exactly when there is a grounding")
+        if self.termination == NOT_STARTED and (
+            self.steps or self.grounding is None or self.grounding.reading is not None
+        ):
+            raise ValueError(
+                "only an episode whose grounding was invalid ends unstarted, at 0 steps"
             )
         if self.invalid_actions > self.steps:
             raise ValueError(f"invalid_actions={self.invalid_actions} exceeds steps={self.steps}")

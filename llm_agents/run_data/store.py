@@ -35,6 +35,7 @@ from pydantic import (
 from env.errors import UserError
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.run_data.metrics import Summary
+from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 
 logger = logging.getLogger(__name__)
@@ -257,8 +258,29 @@ class BackendErrors(BaseModel):
     """The most recent failure's message."""
 
 
+ResultsKind = Literal["eval", "ground"]
+"""What made a run directory: `eval` (episodes played) or `ground` (instructions read as goals)."""
+
+
+def results_kind(path: Path) -> ResultsKind:
+    """The kind of run a `results.json` records (files written before kinds existed: `eval`)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise UserError(f"cannot read run results {path}: {err.strerror}") from err
+    except json.JSONDecodeError as err:
+        raise UserError(f"{path} is not JSON: {err.msg}") from err
+    kind = data.get("kind", "eval") if isinstance(data, dict) else None
+    if kind not in ("eval", "ground"):
+        raise UserError(f"{path} records a run of unknown kind {kind!r}")
+    return kind
+
+
 class RunResults(BaseModel):
     """What a run was (config, identity, versions, data) and how it went, in `results.json`."""
+
+    kind: Literal["eval"] = "eval"
+    """What made the run: episodes played."""
 
     config: dict[str, Any]
     """The resolved run configuration, every default filled in."""
@@ -281,6 +303,8 @@ class RunResults(BaseModel):
 
     summary: Summary | None = None
     """Metrics over the scheduled episodes finished so far; None before the first one ends."""
+    groundings: dict[str, Grounding] = Field(default_factory=dict)
+    """Episode id -> the goal the agent read before playing it (`guided`), per finished episode."""
     status: RunStatus = "partial"
     """See `RunStatus`."""
     failure: str | None = None

@@ -1,0 +1,168 @@
+"""The guided agent (`guided`): the model reads the instruction, the scripted expert acts on it.
+
+At the start of each episode the model grounds the instruction once (`ground.j2`, parsed by
+`parse_grounding`, cached per text, so the paraphrase played again in another world costs no
+request); then the expert (`expert.py`) plays the goal as the model read it, never the dataset
+record's. This separates understanding from acting: its success is what a model that plays
+perfectly-scripted moves would reach with its own reading of the goals. An invalid grounding is
+an episode the agent could not start: its first decision carries the invalid grounding and the
+runner ends it there, unscored as play but counted as a failure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from env.errors import UserError
+from env.variant import Variant, as_variant
+from llm_agents.agents.expert import ExpertAgent
+from llm_agents.agents.grounding import grounding_messages, parse_grounding
+from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.zero_shot import Decision, StepPrompt, messages_hash
+from llm_agents.backends.base import ModelAPI, ModelOutput
+from llm_agents.run_data.readings import Grounding
+
+if TYPE_CHECKING:
+    from env.dataset import Goal
+    from llm_agents.agents.registry import AgentSettings
+
+
+class GuidedAgent:
+    """Grounds each episode's instruction with the model, then plays the expert on that goal."""
+
+    needs_model: ClassVar[bool] = True
+    # Grounding answers are free JSON: action-name choices do not apply to them.
+    choices: ClassVar[None] = None
+
+    def __init__(
+        self,
+        variant: Variant | str = Variant.FULL,
+        renderer: str = "objects",
+        fallback_action: str = "NOOP",
+        templates_dir: str | Path | None = None,
+    ):
+        self.variant = as_variant(variant)
+        self.templates_dir = templates_dir
+        self.expert = ExpertAgent(self.variant, renderer=renderer, fallback_action=fallback_action)
+        self.fallback_id = self.expert.fallback_id
+        self._groundings: dict[str, Grounding] = {}
+        self._texts: dict[int, str] = {}
+        self._unreported: dict[int, Grounding] = {}
+
+    @classmethod
+    def from_config(cls, config: AgentSettings) -> GuidedAgent:
+        if config.choice is not None:
+            raise UserError(
+                "the guided agent reads goals in free text: --choice picks action names, "
+                "which it never asks for (leave --choice out)"
+            )
+        return cls(
+            config.variant,
+            renderer=config.renderer,
+            fallback_action=config.fallback_action,
+            templates_dir=config.templates_dir,
+        )
+
+    @property
+    def groundings(self) -> dict[str, Grounding]:
+        """Instruction text -> its grounding, for every text grounded so far."""
+        return dict(self._groundings)
+
+    def start_episode(
+        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Begin an episode; `goal` (the dataset record) is never read: the model's reading is."""
+        self._texts[slot] = instruction
+        self._unreported.pop(slot, None)
+        if instruction in self._groundings:
+            self._begin(slot, self._groundings[instruction])
+
+    def _begin(self, slot: int, grounding: Grounding) -> None:
+        self._unreported[slot] = grounding
+        if grounding.reading is not None:
+            self.expert.start_goal(slot, grounding.reading.required, grounding.reading.forbidden)
+
+    def end_episode(self, slot: int) -> None:
+        self._texts.pop(slot, None)
+        self._unreported.pop(slot, None)
+        self.expert.end_episode(slot)
+
+    def check_templates(self, instruction: str, plan: str | None = None) -> None:
+        grounding_messages(instruction, self.variant, self.templates_dir)
+
+    def _text(self, slot: int) -> str:
+        if slot not in self._texts:
+            raise UserError(f"slot {slot} has no episode; call start_episode({slot}, ...) first")
+        return self._texts[slot]
+
+    def prepare(self, slot: int, observation: Any) -> StepPrompt:
+        """The grounding request while the slot's text is not grounded; then the expert's step,
+        which sends nothing."""
+        text = self._text(slot)
+        step = self.expert.prepare(slot, observation)
+        if text in self._groundings:
+            return step
+        messages = grounding_messages(text, self.variant, self.templates_dir)
+        return StepPrompt(slot=slot, observation=observation, messages=messages, text=step.text)
+
+    def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
+        """Read the grounding from the answer to a grounding request, then the expert acts; an
+        invalid grounding is a decision that the episode cannot start."""
+        slot, text = prompt.slot, self._text(prompt.slot)
+        if prompt.messages:
+            if output.finish_reason == "error":
+                # The backend failed, not the model: nothing is cached, the runner aborts it.
+                return self._fallback(prompt, output)
+            if text not in self._groundings:
+                self._groundings[text] = parse_grounding(output.text, self.variant)
+            self._begin(slot, self._groundings[text])
+        grounding = self._unreported.pop(slot, None)
+        if grounding is not None and grounding.reading is None:
+            return self._fallback(prompt, output, grounding)
+        decision = self.expert.decide(prompt, output)
+        if not prompt.messages and grounding is None:
+            return decision
+        return decision.model_copy(
+            update={
+                "output": output if prompt.messages else decision.output,
+                "prompt_hash": messages_hash(prompt.messages),
+                "grounding": grounding,
+            }
+        )
+
+    def _fallback(
+        self,
+        prompt: StepPrompt,
+        output: ModelOutput,
+        grounding: Grounding | None = None,
+    ) -> Decision:
+        name = self.expert.variant.action_names[self.fallback_id]
+        return Decision(
+            slot=prompt.slot,
+            action=self.fallback_id,
+            name=name,
+            parse=ParseResult(action=self.fallback_id, name=name, stage="invalid", raw=output.text),
+            output=output,
+            observation_text=prompt.text,
+            prompt_hash=messages_hash(prompt.messages),
+            # An unstarted episode takes no action at all; a failed request takes the fallback.
+            fallback_used=grounding is None,
+            grounding=grounding,
+        )
+
+    def act(
+        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
+    ) -> list[Decision]:
+        """Decide for many slots: one call for the grounding requests among them."""
+        prompts = [self.prepare(s, o) for s, o in zip(slots, observations, strict=True)]
+        asking = [prompt for prompt in prompts if prompt.messages]
+        answers = dict(
+            zip(
+                (id(p) for p in asking),
+                model.generate([p.messages for p in asking]) if asking else [],
+                strict=True,
+            )
+        )
+        return [self.decide(p, answers.get(id(p), ModelOutput(text=""))) for p in prompts]
