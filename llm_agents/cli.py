@@ -45,6 +45,7 @@ def _settings_command(
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from llm_agents.evaluation.grounding_run import GroundConfig
     from llm_agents.planning import PlannerConfig
 
     parser = _Parser(
@@ -123,6 +124,15 @@ def build_parser() -> argparse.ArgumentParser:
         description="Ask a planner model for a plan of at most --max-steps numbered steps for "
         "every instruction and paraphrase of the chosen categories. Resumes by default.",
     )
+    _settings_command(
+        commands,
+        "ground",
+        GroundConfig,
+        help="ask the model for the goal of every instruction text and score its readings",
+        description="Ask the model for every instruction text's goal as JSON (required and "
+        "forbidden achievements) and score the answers against the dataset: exact match, "
+        "per-field precision and recall, confusions. Resumes like eval; `report` prints it.",
+    )
     return parser
 
 
@@ -132,13 +142,13 @@ def _settings(args: argparse.Namespace) -> Any:
     return build_settings(args.settings_class, base, given_settings(args, targets))
 
 
-def _progress_bar(enabled: bool) -> Any:
+def _progress_bar(enabled: bool, unit: str = "episode") -> Any:
     if not enabled:
         return None
     from tqdm import tqdm
 
     def factory(total: int, initial: int) -> Any:
-        return tqdm(total=total, initial=initial, unit="episode", dynamic_ncols=True)
+        return tqdm(total=total, initial=initial, unit=unit, dynamic_ncols=True)
 
     return factory
 
@@ -192,8 +202,48 @@ def _print_report(run_dir: str | Path) -> None:
         print(report_run(run_dir))
 
 
+def cmd_ground(args: argparse.Namespace) -> int:
+    from llm_agents.evaluation.grounding_report import report_grounding
+    from llm_agents.evaluation.grounding_run import execute_grounding, prepare_grounding
+    from llm_agents.evaluation.runner import open_model
+
+    config = _settings(args)
+    prepared = prepare_grounding(config)
+    with open_model(config) as model:
+        print(
+            f"grounding {len(prepared.instructions)} instruction texts of "
+            f"{', '.join(config.splits)} with {config.model} -> {config.output_dir}",
+            file=sys.stderr,
+        )
+        try:
+            results = execute_grounding(
+                prepared, model, progress=_progress_bar(not args.no_progress, "text")
+            )
+        except KeyboardInterrupt:
+            print(
+                f"\ninterrupted: answers so far are in {config.output_dir}; "
+                "rerun the same command to resume",
+                file=sys.stderr,
+            )
+            return EXIT_INTERRUPTED
+    print(report_grounding(config.output_dir))
+    return 0 if results.status == "complete" else EXIT_BACKEND_FAILURE
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from llm_agents.evaluation.report import report_run
+    from llm_agents.run_data.store import RESULTS_FILE, results_kind
+
+    results_path = Path(args.run_dir) / RESULTS_FILE
+    if results_path.is_file() and results_kind(results_path) == "ground":
+        from llm_agents.evaluation.grounding_report import report_grounding
+
+        if args.success_rule or args.compare:
+            raise UserError(
+                "a grounding run has no episodes: --success-rule and --compare do not apply"
+            )
+        print(report_grounding(args.run_dir))
+        return 0
 
     if args.compare:
         from llm_agents.evaluation.report import compare_runs
@@ -309,6 +359,7 @@ COMMANDS = {
     "report": cmd_report,
     "view": cmd_view,
     "plan": cmd_plan,
+    "ground": cmd_ground,
     "data": cmd_data,
 }
 

@@ -1,0 +1,91 @@
+"""The text report of a grounding run (`craftext-llm report` on a `ground` run directory):
+understanding by split and category, with 95% Wilson intervals, and the commonest confusions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from env.errors import UserError
+from llm_agents.evaluation.grounding_run import read_ground_results
+from llm_agents.run_data.grounding_metrics import GroundingScore
+from llm_agents.run_data.metrics import SuccessRate
+from llm_agents.run_data.store import RESULTS_FILE
+
+__all__ = ["report_grounding"]
+
+_HEADER = [
+    "Texts",
+    "n",
+    "exact",
+    "invalid",
+    "required P",
+    "required R",
+    "forbidden P",
+    "forbidden R",
+]
+
+
+def _rate(rate: SuccessRate | None) -> str:
+    return "-" if rate is None else f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}]"
+
+
+def _row(label: str, score: GroundingScore) -> list[str]:
+    required, forbidden = score.fields.get("required"), score.fields.get("forbidden")
+    return [
+        label,
+        str(score.texts),
+        _rate(score.exact),
+        str(score.invalid),
+        _rate(required.precision if required else None),
+        _rate(required.recall if required else None),
+        _rate(forbidden.precision if forbidden else None),
+        _rate(forbidden.recall if forbidden else None),
+    ]
+
+
+def _render(rows: list[list[str]]) -> list[str]:
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    lines = [
+        " | ".join(cell.ljust(widths[i]) for i, cell in enumerate(row)).rstrip() for row in rows
+    ]
+    lines.insert(1, "-+-".join("-" * width for width in widths))
+    return lines
+
+
+def report_grounding(run_dir: str | Path) -> str:
+    """The report of the grounding run in `run_dir`."""
+    out = Path(run_dir)
+    if not (out / RESULTS_FILE).is_file():
+        raise UserError(f"{out} holds no {RESULTS_FILE}: not a run directory")
+    results = read_ground_results(out / RESULTS_FILE)
+    config = results.config
+    head = (
+        f"Grounding by {config.get('model')} ({config.get('variant')} Craftax"
+        f"{', choice ' + str(config['choice']) if config.get('choice') else ''}): "
+        f"{results.status} ({results.finished} of {results.scheduled} instruction texts)."
+    )
+    summary = results.summary
+    if summary is None:
+        return f"{head}\nNo instruction answered yet."
+    rows = [_HEADER, _row("all", summary.overall)]
+    rows += [_row(split, score) for split, score in summary.by_split.items()]
+    rows += [_row(category, score) for category, score in summary.by_category.items()]
+    lines = [head, "", *_render(rows), ""]
+    lines.append(
+        "exact: read exactly as the dataset's goal; P / R: precision / recall of the "
+        "achievements read into each field; [95% Wilson interval]."
+    )
+    if summary.confusions:
+        lines += ["", "Commonest confusions (texts):"]
+        lines += [f"  {c.count:4d}  {c.kind}: {c.achievement}" for c in summary.confusions]
+    if summary.invalid_reasons:
+        lines += ["", "Invalid answers (texts):"]
+        lines += [f"  {count:4d}  {reason}" for reason, count in summary.invalid_reasons.items()]
+    if results.seconds_per_instruction is not None:
+        lines += ["", f"Seconds per instruction: {results.seconds_per_instruction:.3f}."]
+    if results.failed_calls:
+        lines.append(
+            f"Backend failures: {results.failed_calls} (last: {results.last_error}); "
+            "rerun the same command to ask again."
+        )
+    return "\n".join(lines)

@@ -1,0 +1,360 @@
+"""`craftext-llm ground`: every instruction text of the chosen splits read by the model as a
+typed goal, and scored against the dataset's.
+
+A grounding run lives in a run directory as an evaluation does, through the same store:
+`groundings.jsonl` (a line per instruction text, appended and fsynced as answers arrive) and
+`results.json` (kind `ground`: the resolved config, the run's identity, versions, dataset source,
+status and the `GroundingSummary`). A directory is resumed only by the same run (same identity:
+the settings that change answers, the template's hash and the dataset's); a rerun asks only for
+the texts not yet answered. A backend failure is never an answer: the text stays unanswered and a
+rerun asks again.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field, ValidationError, field_validator
+
+from env.dataset import CATEGORIES, Instruction, load_dataset, parse_categories
+from env.errors import UserError
+from llm_agents.agents.grounding import (
+    GROUND_TEMPLATE,
+    grounding_messages,
+    parse_grounding,
+    reading_options,
+)
+from llm_agents.backends.base import ChoiceRule, ChoiceSet, ModelAPI
+from llm_agents.evaluation.config import TRANSPORT_BACKEND_OPTIONS, ModelSettings
+from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
+from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
+from llm_agents.run_data.store import (
+    RESULTS_FILE,
+    RunIdentity,
+    RunStatus,
+    append_records,
+    atomic_write_text,
+    check_output_dir,
+    make_output_dir,
+    read_records,
+    results_kind,
+    rewrite_lines,
+    sha256_bytes,
+)
+from prompts import template_source
+
+GROUNDINGS_FILE = "groundings.jsonl"
+
+
+class GroundConfig(ModelSettings):
+    """What `craftext-llm ground` does."""
+
+    splits: tuple[str, ...] = CATEGORIES
+    """Instruction categories whose texts are grounded: one, combo, paraphrased, new_objects."""
+    paraphrases: bool = True
+    """Ground every paraphrase of each goal as well as its original instruction."""
+    choice: ChoiceRule | None = None
+    """Answer by picking one of the dataset's distinct goals (as JSON) by this rule: loglik
+    (hf, vllm) or guided (vllm, openai); unset: free JSON."""
+    output_dir: str = "runs/ground"
+    """Where groundings and results are written; rerunning on it resumes the run."""
+    requests_per_call: int = Field(16, ge=1)
+    """Conversations sent to the backend in one call (a server gets them concurrently)."""
+
+    @field_validator("splits", mode="before")
+    @classmethod
+    def _known_splits(cls, value: Any) -> tuple[str, ...]:
+        return tuple(parse_categories(value))
+
+    def result_settings(self) -> dict[str, Any]:
+        """The settings that change answers: what a resumed run must match."""
+        settings = self.model_dump(
+            mode="json",
+            include={"model", "splits", "paraphrases", "choice", "variant"},
+        )
+        settings["generation"] = self.generation.model_dump(
+            mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}
+        )
+        settings["backend_options"] = {
+            key: value
+            for key, value in self.backend_options.items()
+            if key not in TRANSPORT_BACKEND_OPTIONS
+        }
+        return settings
+
+
+class GroundingRecord(BaseModel):
+    """One instruction text, the goal its dataset record states and the goal the model read."""
+
+    key: str
+    """`split/goal_id/variant`, unique in the run."""
+    goal_id: str
+    """The goal's id in its split."""
+    split: str
+    """The dataset split."""
+    category: str
+    """The goal's category."""
+    instruction_variant: int = Field(ge=0)
+    """0 for the original instruction, 1..n for a paraphrase."""
+    instruction: str
+    """The text the model read."""
+    truth: GoalReading
+    """The goal as the dataset states it."""
+    grounding: Grounding
+    """What the model's answer was read as."""
+    correct: bool
+    """The reading is exactly the goal."""
+    prompt_tokens: int = Field(0, ge=0)
+    """Tokens in the prompt."""
+    completion_tokens: int = Field(0, ge=0)
+    """Tokens generated."""
+    latency_s: float = Field(0.0, ge=0.0)
+    """Wall time of the call that carried the request."""
+    cached: bool = False
+    """True when the answer came from the response cache."""
+
+
+class GroundResults(BaseModel):
+    """What a grounding run was and how it went, in `results.json`."""
+
+    kind: Literal["ground"] = "ground"
+    """What made the run: instructions read as goals."""
+    config: dict[str, Any]
+    """The resolved configuration, every default filled in."""
+    identity: RunIdentity
+    """What a resumed run must match."""
+    versions: dict[str, str] = Field(default_factory=dict)
+    """Versions of the package and the backend."""
+    dataset: dict[str, Any] = Field(default_factory=dict)
+    """Where the instructions came from."""
+    scheduled: int = 0
+    """Instruction texts the run asks about (after `limit`)."""
+    finished: int = 0
+    """Of those, answered."""
+    failed_calls: int = 0
+    """Answers the backend could not produce in the process that wrote this file."""
+    last_error: str | None = None
+    """The most recent backend failure's message."""
+    status: RunStatus = "partial"
+    """`complete` when every scheduled text is answered, else `partial` (a rerun resumes)."""
+    summary: GroundingSummary | None = None
+    """Scores over the answered texts; None before the first answer."""
+    seconds_per_instruction: float | None = None
+    """Wall time per text answered in the process that wrote this file."""
+    started_at: datetime
+    """When the run started."""
+    finished_at: datetime | None = None
+    """When the run completed; None until then."""
+
+
+@dataclass
+class PreparedGrounding:
+    """A grounding run checked and ready: nothing has been written yet."""
+
+    config: GroundConfig
+    output_dir: Path
+    instructions: list[Instruction]
+    choices: ChoiceSet | None
+    identity: RunIdentity
+    dataset_source: dict[str, Any]
+    previous: GroundResults | None
+
+
+ProgressFactory = Callable[[int, int], Any]
+
+
+def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
+    """Check everything that needs no model; write nothing. A chosen category the dataset has
+    no goals in, a goal without a typed reading, a template that does not render, an unusable
+    directory or one holding another run: a `UserError`."""
+    out = Path(config.output_dir)
+    check_output_dir(out)
+    dataset = load_dataset(config.dataset)
+    empty = [category for category in config.splits if not dataset.select(category)]
+    if empty:
+        raise UserError(
+            f"the dataset ({dataset.source.path}) has no goals in {', '.join(empty)}; "
+            "choose other --splits, or pass the official data with --dataset"
+        )
+    instructions = dataset.instructions(config.splits, include_paraphrases=config.paraphrases)
+    truths = [reading_of(goal) for goal in dataset.select(config.splits)]
+    if config.limit is not None:
+        instructions = instructions[: config.limit]
+    grounding_messages(instructions[0].text, config.variant, config.templates_dir)
+    source = template_source(GROUND_TEMPLATE, config.templates_dir)
+    identity = RunIdentity(
+        settings=config.result_settings(),
+        templates={f"{GROUND_TEMPLATE}.j2": sha256_bytes(source.encode("utf-8"))},
+        dataset=dataset.source.sha256,
+    )
+    return PreparedGrounding(
+        config=config,
+        output_dir=out,
+        instructions=instructions,
+        # The options are every goal of the chosen categories, so a text can be misread as
+        # any goal of the run, never only as its own.
+        choices=ChoiceSet(options=reading_options(truths), rule=config.choice)
+        if config.choice
+        else None,
+        identity=identity,
+        dataset_source=dataset.source.model_dump(mode="json")
+        | {"split_sha256": dataset.split_sha256()},
+        previous=_previous(out, identity),
+    )
+
+
+def _previous(out: Path, identity: RunIdentity) -> GroundResults | None:
+    path = out / RESULTS_FILE
+    if not path.exists():
+        if (out / GROUNDINGS_FILE).exists():
+            raise UserError(
+                f"{out} holds {GROUNDINGS_FILE} but no {RESULTS_FILE}, so it cannot be told "
+                "whether it belongs to this run; use another --output-dir or remove it"
+            )
+        return None
+    if results_kind(path) != "ground":
+        raise UserError(
+            f"{out} holds an evaluation run, not a grounding run; use another --output-dir"
+        )
+    previous = read_ground_results(path)
+    changed = identity.differences(previous.identity)
+    if changed:
+        raise UserError(
+            f"{out} holds a grounding run with other settings: {'; '.join(changed)}; "
+            "use another --output-dir, or delete that directory to start over"
+        )
+    return previous
+
+
+def read_ground_results(path: Path) -> GroundResults:
+    """Read a grounding run's `results.json`."""
+    try:
+        return GroundResults.model_validate_json(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise UserError(f"cannot read run results {path}: {err.strerror}") from err
+    except ValidationError as err:
+        raise UserError(
+            f"{path} is not a grounding results file: {err.errors()[0]['msg']}"
+        ) from err
+
+
+def read_groundings(out: Path) -> list[GroundingRecord]:
+    """The answered texts of a run directory; when a key repeats, the later line wins."""
+    by_key = {r.key: r for r in read_records(out / GROUNDINGS_FILE, GroundingRecord)}
+    return list(by_key.values())
+
+
+def _record(instruction: Instruction, grounding: Grounding, output: Any) -> GroundingRecord:
+    truth = reading_of(instruction.goal)
+    return GroundingRecord(
+        key=instruction.key,
+        goal_id=instruction.goal.id,
+        split=instruction.goal.split,
+        category=instruction.goal.category,
+        instruction_variant=instruction.variant,
+        instruction=instruction.text,
+        truth=truth,
+        grounding=grounding,
+        correct=grounding.matches(truth),
+        prompt_tokens=output.prompt_tokens,
+        completion_tokens=output.completion_tokens,
+        latency_s=output.latency_s,
+        cached=output.cached,
+    )
+
+
+def summarize_records(records: Sequence[GroundingRecord]) -> GroundingSummary | None:
+    """The scores of answered texts."""
+    return summarize_groundings(
+        [Scored(r.split, r.category, r.truth, r.grounding) for r in records]
+    )
+
+
+def _versions(model: ModelAPI) -> dict[str, str]:
+    try:
+        found = {"craftext-llm": importlib.metadata.version("craftext-llm")}
+    except importlib.metadata.PackageNotFoundError:
+        found = {"craftext-llm": "not installed"}
+    return found | {f"model.{key}": value for key, value in model.info().items()}
+
+
+def execute_grounding(
+    prepared: PreparedGrounding, model: ModelAPI, *, progress: ProgressFactory | None = None
+) -> GroundResults:
+    """Ask for every text not yet answered, writing as answers arrive; return the results."""
+    config, out = prepared.config, prepared.output_dir
+    make_output_dir(out)
+    path = out / GROUNDINGS_FILE
+    wanted = {i.key for i in prepared.instructions}
+    kept = [r for r in read_groundings(out) if r.key in wanted] if path.exists() else []
+    if path.exists():
+        # Rewritten without torn lines or duplicates, so appends extend a clean file.
+        rewrite_lines(path, [r.model_dump_json() for r in read_groundings(out)])
+    done = {r.key for r in kept}
+    pending = [i for i in prepared.instructions if i.key not in done]
+    results = GroundResults(
+        config=config.model_dump(mode="json"),
+        identity=prepared.identity,
+        versions=_versions(model),
+        dataset=prepared.dataset_source,
+        scheduled=len(prepared.instructions),
+        started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
+    )
+
+    def save(records: list[GroundingRecord], elapsed: float, answered: int) -> None:
+        results.finished = len(records)
+        results.summary = summarize_records(records)
+        results.status = "complete" if results.finished == results.scheduled else "partial"
+        results.finished_at = datetime.now(UTC) if results.status == "complete" else None
+        results.seconds_per_instruction = round(elapsed / answered, 4) if answered else None
+        atomic_write_text(out / RESULTS_FILE, results.model_dump_json(indent=2) + "\n")
+
+    save(kept, 0.0, 0)
+    bar = progress(len(prepared.instructions), len(kept)) if progress else None
+    started, answered = time.perf_counter(), 0
+    try:
+        for start in range(0, len(pending), config.requests_per_call):
+            group = pending[start : start + config.requests_per_call]
+            outputs = model.generate(
+                [grounding_messages(i.text, config.variant, config.templates_dir) for i in group],
+                choices=prepared.choices,
+            )
+            fresh = []
+            for instruction, output in zip(group, outputs, strict=True):
+                if output.finish_reason == "error":
+                    results.failed_calls += 1
+                    results.last_error = output.error or "unknown backend error"
+                    continue
+                fresh.append(
+                    _record(instruction, parse_grounding(output.text, config.variant), output)
+                )
+            append_records(path, fresh)
+            kept.extend(fresh)
+            answered += len(fresh)
+            save(kept, time.perf_counter() - started, answered)
+            if bar is not None:
+                bar.update(len(fresh))
+    finally:
+        if bar is not None:
+            bar.close()
+    return results
+
+
+__all__ = [
+    "GROUNDINGS_FILE",
+    "GroundConfig",
+    "GroundResults",
+    "GroundingRecord",
+    "PreparedGrounding",
+    "execute_grounding",
+    "prepare_grounding",
+    "read_ground_results",
+    "read_groundings",
+    "summarize_records",
+]
