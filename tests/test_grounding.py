@@ -1,0 +1,411 @@
+"""Grounding: the parser of goal answers, the scores, `craftext-llm ground` (resume, report, bad
+input) and the `guided` agent (cached readings, unstarted episodes, understanding in the report),
+on the mock backend; one real run with the embedded model."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from env import CrafTextEnv, EnvConfig, Variant
+from env.dataset import Dataset, DatasetSource, Goal, load_dataset
+from llm_agents.agents.grounding import parse_grounding, reading_json
+from llm_agents.backends.base import ChatMessage
+from llm_agents.backends.mock import MockModel
+from llm_agents.cli import EXIT_USER_ERROR, main
+from llm_agents.evaluation.config import build_config, build_settings
+from llm_agents.evaluation.grounding_run import (
+    GroundConfig,
+    execute_grounding,
+    prepare_grounding,
+    read_ground_results,
+    read_groundings,
+)
+from llm_agents.evaluation.runner import run_eval
+from llm_agents.run_data.grounding_metrics import Scored, confusions, score
+from llm_agents.run_data.readings import EasyReading
+from llm_agents.run_data.store import read_episodes, read_results
+
+CLASSIC = Variant.CLASSIC
+
+
+def goal(split: str, goal_id: str, text: str, required: tuple[str, ...], forbidden=()) -> Goal:
+    from env.goals import category_of
+
+    return Goal(
+        id=goal_id,
+        split=split,  # type: ignore[arg-type]
+        category=category_of(split, required, forbidden),  # type: ignore[arg-type]
+        instruction=text,
+        paraphrases=(f"{text} (again)",),
+        required=required,
+        forbidden=forbidden,
+    )
+
+
+GOALS = (
+    goal("easy_train", "COLLECT_WOOD", "Collect wood.", ("COLLECT_WOOD",)),
+    goal(
+        "easy_train",
+        "PLACE_TABLE_NO_SAPLING",
+        "Make a table but do not collect saplings.",
+        ("PLACE_TABLE",),
+        ("COLLECT_SAPLING",),
+    ),
+    goal("easy_test_other_params", "DRINK", "Drink some water.", ("COLLECT_DRINK",)),
+)
+
+
+@pytest.fixture
+def dataset_file(tmp_path: Path) -> Path:
+    source = DatasetSource(kind="json", path="test goals")
+    return Dataset(source=source, goals=GOALS).save_json(tmp_path / "goals.json")
+
+
+def right_answer(text: str) -> str:
+    """The correct JSON for every text of GOALS."""
+    for item in GOALS:
+        if text in item.texts:
+            return reading_json(EasyReading(required=item.required, forbidden=item.forbidden))
+    raise AssertionError(text)
+
+
+def instruction_of(conversation: Sequence[ChatMessage]) -> str:
+    return conversation[-1].content.removeprefix("Instruction: ").strip()
+
+
+# ----------------------------------------------------------------------------- the parser
+
+
+@pytest.mark.parametrize(
+    ("answer", "stage"),
+    [
+        ('{"required": ["PLACE_TABLE"], "forbidden": ["COLLECT_SAPLING"]}', "json"),
+        ('Sure!\n```json\n{"required": ["place table"], "forbidden": ["collect sapling"]}\n```', "fenced"),
+        ('The goal is {"forbidden": ["Collect_Sapling"], "required": ["PLACE_TABLE"]} I think', "embedded"),
+    ],
+)  # fmt: skip
+def test_a_goal_is_read_wherever_the_answer_puts_it(answer: str, stage: str) -> None:
+    grounding = parse_grounding(answer, CLASSIC)
+    assert grounding.outcome == "valid" and grounding.stage == stage
+    assert grounding.reading == EasyReading(
+        required=("PLACE_TABLE",), forbidden=("COLLECT_SAPLING",)
+    )
+
+
+@pytest.mark.parametrize(
+    ("answer", "reason"),
+    [
+        ("I would place a table.", "no JSON object"),
+        ('{"required": ["PLACE_TABLE"', "no JSON object"),
+        ('note {"required": [PLACE_TABLE]}', "JSON does not parse"),
+        ('["PLACE_TABLE"]', "not a goal: the JSON is not an object"),
+        ('{"required": ["BUILD_CASTLE"]}', "unknown achievement: 'BUILD_CASTLE'"),
+        ('{"required": "PLACE_TABLE"}', "not a goal: required is not a list"),
+        ('{"required": [], "forbidden": ["EAT_COW"]}', "at least one achievement"),
+        ('{"required": ["EAT_COW"], "forbidden": ["EAT_COW"]}', "both required and forbidden"),
+        ('{"required": ["EAT_COW"], "avoid": []}', "unexpected keys avoid"),
+    ],
+)
+def test_anything_but_a_well_formed_goal_is_invalid_with_its_reason(
+    answer: str, reason: str
+) -> None:
+    grounding = parse_grounding(answer, CLASSIC)
+    assert grounding.outcome == "invalid" and grounding.reading is None
+    assert reason in (grounding.reason or "")
+    assert grounding.raw == answer
+
+
+@given(st.text(max_size=200))
+def test_any_answer_is_read_or_refused_never_raises(answer: str) -> None:
+    grounding = parse_grounding(answer, CLASSIC)
+    assert (grounding.outcome == "valid") == (grounding.reading is not None)
+
+
+def test_every_official_goal_survives_its_own_json(dataset_file: Path) -> None:
+    for item in load_dataset(dataset_file).goals + GOALS:
+        reading = EasyReading(required=item.required, forbidden=item.forbidden)
+        assert parse_grounding(reading_json(reading), Variant.FULL).reading == reading
+
+
+# ----------------------------------------------------------------------------- scores
+
+
+def scored(truth: tuple[tuple[str, ...], tuple[str, ...]], answer: str) -> Scored:
+    return Scored(
+        "easy_train", "combo", EasyReading(required=truth[0], forbidden=truth[1]),
+        parse_grounding(answer, CLASSIC),
+    )  # fmt: skip
+
+
+def test_scores_count_fields_apart_and_name_the_confusion() -> None:
+    truth = (("PLACE_TABLE",), ("COLLECT_SAPLING",))
+    items = [
+        scored(truth, '{"required": ["PLACE_TABLE"], "forbidden": ["COLLECT_SAPLING"]}'),
+        # The negation missed: the forbidden achievement read as required.
+        scored(truth, '{"required": ["PLACE_TABLE", "COLLECT_SAPLING"]}'),
+        scored(truth, "no idea"),
+    ]
+    result = score(items)
+    assert (result.texts, result.exact.successes, result.invalid) == (3, 1, 1)
+    required, forbidden = result.fields["required"], result.fields["forbidden"]
+    assert required.precision and (required.precision.successes, required.precision.episodes) == (
+        2,
+        3,
+    )
+    assert required.recall and (required.recall.successes, required.recall.episodes) == (2, 3)
+    assert forbidden.precision and (
+        forbidden.precision.successes,
+        forbidden.precision.episodes,
+    ) == (1, 1)
+    assert forbidden.recall and (forbidden.recall.successes, forbidden.recall.episodes) == (1, 3)
+    assert confusions(items) == {("forbidden read as required", "COLLECT_SAPLING"): 1}
+
+
+def test_a_field_nobody_read_or_holds_has_no_rate() -> None:
+    result = score([scored((("EAT_COW",), ()), '{"required": ["EAT_COW"]}')])
+    assert (
+        result.fields["forbidden"].precision is None and result.fields["forbidden"].recall is None
+    )
+    assert result.exact.rate == 1.0
+
+
+# ----------------------------------------------------------------------------- ground runs
+
+
+def ground_config(out: Path, dataset_file: Path, **overrides: Any) -> GroundConfig:
+    settings = {
+        "model": "mock:",
+        "dataset": str(dataset_file),
+        "variant": "classic",
+        "output_dir": str(out),
+        "requests_per_call": 2,
+        "splits": ["one", "combo", "new_objects"],
+    }
+    return build_settings(GroundConfig, settings | overrides)
+
+
+def test_ground_scores_every_text_by_split_and_category(tmp_path: Path, dataset_file: Path) -> None:
+    cfg = ground_config(tmp_path / "run", dataset_file)
+
+    # Every text answered right except the paraphrases of the table goal, read without "not".
+    def answer(conversation: Sequence[ChatMessage]) -> str:
+        text = instruction_of(conversation)
+        if text.endswith("(again)") and "table" in text:
+            return '{"required": ["PLACE_TABLE", "COLLECT_SAPLING"]}'
+        return right_answer(text)
+
+    results = execute_grounding(prepare_grounding(cfg), MockModel(outputs=answer))
+    assert results.status == "complete" and results.scheduled == results.finished == 6
+    summary = results.summary
+    assert summary is not None
+    assert summary.overall.exact.successes == 5
+    assert summary.by_category["combo"].exact.successes == 1
+    assert summary.by_category["one"].exact.successes == 2
+    assert summary.by_split["easy_test_other_params"].exact.rate == 1.0
+    assert [(c.kind, c.achievement, c.count) for c in summary.confusions] == [
+        ("forbidden read as required", "COLLECT_SAPLING", 1)
+    ]
+    records = read_groundings(tmp_path / "run")
+    assert sorted(r.key for r in records) == sorted(
+        f"{g.split}/{g.id}/{v}" for g in GOALS for v in range(2)
+    )
+    assert read_ground_results(tmp_path / "run" / "results.json").summary == summary
+
+
+def test_ground_resumes_asking_only_for_unanswered_texts(
+    tmp_path: Path, dataset_file: Path
+) -> None:
+    out = tmp_path / "run"
+    first = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    partial = execute_grounding(prepare_grounding(ground_config(out, dataset_file, limit=2)), first)
+    assert partial.finished == 2 and len(first.requests) == 2
+
+    # A backend failing half way: what it could not answer stays unanswered.
+    failing = MockModel("list:" + right_answer("Drink some water."))
+    interrupted = execute_grounding(prepare_grounding(ground_config(out, dataset_file)), failing)
+    assert interrupted.status == "partial" and interrupted.failed_calls >= 1
+
+    again = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    done = execute_grounding(prepare_grounding(ground_config(out, dataset_file)), again)
+    asked = {instruction_of(conversation) for conversation, _ in again.requests}
+    assert done.status == "complete" and done.finished == 6
+    # The failing backend's one answer (the drinking goal's JSON, to the table's instruction)
+    # was kept, wrong as it is; the texts after it are asked again, each once.
+    assert len(again.requests) == 3 and asked == {
+        "Make a table but do not collect saplings. (again)",
+        "Drink some water.",
+        "Drink some water. (again)",
+    }
+    assert len(read_groundings(out)) == 6
+    assert done.summary is not None and done.summary.overall.exact.successes == 5
+
+
+def test_ground_answers_picked_from_the_goals_are_read_by_the_same_parser(
+    tmp_path: Path, dataset_file: Path
+) -> None:
+    cfg = ground_config(tmp_path / "run", dataset_file, choice="loglik")
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    results = execute_grounding(prepare_grounding(cfg), model)
+    options = model.requests[0][1]
+    assert options is not None and len(options.options) == len(GOALS)
+    assert results.summary is not None and results.summary.overall.exact.rate == 1.0
+
+
+def test_cli_ground_garbage_gives_invalid_rows_and_report_prints_them(
+    tmp_path: Path, dataset_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    args = ["ground", "--model", "mock:cycle:lorem ipsum|{oops}", "--dataset", str(dataset_file),
+            "--variant", "classic", "--output-dir", str(out), "--no-progress",
+            "--splits", "one", "combo", "new_objects"]  # fmt: skip
+    assert main(args) == 0
+    rows = read_groundings(out)
+    assert len(rows) == 6 and all(r.grounding.outcome == "invalid" and not r.correct for r in rows)
+    capsys.readouterr()
+    assert main(["report", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "complete (6 of 6 instruction texts)" in report
+    assert "no JSON object in the answer" in report and "JSON does not parse" in report
+    assert main(["report", str(out), "--success-rule", "official"]) == EXIT_USER_ERROR
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        ["--splits", "paraphrased"],  # no goals there
+        ["--model", "mock:other"],  # another run is in the directory
+    ],
+)
+def test_cli_ground_bad_input_is_one_line_exit_2_nothing_written(
+    tmp_path: Path, dataset_file: Path, capsys: pytest.CaptureFixture[str], extra: list[str]
+) -> None:
+    out = tmp_path / "run"
+    base = ["ground", "--model", "mock:", "--dataset", str(dataset_file), "--variant", "classic",
+            "--splits", "one", "combo", "new_objects",
+            "--output-dir", str(out), "--no-progress", "--limit", "1"]  # fmt: skip
+    assert main(base) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    assert main([*base, *extra]) == EXIT_USER_ERROR
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("craftext-llm: error:")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+# ----------------------------------------------------------------------------- the guided agent
+
+MAX_STEPS = 30
+
+
+@pytest.fixture(scope="module")
+def short_env() -> CrafTextEnv:
+    return CrafTextEnv(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
+
+
+def guided_answer(conversation: Sequence[ChatMessage]) -> str:
+    """Wood read right; the table goal read as wood (original) or as garbage (paraphrase);
+    the drinking goal never asked for (not in the run's splits)."""
+    text = instruction_of(conversation)
+    if text.startswith("Collect wood"):
+        return right_answer(text)
+    if text == "Make a table but do not collect saplings.":
+        return '{"required": ["COLLECT_WOOD"]}'
+    return "I do not know"
+
+
+def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understanding(
+    tmp_path: Path, dataset_file: Path, short_env: CrafTextEnv, capsys: pytest.CaptureFixture[str]
+) -> None:
+    settings = {
+        "agent": "guided", "model": "mock:", "dataset": str(dataset_file), "variant": "classic",
+        "splits": ["one", "combo"], "max_steps": MAX_STEPS, "episodes_per_instruction": 2,
+        "batch_size": 3, "output_dir": str(tmp_path / "run"),
+    }  # fmt: skip
+    model = MockModel(outputs=guided_answer)
+    outcome = run_eval(build_config(settings), model, env=short_env)
+
+    texts = [instruction_of(conversation) for conversation, _ in model.requests]
+    assert len(texts) == len(set(texts)) == 4  # one request per text, however many episodes
+    episodes = {e.episode_id: e for e in read_episodes(tmp_path / "run" / "episodes.jsonl")}
+    assert len(episodes) == 8
+    for repeat in (0, 1):
+        wood = episodes[f"one/COLLECT_WOOD/0/{repeat}"]
+        assert wood.grounding_correct and wood.success
+        table = episodes[f"combo/PLACE_TABLE_NO_SAPLING/0/{repeat}"]
+        assert table.grounding_correct is False and table.termination != "not_started"
+        assert (
+            table.achievements[:1] == ["COLLECT_WOOD"] and "PLACE_TABLE" not in table.achievements
+        )
+        unread = episodes[f"combo/PLACE_TABLE_NO_SAPLING/1/{repeat}"]
+        assert (unread.termination, unread.steps, unread.success) == ("not_started", 0, False)
+        assert unread.grounding is not None and unread.grounding.raw == "I do not know"
+    steps = (tmp_path / "run" / "steps.jsonl").read_text()
+    assert "PLACE_TABLE_NO_SAPLING/1/" not in steps  # an unstarted episode took no step
+
+    results = read_results(tmp_path / "run" / "results.json")
+    assert set(results.groundings) == set(episodes)
+    assert results.groundings["one/COLLECT_WOOD/0/0"].reading == EasyReading(
+        required=("COLLECT_WOOD",)
+    )
+    summary = outcome.summary
+    assert summary is not None and summary.understanding is not None
+    read = summary.understanding
+    assert (read.grounded.successes, read.grounded.episodes, read.not_started) == (4, 8, 2)
+    assert read.success_when_right is not None and read.success_when_right.episodes == 4
+    assert read.success_when_wrong is not None and read.success_when_wrong.successes == 0
+    assert summary.terminations["not_started"] == 2
+
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "run")]) == 0
+    report = capsys.readouterr().out
+    assert "not started 2" in report
+    assert "goal read exactly right in 0.50" in report and "(could not start: 2)" in report
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--choice", "loglik"], "free text"),
+        (["--model", "hf:"], "names no model"),
+    ],
+)
+def test_cli_guided_bad_input_is_one_line_exit_2_nothing_written(
+    tmp_path: Path,
+    dataset_file: Path,
+    capsys: pytest.CaptureFixture[str],
+    extra: list[str],
+    message: str,
+) -> None:
+    out = tmp_path / "run"
+    args = ["eval", "--agent", "guided", "--model", "mock:", "--dataset", str(dataset_file),
+            "--variant", "classic", "--output-dir", str(out), "--no-progress", *extra]  # fmt: skip
+    assert main(args) == EXIT_USER_ERROR
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and message in error
+    assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- the embedded model
+
+
+@pytest.mark.slow
+def test_the_embedded_model_grounds_real_instructions(tmp_path: Path, dataset_file: Path) -> None:
+    pytest.importorskip("torch")
+    from llm_agents.evaluation.runner import open_model
+
+    cfg = ground_config(
+        tmp_path / "run", dataset_file, model="hf:smollm2-135m", generation={"max_tokens": 48}
+    )
+    with open_model(cfg) as model:
+        results = execute_grounding(prepare_grounding(cfg), model)
+    rows = read_groundings(tmp_path / "run")
+    assert results.status == "complete" and len(rows) == 6
+    assert all(r.prompt_tokens > 100 and r.completion_tokens > 0 for r in rows)
+    assert results.summary is not None and results.summary.overall.texts == 6
+    assert all(r.correct == (r.grounding.reading == r.truth) for r in rows)
