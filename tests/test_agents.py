@@ -16,6 +16,7 @@ from env.variant import Variant
 from llm_agents.agents import AGENTS, NoModel, agent_class, build_agent
 from llm_agents.agents.cot import ChainOfThoughtAgent, estimate_tokens
 from llm_agents.agents.expert import ExpertAgent
+from llm_agents.agents.guided import GuidedAgent
 from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
@@ -91,12 +92,20 @@ def conversation_text(messages: list) -> str:
 
 
 def test_registry_names_every_strategy_and_whether_it_needs_a_model() -> None:
-    assert set(AGENTS) == {"zero-shot", "cot", "few-shot", "expert"}
+    assert set(AGENTS) == {"zero-shot", "cot", "few-shot", "expert", "guided"}
     assert agent_class("zero-shot") is ZeroShotAgent
     assert agent_class("cot") is ChainOfThoughtAgent
     assert agent_class("few-shot") is FewShotAgent
     assert agent_class("expert") is ExpertAgent
-    assert [agent_class(name).needs_model for name in AGENTS] == [True, True, True, False]
+    assert agent_class("guided") is GuidedAgent
+    needs_model = {name: agent_class(name).needs_model for name in AGENTS}
+    assert needs_model == {
+        "zero-shot": True,
+        "cot": True,
+        "few-shot": True,
+        "expert": False,
+        "guided": True,
+    }
 
 
 def test_unknown_agent_is_a_user_error_with_a_suggestion() -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import heapq
 import importlib
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError

@@ -89,7 +89,10 @@ class GuidedAgent:
         self._unreported.pop(slot, None)
         self.expert.end_episode(slot)
 
-    def check_templates(self, instruction: str, plan: str | None = None) -> None:
+    def check_templates(
+        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+    ) -> None:
+        """Render the grounding request the run will send (the expert renders nothing)."""
         grounding_messages(instruction, self.variant, self.templates_dir)
 
     def _text(self, slot: int) -> str:
