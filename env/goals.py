@@ -95,7 +95,10 @@ def difficulty_of(split: Split) -> Difficulty:
 
 def parse_categories(spec: str | Iterable[str]) -> tuple[Category, ...]:
     """Category names from a comma-separated string or an iterable, checked and deduplicated."""
-    names = spec.split(",") if isinstance(spec, str) else list(spec)
+    # "one,combo" and ["one", "combo"] alike, also as one flag value among several.
+    names = [
+        part for item in ([spec] if isinstance(spec, str) else spec) for part in item.split(",")
+    ]
     selected: list[Category] = []
     for raw in filter(str.strip, names):
         name = raw.strip().lower()

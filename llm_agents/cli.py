@@ -212,7 +212,7 @@ def cmd_ground(args: argparse.Namespace) -> int:
     with open_model(config) as model:
         print(
             f"grounding {len(prepared.instructions)} instruction texts of "
-            f"{', '.join(config.splits)} with {config.model} -> {config.output_dir}",
+            f"{', '.join(config.categories)} with {config.model} -> {config.output_dir}",
             file=sys.stderr,
         )
         try:

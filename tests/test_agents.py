@@ -16,8 +16,8 @@ from env.variant import Variant
 from llm_agents.agents import AGENTS, NoModel, agent_class, build_agent
 from llm_agents.agents.cot import ChainOfThoughtAgent, estimate_tokens
 from llm_agents.agents.expert import ExpertAgent
-from llm_agents.agents.guided import GuidedAgent
 from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
+from llm_agents.agents.guided import GuidedAgent
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config

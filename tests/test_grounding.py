@@ -185,7 +185,7 @@ def ground_config(out: Path, dataset_file: Path, **overrides: Any) -> GroundConf
         "variant": "classic",
         "output_dir": str(out),
         "requests_per_call": 2,
-        "splits": ["one", "combo", "new_objects"],
+        "categories": ["one", "combo", "new_objects"],
     }
     return build_settings(GroundConfig, settings | overrides)
 
@@ -324,7 +324,7 @@ def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understa
 ) -> None:
     settings = {
         "agent": "guided", "model": "mock:", "dataset": str(dataset_file), "variant": "classic",
-        "splits": ["one", "combo"], "max_steps": MAX_STEPS, "episodes_per_instruction": 2,
+        "categories": ["one", "combo"], "max_steps": MAX_STEPS, "episodes_per_instruction": 2,
         "batch_size": 3, "output_dir": str(tmp_path / "run"),
     }  # fmt: skip
     model = MockModel(outputs=guided_answer)

@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import BaseModel, Field, ValidationError, field_validator
 
@@ -30,11 +30,18 @@ from llm_agents.agents.grounding import (
     parse_grounding,
     reading_options,
 )
-from llm_agents.backends.base import ChoiceRule, ChoiceSet, ModelAPI
+from llm_agents.backends.base import (
+    CHANGES_RESULTS,
+    ChoiceRule,
+    ChoiceSet,
+    ModelAPI,
+    result_values,
+)
 from llm_agents.evaluation.config import TRANSPORT_BACKEND_OPTIONS, ModelSettings
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
 from llm_agents.run_data.store import (
+    RENAMED_SETTINGS,
     RESULTS_FILE,
     RunIdentity,
     RunStatus,
@@ -55,11 +62,13 @@ GROUNDINGS_FILE = "groundings.jsonl"
 class GroundConfig(ModelSettings):
     """What `craftext-llm ground` does."""
 
-    splits: tuple[str, ...] = CATEGORIES
+    renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
+
+    categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
     """Instruction categories whose texts are grounded: one, combo, paraphrased, new_objects."""
-    paraphrases: bool = True
+    paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Ground every paraphrase of each goal as well as its original instruction."""
-    choice: ChoiceRule | None = None
+    choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer by picking one of the dataset's distinct goals (as JSON) by this rule: loglik
     (hf, vllm) or guided (vllm, openai); unset: free JSON."""
     output_dir: str = "runs/ground"
@@ -67,20 +76,15 @@ class GroundConfig(ModelSettings):
     requests_per_call: int = Field(16, ge=1)
     """Conversations sent to the backend in one call (a server gets them concurrently)."""
 
-    @field_validator("splits", mode="before")
+    @field_validator("categories", mode="before")
     @classmethod
-    def _known_splits(cls, value: Any) -> tuple[str, ...]:
+    def _known_categories(cls, value: Any) -> tuple[str, ...]:
         return tuple(parse_categories(value))
 
     def result_settings(self) -> dict[str, Any]:
-        """The settings that change answers: what a resumed run must match."""
-        settings = self.model_dump(
-            mode="json",
-            include={"model", "splits", "paraphrases", "choice", "variant"},
-        )
-        settings["generation"] = self.generation.model_dump(
-            mode="json", exclude={"max_concurrency", "timeout_s", "max_retries"}
-        )
+        """The settings that change answers (marked `CHANGES_RESULTS`): what a resumed run
+        must match."""
+        settings = result_values(self)
         settings["backend_options"] = {
             key: value
             for key, value in self.backend_options.items()
@@ -176,14 +180,14 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
     out = Path(config.output_dir)
     check_output_dir(out)
     dataset = load_dataset(config.dataset)
-    empty = [category for category in config.splits if not dataset.select(category)]
+    empty = [category for category in config.categories if not dataset.select(category)]
     if empty:
         raise UserError(
             f"the dataset ({dataset.source.path}) has no goals in {', '.join(empty)}; "
             "choose other --splits, or pass the official data with --dataset"
         )
-    instructions = dataset.instructions(config.splits, include_paraphrases=config.paraphrases)
-    truths = [reading_of(goal) for goal in dataset.select(config.splits)]
+    instructions = dataset.instructions(config.categories, include_paraphrases=config.paraphrases)
+    truths = [reading_of(goal) for goal in dataset.select(config.categories)]
     if config.limit is not None:
         instructions = instructions[: config.limit]
     grounding_messages(instructions[0].text, config.variant, config.templates_dir)
