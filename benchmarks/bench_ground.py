@@ -1,0 +1,154 @@
+"""Understanding vs acting on the EASY splits, on this machine's CPU, in one run.
+
+1. `craftext-llm ground` for each model: exact-match rate and per-field recall by category,
+   invalid answers, seconds per instruction text.
+2. The same episodes (Classic, `--max-steps`, one world per instruction text) played by the
+   `expert` (oracle goals), the `guided` agent (the model's reading, played by the expert) and the
+   `zero-shot` agent (`--choice loglik`), with the model that read best; guided success is also split by whether the
+   model read the goal right.
+
+    python benchmarks/bench_ground.py [--models hf:smollm2-135m hf:/path/to/qwen2.5-coder-0.5b]
+        [--categories one combo paraphrased new_objects] [--no-paraphrases]
+        [--play-categories one combo new_objects] [--play-limit 30] [--max-steps 250]
+        [--dataset PATH] [--out runs/bench-ground]
+
+The dataset defaults to the official repository at 1c518ae when `../shared/data` holds its
+archive (unpacked into the output folder), else the CLI's default. Runs resume: a rerun with the
+same settings only prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+OFFICIAL_ARCHIVE = REPO.parent / "shared" / "data" / "craftext_official_1c518ae.zip"
+
+
+def _dataset(args: argparse.Namespace, out: Path) -> list[str]:
+    if args.dataset:
+        return ["--dataset", args.dataset]
+    if not OFFICIAL_ARCHIVE.exists():
+        return []
+    target = out / "official"
+    if not target.exists():
+        with zipfile.ZipFile(OFFICIAL_ARCHIVE) as archive:
+            archive.extractall(target)
+    [root] = [p for p in target.iterdir() if p.is_dir()]
+    return ["--dataset", str(root)]
+
+
+def _cli(*argv: str) -> float:
+    started = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "llm_agents.cli", *argv], cwd=REPO, capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        sys.exit(f"craftext-llm {' '.join(argv[:3])} failed:\n{done.stderr[-3000:]}")
+    return time.perf_counter() - started
+
+
+def _label(model: str) -> str:
+    return model.rsplit("/", 1)[-1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", nargs="+", default=["hf:smollm2-135m"])
+    parser.add_argument(
+        "--categories", nargs="+", default=["one", "combo", "paraphrased", "new_objects"]
+    )
+    parser.add_argument("--no-paraphrases", action="store_true")
+    parser.add_argument("--play-categories", nargs="+", default=["one", "combo", "new_objects"])
+    parser.add_argument("--play-limit", type=int, default=30, help="episodes per agent")
+    parser.add_argument("--max-steps", type=int, default=250)
+    parser.add_argument("--dataset")
+    parser.add_argument("--out", default=str(REPO / "runs" / "bench-ground"))
+    args = parser.parse_args()
+
+    from llm_agents.evaluation.grounding_run import read_ground_results
+    from llm_agents.run_data.store import read_episodes
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    dataset = _dataset(args, out)
+    paraphrases = ["--no-paraphrases"] if args.no_paraphrases else []
+
+    grounded = {}
+    for model in args.models:
+        run_dir = out / f"ground-{_label(model)}"
+        _cli(
+            "ground", "--model", model, "--categories", *args.categories, *paraphrases,
+            "--variant", "classic", "--output-dir", str(run_dir), "--no-progress", *dataset,
+        )  # fmt: skip
+        grounded[model] = read_ground_results(run_dir / "results.json")
+
+    print(f"\nGrounding (EASY, {'originals only' if paraphrases else 'every text'}, CPU):")
+    header = f"{'model':<28} {'set':<12} {'texts':>5} {'exact':>6} {'req R':>6} {'forb R':>6} {'invalid':>7}"
+    print(header)
+    for model, results in grounded.items():
+        assert results.summary is not None, f"{model}: no answers"
+        rows = {"all": results.summary.overall, **results.summary.by_category}
+        for name, score in rows.items():
+            recall = {f: s.recall.rate if s.recall else None for f, s in score.fields.items()}
+            req, forb = recall.get("required"), recall.get("forbidden")
+            print(
+                f"{_label(model):<28} {name:<12} {score.texts:>5} {score.exact.rate:>6.2f} "
+                f"{'-' if req is None else f'{req:.2f}':>6} "
+                f"{'-' if forb is None else f'{forb:.2f}':>6} {score.invalid:>7}"
+            )
+        pace = results.seconds_per_instruction
+        print(
+            f"{_label(model):<28} seconds per instruction: "
+            + ("- (nothing left to answer: resumed)" if pace is None else f"{pace:.2f}")
+        )
+
+    # The agents act with the model that read the instructions best.
+    player = max(grounded, key=lambda m: grounded[m].summary.overall.exact.rate)  # type: ignore[union-attr]
+    print(
+        f"\nPlaying {args.play_limit} episodes of {' '.join(args.play_categories)} "
+        f"(Classic, {args.max_steps} steps, one world per text; model {_label(player)}):"
+    )
+    for agent in ("expert", "guided", "zero-shot"):
+        run_dir = out / f"play-{agent}-{_label(player)}"
+        model = [] if agent == "expert" else ["--model", player]
+        if agent == "zero-shot":
+            # Scored action names (as `make demo`): a small model's free text is mostly unparsable.
+            model += ["--choice", "loglik"]
+        seconds = _cli(
+            "eval", "--agent", agent, *model, "--variant", "classic", "--categories",
+            *args.play_categories, "--max-steps", str(args.max_steps), "--limit",
+            str(args.play_limit), "--output-dir", str(run_dir), "--no-progress",
+            "--batch-size", "8", *dataset,
+        )  # fmt: skip
+        episodes = read_episodes(run_dir / "episodes.jsonl")
+        by_category = {
+            c: [e.success for e in episodes if e.category == c] for c in args.play_categories
+        }
+        cells = "  ".join(
+            f"{c} {sum(v) / len(v):.2f} (n={len(v)})" for c, v in by_category.items() if v
+        )
+        line = (
+            f"  {agent:<10} success {sum(e.success for e in episodes) / len(episodes):.2f}  {cells}"
+        )
+        read = [e for e in episodes if e.grounding_correct is not None]
+        if read:
+            right = [e.success for e in read if e.grounding_correct]
+            wrong = [e.success for e in read if not e.grounding_correct]
+            line += (
+                f"  | read right {len(right)}/{len(read)}, success when right "
+                f"{sum(right) / len(right) if right else float('nan'):.2f}, when wrong "
+                f"{sum(wrong) / len(wrong) if wrong else float('nan'):.2f}"
+            )
+        print(f"{line}  [{seconds:.0f} s]")
+
+
+if __name__ == "__main__":
+    main()
