@@ -10,6 +10,7 @@
     python benchmarks/bench_ground.py [--models hf:smollm2-135m hf:/path/to/qwen2.5-coder-0.5b]
         [--categories one combo paraphrased new_objects] [--no-paraphrases]
         [--play-categories one combo new_objects] [--play-limit 30] [--max-steps 250]
+        [--max-tokens 64]
         [--dataset PATH] [--out runs/bench-ground]
 
 The dataset defaults to the official repository at 1c518ae when `../shared/data` holds its
@@ -69,6 +70,9 @@ def main() -> None:
     parser.add_argument("--play-categories", nargs="+", default=["one", "combo", "new_objects"])
     parser.add_argument("--play-limit", type=int, default=30, help="episodes per agent")
     parser.add_argument("--max-steps", type=int, default=250)
+    parser.add_argument(
+        "--max-tokens", type=int, default=64, help="per grounding answer (a goal is ~30 tokens)"
+    )
     parser.add_argument("--dataset")
     parser.add_argument("--out", default=str(REPO / "runs" / "bench-ground"))
     args = parser.parse_args()
@@ -86,7 +90,8 @@ def main() -> None:
         run_dir = out / f"ground-{_label(model)}"
         _cli(
             "ground", "--model", model, "--categories", *args.categories, *paraphrases,
-            "--variant", "classic", "--output-dir", str(run_dir), "--no-progress", *dataset,
+            "--variant", "classic", "--output-dir", str(run_dir), "--no-progress",
+            "--max-tokens", str(args.max_tokens), *dataset,
         )  # fmt: skip
         grounded[model] = read_ground_results(run_dir / "results.json")
 
@@ -118,7 +123,9 @@ def main() -> None:
     )
     for agent in ("expert", "guided", "zero-shot"):
         run_dir = out / f"play-{agent}-{_label(player)}"
-        model = [] if agent == "expert" else ["--model", player]
+        model = (
+            [] if agent == "expert" else ["--model", player, "--max-tokens", str(args.max_tokens)]
+        )
         if agent == "zero-shot":
             # Scored action names (as `make demo`): a small model's free text is mostly unparsable.
             model += ["--choice", "loglik"]
