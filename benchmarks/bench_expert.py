@@ -5,7 +5,7 @@ categories, original instruction only (the expert never reads the text), `--epis
 each. Prints the success rate per category, per goal, and for every failed episode why it ended
 (death or timeout) with the task the expert was on at its last step.
 
-    python benchmarks/bench_expert.py [--dataset PATH] [--splits one combo new_objects]
+    python benchmarks/bench_expert.py [--dataset PATH] [--categories one combo new_objects]
         [--episodes 2] [--variant classic] [--max-steps 250] [--batch-size 32]
 
 `--dataset` takes what `load_dataset` takes, or the reference conversion of the official
@@ -61,7 +61,7 @@ def last_notes(steps_path: Path) -> dict[str, str]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", help="dataset source (default: the reference JSON)")
-    parser.add_argument("--splits", nargs="+", default=["one", "combo", "new_objects"])
+    parser.add_argument("--categories", nargs="+", default=["one", "combo", "new_objects"])
     parser.add_argument("--episodes", type=int, default=2, help="worlds per goal")
     parser.add_argument("--variant", default="classic", choices=["full", "classic"])
     parser.add_argument("--max-steps", type=int, default=250)
@@ -87,7 +87,7 @@ def main() -> None:
             {
                 "agent": "expert",
                 "variant": args.variant,
-                "categories": args.splits,
+                "categories": args.categories,
                 "dataset": dataset,
                 "paraphrases": False,
                 "episodes_per_instruction": args.episodes,
@@ -116,7 +116,7 @@ def main() -> None:
         f"expert, {args.variant}, {args.max_steps} steps, {args.episodes} worlds per goal: "
         f"{len(episodes)} episodes, {steps} steps in {elapsed:.0f} s"
     )
-    for category in args.splits:
+    for category in args.categories:
         results = by_category.get(category, [])
         if results:
             print(

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import enum
 import json
+import sys
 import types
 import typing
 from collections.abc import Sequence
@@ -22,11 +23,30 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
 #: Extra spellings kept so that a flag reads naturally when repeated.
-ALIASES: dict[str, tuple[str, ...]] = {
-    "backend_options": ("--backend-option",),
-    # The setting's name before it was named for what it holds; scripts still pass it.
-    "categories": ("--splits",),
-}
+ALIASES: dict[str, tuple[str, ...]] = {"backend_options": ("--backend-option",)}
+
+#: Old spellings of renamed settings: still accepted, so scripts keep working, with a notice
+#: naming the current flag so that they get updated.
+DEPRECATED: dict[str, tuple[str, ...]] = {"categories": ("--splits",)}
+
+
+class _StoreNoticingDeprecated(argparse.Action):
+    """Store the value like a plain flag; given by a deprecated spelling, say which to use."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        current = self.option_strings[0]
+        if option_string is not None and option_string != current:
+            print(
+                f"{parser.prog}: warning: {option_string} is deprecated; use {current}",
+                file=sys.stderr,
+            )
+        setattr(namespace, self.dest, values)
 
 
 @dataclass(frozen=True)
@@ -70,6 +90,10 @@ def _help(field: FieldInfo) -> str:
     return f"{text} (default: {default})".replace("%", "%%")
 
 
+def _singular(name: str) -> str:
+    return name[:-3] + "y" if name.endswith("ies") else name.rstrip("s")
+
+
 def add_settings_flags(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup,
     model: type[BaseModel],
@@ -89,7 +113,8 @@ def add_settings_flags(
             targets += add_settings_flags(group, annotation, path=(*path, name))
             continue
         dest = "_".join((*path, name))
-        flags = (f"--{name.replace('_', '-')}", *ALIASES.get(name, ()))
+        deprecated = DEPRECATED.get(name, ())
+        flags = (f"--{name.replace('_', '-')}", *ALIASES.get(name, ()), *deprecated)
         options: dict[str, Any] = {"dest": dest, "default": None, "help": _help(field)}
         origin = typing.get_origin(annotation)
         if annotation is bool:
@@ -97,7 +122,7 @@ def add_settings_flags(
         elif origin is dict:
             options.update(action="append", type=_key_value, metavar="KEY=VALUE")
         elif origin in (tuple, list):
-            options.update(nargs="+", metavar=name.rstrip("s").upper())
+            options.update(nargs="+", metavar=_singular(name).upper())
         elif origin is typing.Literal:
             options["choices"] = [str(value) for value in typing.get_args(annotation)]
         elif isinstance(annotation, type) and issubclass(annotation, enum.Enum):
@@ -108,6 +133,11 @@ def add_settings_flags(
             options.update(type=str, metavar=name.upper())
         else:
             raise TypeError(f"no flag type for {model.__name__}.{name}: {field.annotation!r}")
+        if deprecated:
+            if "action" in options:
+                raise TypeError(f"deprecated spellings of {name} need a flag that stores a value")
+            options["action"] = _StoreNoticingDeprecated
+            options["help"] += f" ({', '.join(deprecated)}: deprecated spelling)"
         parser.add_argument(*flags, **options)
         targets.append(FlagTarget(dest=dest, path=(*path, name)))
     return targets

@@ -263,7 +263,7 @@ def test_cli_ground_garbage_gives_invalid_rows_and_report_prints_them(
     out = tmp_path / "run"
     args = ["ground", "--model", "mock:cycle:lorem ipsum|{oops}", "--dataset", str(dataset_file),
             "--variant", "classic", "--output-dir", str(out), "--no-progress",
-            "--splits", "one", "combo", "new_objects"]  # fmt: skip
+            "--categories", "one", "combo", "new_objects"]  # fmt: skip
     assert main(args) == 0
     rows = read_groundings(out)
     assert len(rows) == 6 and all(r.grounding.outcome == "invalid" and not r.correct for r in rows)
@@ -278,7 +278,7 @@ def test_cli_ground_garbage_gives_invalid_rows_and_report_prints_them(
 @pytest.mark.parametrize(
     "extra",
     [
-        ["--splits", "paraphrased"],  # no goals there
+        ["--categories", "paraphrased"],  # no goals there
         ["--model", "mock:other"],  # another run is in the directory
     ],
 )
@@ -287,7 +287,7 @@ def test_cli_ground_bad_input_is_one_line_exit_2_nothing_written(
 ) -> None:
     out = tmp_path / "run"
     base = ["ground", "--model", "mock:", "--dataset", str(dataset_file), "--variant", "classic",
-            "--splits", "one", "combo", "new_objects",
+            "--categories", "one", "combo", "new_objects",
             "--output-dir", str(out), "--no-progress", "--limit", "1"]  # fmt: skip
     assert main(base) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}

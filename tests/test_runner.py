@@ -401,7 +401,9 @@ def test_backend_options_reach_the_backend_and_the_saved_config(tmp_path: Path) 
     assert exit_info.value.code == 2
 
 
-def test_a_run_recorded_before_categories_were_named_so_still_resumes(tmp_path: Path) -> None:
+def test_a_run_recorded_before_categories_were_named_so_still_resumes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     # Runs made when the setting was `splits` (flag, config key, identity) keep working.
     out = tmp_path / "run"
     argv = [
@@ -410,6 +412,8 @@ def test_a_run_recorded_before_categories_were_named_so_still_resumes(tmp_path: 
         "--no-progress",
     ]  # fmt: skip
     assert main(argv) == 0
+    notice = "craftext-llm eval: warning: --splits is deprecated; use --categories"
+    assert notice in capsys.readouterr().err.splitlines()
     results_file = out / "results.json"
     recorded = json.loads(results_file.read_text())
     assert recorded["config"]["categories"] == ["combo"]
@@ -423,3 +427,6 @@ def test_a_run_recorded_before_categories_were_named_so_still_resumes(tmp_path: 
     assert resumed.identity.settings["categories"] == ["combo"]
     # The old name still names the setting: another category is still another run.
     assert main([*argv[:5], "--splits", "new_objects", *argv[7:]]) == EXIT_USER_ERROR
+    capsys.readouterr()
+    assert main([*argv[:5], "--categories", "combo", *argv[7:]]) == 0
+    assert "deprecated" not in capsys.readouterr().err

@@ -111,8 +111,8 @@ class EvalConfig(ModelSettings):
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
     categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = PAPER_CATEGORIES
-    """Instruction categories to run: one, combo, paraphrased, new_objects (`--splits` and a
-    config file's `splits`, this setting's name before, still work)."""
+    """Instruction categories to run: one, combo, paraphrased, new_objects (a config file's
+    `splits`, this setting's name before, still means it)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Run every paraphrase of each goal as well as its original instruction."""
     episodes_per_instruction: Annotated[int, CHANGES_RESULTS] = Field(1, ge=1)
