@@ -10,7 +10,7 @@
     python benchmarks/bench_ground.py [--models hf:smollm2-135m hf:/path/to/qwen2.5-coder-0.5b]
         [--categories one combo paraphrased new_objects] [--no-paraphrases]
         [--play-categories one combo new_objects] [--play-limit 30] [--max-steps 250]
-        [--max-tokens 64]
+        [--max-tokens 64] [--no-play]
         [--dataset PATH] [--out runs/bench-ground]
 
 The dataset defaults to the official repository at 1c518ae when `../shared/data` holds its
@@ -69,6 +69,7 @@ def main() -> None:
     parser.add_argument("--no-paraphrases", action="store_true")
     parser.add_argument("--play-categories", nargs="+", default=["one", "combo", "new_objects"])
     parser.add_argument("--play-limit", type=int, default=30, help="episodes per agent")
+    parser.add_argument("--no-play", action="store_true", help="grounding figures only")
     parser.add_argument("--max-steps", type=int, default=250)
     parser.add_argument(
         "--max-tokens", type=int, default=64, help="per grounding answer (a goal is ~30 tokens)"
@@ -115,6 +116,8 @@ def main() -> None:
             + ("- (nothing left to answer: resumed)" if pace is None else f"{pace:.2f}")
         )
 
+    if args.no_play:
+        return
     # The agents act with the model that read the instructions best.
     player = max(grounded, key=lambda m: grounded[m].summary.overall.exact.rate)  # type: ignore[union-attr]
     print(
