@@ -1,9 +1,11 @@
-"""The CrafText "conditional achievements" success checker, in JAX.
+"""The CrafText "conditional achievements" checker, and the success rule every checker's verdict
+goes through, in JAX.
 
-A goal lists required and forbidden achievements over the 22 ids shared by both Craftax variants.
-It is reached when every required achievement is unlocked and no forbidden one is; the order in
-which they were unlocked does not matter. Whether reaching it on the step the game ends is a
-success depends on the success rule (`env.rules.SuccessRule`).
+An achievements goal lists required and forbidden achievements over the 22 ids shared by both
+Craftax variants. It is reached when every required achievement is unlocked and no forbidden one
+is; the order in which they were unlocked does not matter. Whether reaching a goal of any kind
+(`env.scenario_checker`) on the step the game ends is a success depends on the success rule
+(`env.rules.SuccessRule`).
 """
 
 import jax
@@ -20,19 +22,15 @@ def goal_reached(unlocked: jax.Array, required: jax.Array, forbidden: jax.Array)
 
 
 def scored_success(
-    unlocked: jax.Array,
-    required: jax.Array,
-    forbidden: jax.Array,
-    game_ended: jax.Array,
-    rule: SuccessRule,
+    reached: jax.Array, game_ended: jax.Array, rule: SuccessRule
 ) -> tuple[jax.Array, jax.Array]:
     """Whether a step succeeds under `rule`, and whether its goal was reached as the game ended.
 
-    `unlocked` holds the achievements after the step; `game_ended` is True where the step ended
-    the game (the player died, or Craftax's own time limit). The official wrapper checks the goal
-    on the state after the automatic reset, so under `official` such a step never succeeds.
+    `reached` is the goal's checker verdict after the step; `game_ended` is True where the step
+    ended the game (the player died, or Craftax's own time limit). The official wrapper checks
+    the goal on the state after the automatic reset, so under `official` such a step never
+    succeeds.
     """
-    reached = goal_reached(unlocked, required, forbidden)
     at_game_over = reached & game_ended
     success = reached & ~game_ended if rule == "official" else reached
     return success, at_game_over

@@ -27,6 +27,8 @@ from env.checker import scored_success
 from env.jax_cache import enable_compilation_cache
 from env.placement import EnvDevice, place_env
 from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP, SuccessRule
+from env.scenario_checker import goal_met
+from env.scenario_tasks import NUM_PARAMS
 from env.termination import Termination
 from env.variant import DEFAULT_VARIANT, Variant
 
@@ -56,10 +58,14 @@ class EnvConfig(BaseModel):
 
 @struct.dataclass
 class Task:
-    """The goal of one episode as achievement masks over the 22 shared achievement ids."""
+    """The goal of one episode in the checker's fixed shape (`env.scenario_tasks`): its kind,
+    achievement masks over the 22 shared ids (achievements goals) and int32 parameters (the
+    other kinds), so a batch can mix kinds."""
 
     required: jax.Array
     forbidden: jax.Array
+    kind: jax.Array
+    params: jax.Array
 
 
 @struct.dataclass
@@ -90,11 +96,16 @@ class StepInfo:
     """True when the goal was completed on the step the game ended, whichever rule scored it."""
 
 
-def make_task(required: Any, forbidden: Any) -> Task:
-    """A task from boolean masks of length 22 (numpy or JAX)."""
+def make_task(required: Any, forbidden: Any, kind: Any = 0, params: Any = None) -> Task:
+    """A task from boolean masks of length 22 (numpy or JAX); without `kind` and `params`, an
+    achievements goal."""
     return Task(
         required=jnp.asarray(required, dtype=jnp.bool_),
         forbidden=jnp.asarray(forbidden, dtype=jnp.bool_),
+        kind=jnp.asarray(kind, dtype=jnp.int32),
+        params=jnp.zeros(NUM_PARAMS, jnp.int32)
+        if params is None
+        else jnp.asarray(params, dtype=jnp.int32),
     )
 
 
@@ -164,14 +175,18 @@ class CrafTextEnv:
         previous = state.game.achievements[:NUM_ACHIEVEMENTS]
         unlocked = game.achievements[:NUM_ACHIEVEMENTS]
         dead = game.player_health <= 0
-        # The step cap is ours, not a game end: a goal reached on the last capped step counts.
-        success, at_game_over = scored_success(
-            unlocked,
-            state.task.required,
-            state.task.forbidden,
-            game_over | dead,
-            self.config.success_rule,
+        task = state.task
+        reached = goal_met(
+            state.game,
+            game,
+            task.kind,
+            task.required,
+            task.forbidden,
+            task.params,
+            self.variant,
         )
+        # The step cap is ours, not a game end: a goal reached on the last capped step counts.
+        success, at_game_over = scored_success(reached, game_over | dead, self.config.success_rule)
         termination = jnp.select(
             [success, dead, game_over | (steps >= self.config.max_steps)],
             [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
@@ -311,17 +326,29 @@ class VectorEnv:
     def variant(self) -> Variant:
         return self.env.variant
 
-    def reset(self, keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray) -> HostBatch:
-        """Start a new episode in every slot."""
+    def reset(
+        self,
+        keys: np.ndarray,
+        required: np.ndarray,
+        forbidden: np.ndarray,
+        kind: np.ndarray | None = None,
+        params: np.ndarray | None = None,
+    ) -> HostBatch:
+        """Start a new episode in every slot. Without `kind` and `params` (rows of
+        `env.scenario_tasks.EncodedTasks`) every goal is an achievements goal."""
         keys = np.asarray(keys, dtype=np.uint32).reshape(self.batch_size, 2)
         required = np.asarray(required, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS)
         forbidden = np.asarray(forbidden, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS)
+        kind, params = _kind_rows(kind, params, self.batch_size)
         # One world at a time, with the function refills use: XLA's vectorised world generation
         # gives slots past the eighth other worlds than generating them alone (measured on CPU),
         # so a batched reset would make an episode's world depend on the batch size.
         worlds = [
             jax.device_get(
-                self._reset_one(jnp.asarray(keys[row]), make_task(required[row], forbidden[row]))
+                self._reset_one(
+                    jnp.asarray(keys[row]),
+                    make_task(required[row], forbidden[row], kind[row], params[row]),
+                )
             )
             for row in range(self.batch_size)
         ]
@@ -329,19 +356,28 @@ class VectorEnv:
         return self._fresh_host()
 
     def refill(
-        self, slots: Sequence[int], keys: np.ndarray, required: np.ndarray, forbidden: np.ndarray
+        self,
+        slots: Sequence[int],
+        keys: np.ndarray,
+        required: np.ndarray,
+        forbidden: np.ndarray,
+        kind: np.ndarray | None = None,
+        params: np.ndarray | None = None,
     ) -> HostBatch:
         """Start new episodes in the given slots; the other slots are untouched.
 
-        `keys`, `required` and `forbidden` hold one row per refilled slot, in the order of `slots`.
+        `keys`, `required`, `forbidden` (and `kind`, `params`, as in `reset`) hold one row per
+        refilled slot, in the order of `slots`.
         """
         state = self._require_state()
         keys = np.asarray(keys, dtype=np.uint32).reshape(len(slots), 2)
         required = np.asarray(required, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
         forbidden = np.asarray(forbidden, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
+        kind, params = _kind_rows(kind, params, len(slots))
         for row, slot in enumerate(slots):
             fresh = self._reset_one(
-                jnp.asarray(keys[row]), make_task(required[row], forbidden[row])
+                jnp.asarray(keys[row]),
+                make_task(required[row], forbidden[row], kind[row], params[row]),
             )
             state = self._place(state, fresh, jnp.int32(slot))
         self._state = state
@@ -413,6 +449,19 @@ class VectorEnv:
             (state.game, reward, state.termination, state.steps, new, goal_at_game_over)
         )
         return _host_batch(game, termination, steps, reward_np, new_np, at_game_over)
+
+
+def _kind_rows(
+    kind: np.ndarray | None, params: np.ndarray | None, rows: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Kind and parameter rows, achievements goals where none are given."""
+    kind = np.zeros(rows, np.int32) if kind is None else np.asarray(kind, np.int32).reshape(rows)
+    params = (
+        np.zeros((rows, NUM_PARAMS), np.int32)
+        if params is None
+        else np.asarray(params, np.int32).reshape(rows, NUM_PARAMS)
+    )
+    return kind, params
 
 
 def _host_batch(

@@ -32,6 +32,13 @@ class Variant(StrEnum):
         return craftax_names.CLASSIC_ACHIEVEMENTS
 
     @property
+    def block_names(self) -> tuple[str, ...]:
+        """craftax `BlockType` names of the variant by id."""
+        if self is Variant.FULL:
+            return craftax_names.FULL_BLOCKS
+        return craftax_names.CLASSIC_BLOCKS
+
+    @property
     def num_actions(self) -> int:
         return len(self.action_names)
 

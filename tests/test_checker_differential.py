@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from env import ACHIEVEMENTS, NUM_ACHIEVEMENTS, CrafTextEnv, EnvConfig, Termination, Variant
-from env.checker import scored_success
+from env.checker import goal_reached, scored_success
 from env.rules import SUCCESS_RULES
 
 NOOP = 0
@@ -92,13 +92,10 @@ def our_checker_outcome(
     for step, new in enumerate(new_per_step, start=1):
         unlocked = unlocked | _mask(new)
         ended = step == game_over_step
-        success, at_game_over = scored_success(
-            jnp.asarray(unlocked),
-            jnp.asarray(_mask(required)),
-            jnp.asarray(_mask(forbidden)),
-            jnp.asarray(ended),
-            rule,
+        reached = goal_reached(
+            jnp.asarray(unlocked), jnp.asarray(_mask(required)), jnp.asarray(_mask(forbidden))
         )
+        success, at_game_over = scored_success(reached, jnp.asarray(ended), rule)
         if bool(success):
             return "success", step, bool(at_game_over)
         if ended:

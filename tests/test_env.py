@@ -465,3 +465,25 @@ print(jax.config.jax_platforms, jax.config.jax_default_device.platform, jnp.zero
     assert platforms == ("None" if jax_started_first else "cpu")
     assert default_device == "cpu"
     assert "CpuDevice" in placed
+
+
+def test_a_batch_mixing_goal_kinds_scores_each_slot_by_its_own_checker(classic_env: Any) -> None:
+    # The official line check of size 2 looks for two cells *without* the block: in a fresh
+    # world with no furnace anywhere a straight "line of 2 furnaces" is met at once, a diagonal
+    # one (it wants exactly 3 such blocks in the window) is not, nor is the EASY goal beside it.
+    from env.goals import BuildLineGoal, Goal
+    from env.scenario_tasks import encode_goals
+
+    text = {"split": "medium_train", "scenario": "medium", "instruction": "x", "paraphrases": ()}
+    goals = [
+        Goal(id="A", category="one", required=("COLLECT_DIAMOND",), forbidden=(), **text),
+        BuildLineGoal(id="S", block="FURNACE", size=2, diagonal=False, **text),
+        BuildLineGoal(id="D", block="FURNACE", size=2, diagonal=True, **text),
+    ]
+    tasks = encode_goals(goals, Variant.CLASSIC)
+    vector = VectorEnv(classic_env.env, len(goals))
+    keys = np.stack([episode_key(3, "mixed", 0, i) for i in range(len(goals))])
+    vector.reset(keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params)
+    stepped = vector.step(np.full(len(goals), NOOP))
+    assert stepped.termination.tolist() == [0, Termination.SUCCESS, 0]
+    assert stepped.reward[1] >= 1.0 and stepped.reward[0] < 1.0

@@ -1,0 +1,201 @@
+"""The success checkers of every CrafText scenario, in JAX, one `lax.switch` over the goal kinds.
+
+Each checker reproduces what the official one at 1c518ae computes, quirks included, because
+published success rates were scored with them (the named rule `official`; docs in the README):
+
+- The official wrapper passes `[new state, previous state]`, so the checkers' `states[0]` is the
+  state after the step. Conditional placing reads them the other way round: it succeeds when the
+  collected count falls from at least `count` to below it on this step (it is spent) while the
+  previous map holds at least `place_count` of the block; a `count` of 0 never succeeds.
+- Full Craftax: every map check reads the overworld (`map[0]`), whatever the player's floor.
+- Localization: both blocks within 5 tiles (Chebyshev) of the player, the placed block
+  `distance` tiles right/left/up/down of the target.
+- Line and square: a 21x21 window around the player, clamped inside the map. Sizes past 4 are
+  checked as 4 (the official `lax.switch` clamps). A line of 2 succeeds when the window has no
+  such block at all (straight) or exactly 3 (diagonal); lines of 3 and 4 need exactly that many
+  blocks in the window, in a row. Squares need their border clear of the block. Neighbour cells
+  past the window's edge wrap (negative indices) or clamp (past the end), as JAX indexing does.
+- Star: the official call passes its arguments out of order, so the cross's arm length is the
+  cross-type code (0 straight, 1 diagonal, 2 combined) and the search radius is the goal's size:
+  a "straight" star always succeeds, a "diagonal" one when one such block is within `size` of
+  the player, a "combined" one on a 3-block corner.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from env.achievements import NUM_ACHIEVEMENTS
+from env.checker import goal_reached
+from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS
+from env.variant import Variant
+
+_WINDOW_RADIUS = 10
+_WINDOW = 2 * _WINDOW_RADIUS + 1
+_LOCAL_RADIUS = 5
+_LOCAL = 2 * _LOCAL_RADIUS + 1
+_STAR_FILTER = 7
+
+
+def overworld(game: Any, variant: Variant) -> jax.Array:
+    """The block map the official checkers read."""
+    return game.map if variant is Variant.CLASSIC else game.map[0]
+
+
+def _inventory(game: Any, variant: Variant) -> jax.Array:
+    slots = CLASSIC_INVENTORY_SLOTS if variant is Variant.CLASSIC else INVENTORY_SLOTS
+    return jnp.stack([jnp.asarray(getattr(game.inventory, slot), jnp.int32) for slot in slots])
+
+
+def _conditional_placing(
+    previous: Any, game: Any, params: jax.Array, variant: Variant
+) -> jax.Array:
+    slot, count, block, place_count = params[0], params[1], params[2], params[3]
+    had = _inventory(previous, variant)[slot] >= count
+    has = _inventory(game, variant)[slot] >= count
+    standing = jnp.sum(overworld(previous, variant) == block) >= place_count
+    return had & ~has & standing
+
+
+def _localization(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
+    placed, target, side, distance = params[0], params[1], params[2], params[3]
+    padded = jnp.pad(overworld(game, variant), _LOCAL_RADIUS, constant_values=-1)
+    row, column = game.player_position[0], game.player_position[1]
+    local = jax.lax.dynamic_slice(padded, (row, column), (_LOCAL, _LOCAL))
+    # side codes: 0 right (+column), 1 left, 2 up (-row), 3 down
+    d_row = jnp.where(side == 2, -distance, jnp.where(side == 3, distance, 0))
+    d_column = jnp.where(side == 0, distance, jnp.where(side == 1, -distance, 0))
+    placed_around = jnp.pad(local == placed, _LOCAL_RADIUS, constant_values=False)
+    placed_at_offset = jax.lax.dynamic_slice(
+        placed_around, (_LOCAL_RADIUS + d_row, _LOCAL_RADIUS + d_column), (_LOCAL, _LOCAL)
+    )
+    return jnp.any((local == target) & placed_at_offset)
+
+
+def _window(game: Any, block: jax.Array, variant: Variant) -> jax.Array:
+    """0/1 of `block` in the 21x21 window around the player (start clamped inside the map)."""
+    row, column = game.player_position[0], game.player_position[1]
+    found = (overworld(game, variant) == block).astype(jnp.int32)
+    return jax.lax.dynamic_slice(
+        found, (row - _WINDOW_RADIUS, column - _WINDOW_RADIUS), (_WINDOW, _WINDOW)
+    )
+
+
+def _cell_index(offset: int) -> np.ndarray:
+    """Window index of every center plus `offset`: negative wraps once, past the end clamps."""
+    shifted = np.arange(_WINDOW) + offset
+    return np.clip(np.where(shifted < 0, shifted + _WINDOW, shifted), 0, _WINDOW - 1)
+
+
+def _cells(window: jax.Array, offsets: list[tuple[int, int]]) -> jax.Array:
+    """(len(offsets), 21, 21): the window's value at each center plus each offset."""
+    return jnp.stack(
+        [window[_cell_index(dr)[:, None], _cell_index(dc)[None, :]] for dr, dc in offsets]
+    )
+
+
+def _line_found(window: jax.Array, length: int, diagonal: jax.Array) -> jax.Array:
+    # A line of 2 is looked for as two empty cells (the official check compares with 0).
+    wanted = 0 if length == 2 else 1
+    total = jnp.sum(window)
+    straight_total = 0 if length == 2 else length
+    diagonal_total = 3 if length == 2 else length
+    runs = {
+        "down": [(k, 0) for k in range(length)],
+        "right": [(0, k) for k in range(length)],
+        "down_right": [(k, k) for k in range(length)],
+        "down_left": [(k, -k) for k in range(length)],
+    }
+    complete = {
+        name: jnp.all(_cells(window, offs) == wanted, axis=0) for name, offs in runs.items()
+    }
+    straight = (total == straight_total) & jnp.any(complete["down"] | complete["right"])
+    slanted = (total == diagonal_total) & jnp.any(complete["down_right"] | complete["down_left"])
+    return jnp.where(diagonal, slanted, straight)
+
+
+def _line(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
+    window = _window(game, params[0], variant)
+    diagonal = params[2] != 0
+    found = jnp.stack([_line_found(window, length, diagonal) for length in (2, 3, 4)])
+    return found[jnp.clip(params[1] - 2, 0, 2)]
+
+
+def _square_offsets(side: int) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """The filled cells and the border ring of a square of `side`, relative to the checked
+    center (the top-left cell for even sides, the middle for 3)."""
+    first = -1 if side == 3 else 0
+    filled = [(r, c) for r in range(first, first + side) for c in range(first, first + side)]
+    ring = [
+        (r, c)
+        for r in range(first - 1, first + side + 1)
+        for c in range(first - 1, first + side + 1)
+        if (r, c) not in filled
+    ]
+    return filled, ring
+
+
+def _square(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
+    window = _window(game, params[0], variant)
+    found = []
+    for side in (2, 3, 4):
+        filled, ring = _square_offsets(side)
+        solid = jnp.all(_cells(window, filled) != 0, axis=0)
+        clear = jnp.all(_cells(window, ring) != 1, axis=0)
+        found.append(jnp.any(solid & clear))
+    return jnp.stack(found)[jnp.clip(params[1] - 2, 0, 2)]
+
+
+def _star(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
+    block, radius, arm = params[0], params[1], params[2]
+    row, column = game.player_position[0], game.player_position[1]
+    padded = jnp.pad(overworld(game, variant), _WINDOW_RADIUS, constant_values=-1)
+    around = jax.lax.dynamic_slice(padded, (row, column), (_WINDOW, _WINDOW))
+    offsets = jnp.arange(_WINDOW) - _WINDOW_RADIUS
+    near = jnp.abs(offsets) <= radius
+    found = (jnp.where(near[:, None] & near[None, :], around, -1) == block).astype(jnp.int32)
+    centre = _STAR_FILTER // 2
+    first = centre - arm // 2
+    taps = jnp.arange(_STAR_FILTER)
+    in_arm = (taps >= first) & (taps < first + arm)
+    outputs = _WINDOW - _STAR_FILTER + 1
+
+    def shifted(dr: int, dc: int) -> jax.Array:
+        return found[dr : dr + outputs, dc : dc + outputs]
+
+    across = sum(in_arm[k] * shifted(centre, k) for k in range(_STAR_FILTER))
+    down = sum(in_arm[k] * shifted(k, centre) for k in range(_STAR_FILTER))
+    main = sum(in_arm[k] * shifted(k, k) for k in range(_STAR_FILTER))
+    anti = sum(
+        (in_arm[k] & in_arm[_STAR_FILTER - 1 - k]) * shifted(k, _STAR_FILTER - 1 - k)
+        for k in range(_STAR_FILTER)
+    )
+    straight = (across == arm) & (down == arm)
+    diagonal = (main == arm) & (anti == arm)
+    return jnp.any(straight | diagonal)
+
+
+def goal_met(
+    previous: Any,
+    game: Any,
+    kind: jax.Array,
+    required: jax.Array,
+    forbidden: jax.Array,
+    params: jax.Array,
+    variant: Variant,
+) -> jax.Array:
+    """Whether one episode's goal is met after a step from `previous` to `game` (one episode;
+    vmap it for a batch, where every kind is computed and the episode's own is selected)."""
+    branches = [
+        lambda: goal_reached(game.achievements[:NUM_ACHIEVEMENTS], required, forbidden),
+        lambda: _conditional_placing(previous, game, params, variant),
+        lambda: _localization(game, params, variant),
+        lambda: _line(game, params, variant),
+        lambda: _square(game, params, variant),
+        lambda: _star(game, params, variant),
+    ]
+    return jax.lax.switch(kind, branches)
