@@ -57,6 +57,23 @@ def official(official_repository: Path) -> Iterator[Any]:
         sys.path.remove(str(official_repository))
 
 
+_SCORERS: dict[tuple[Any, Any], Any] = {}
+
+
+def _official_scorer(checker: Any, game_data: Any) -> Any:
+    """The official checker over a trajectory, compiled once per checker: the goal's target
+    state is an argument (a pytree of arrays), not a constant, so goals share the compile."""
+    key = (checker, game_data)
+    if key not in _SCORERS:
+        _SCORERS[key] = jax.jit(
+            jax.vmap(
+                lambda p, n, a, target: checker(game_data.from_state(p, n, a), target),
+                in_axes=(0, 0, 0, None),
+            )
+        )
+    return _SCORERS[key]
+
+
 def _trajectory(variant: Variant, seed: int) -> tuple[Any, Any, np.ndarray]:
     """(previous states, new states, actions) of one biased-random episode, stacked by step."""
     from craftax.craftax_env import make_craftax_env_from_name
@@ -140,16 +157,10 @@ def test_every_medium_and_hard_goal_scores_like_the_official_checker(
                 official.import_module(f"craftext.environment.scenarious.checkers.{file}"), function
             )
             target = getattr(entry["arguments"], field)
-            theirs = jax.jit(
-                jax.vmap(
-                    lambda p, n, a, checker=checker, target=target, data=game_data: checker(
-                        data.from_state(p, n, a), target
-                    )
-                )
-            )
+            theirs = _official_scorer(checker, game_data)
             counts = report.setdefault(f"{split}/{goal.kind}", [0, 0, 0])
             for previous, new, actions in trajectories:
-                expected = np.asarray(theirs(previous, new, jnp.asarray(actions)))
+                expected = np.asarray(theirs(previous, new, jnp.asarray(actions), target))
                 got = np.asarray(
                     ours(
                         previous,
