@@ -43,8 +43,9 @@ Split = Literal[
 full Craftax), each a train split and two test splits (paraphrased instructions, other
 parameters)."""
 Difficulty = Literal["easy", "medium", "hard"]
-Category = Literal["one", "combo", "paraphrased", "new_objects"]
-"""CrafText goal sets: single achievements, combinations, paraphrased instructions, unseen objects."""
+Category = Literal["one", "combo", "paraphrased", "new_objects", "train"]
+"""CrafText goal sets: single achievements, combinations, paraphrased instructions, unseen objects,
+and (Medium and Hard, whose train goals are not all achievements) a whole train split."""
 SourceKind = Literal["archive", "directory", "wheel", "json"]
 GoalKind = Literal[
     "achievements",
@@ -67,10 +68,27 @@ DIFFICULTIES: tuple[Difficulty, ...] = get_args(Difficulty)
 GOAL_KINDS: tuple[GoalKind, ...] = get_args(GoalKind)
 SIDES: tuple[Side, ...] = get_args(Side)
 CROSS_TYPES: tuple[CrossType, ...] = get_args(CrossType)
-CATEGORIES: tuple[Category, ...] = get_args(Category)
+SCENARIO_CLASSES: tuple[ScenarioClass, ...] = get_args(ScenarioClass)
+ALL_CATEGORIES: tuple[Category, ...] = get_args(Category)
+#: EASY's goal sets (the other difficulties' are in `DIFFICULTY_CATEGORIES`).
+CATEGORIES: tuple[Category, ...] = ("one", "combo", "paraphrased", "new_objects")
 #: The goal sets of the paper's zero-shot table (Achievements one / combo, New objects): what a
 #: run plays unless told otherwise, and the columns published numbers exist for.
 PAPER_CATEGORIES: tuple[Category, ...] = ("one", "combo", "new_objects")
+#: The goal sets a run of each difficulty can select: EASY's are the paper's zero-shot table's,
+#: Medium's and Hard's its Table 2 columns (Train / Paraphrased / New objects).
+DIFFICULTY_CATEGORIES: dict[Difficulty, tuple[Category, ...]] = {
+    "easy": ("one", "combo", "paraphrased", "new_objects"),
+    "medium": ("train", "paraphrased", "new_objects"),
+    "hard": ("train", "paraphrased", "new_objects"),
+}
+_SPLIT_PART: dict[Category, str] = {
+    "one": "train",
+    "combo": "train",
+    "train": "train",
+    "paraphrased": "test_paraphrased",
+    "new_objects": "test_other_params",
+}
 CATEGORY_SPLIT: dict[Category, Split] = {
     "one": "easy_train",
     "combo": "easy_train",
@@ -93,6 +111,40 @@ def difficulty_of(split: Split) -> Difficulty:
     return cast(Difficulty, split.split("_", 1)[0])
 
 
+def check_difficulty(name: str) -> Difficulty:
+    """`name` as a `Difficulty`, or a `UserError` listing the known ones."""
+    if name not in DIFFICULTIES:
+        raise UserError(f"unknown difficulty {name!r}; known: {', '.join(DIFFICULTIES)}")
+    return cast(Difficulty, name)
+
+
+def check_categories(categories: Iterable[str], difficulty: Difficulty) -> tuple[Category, ...]:
+    """`categories` checked against what a run of `difficulty` can select."""
+    selected = parse_categories(categories)
+    allowed = DIFFICULTY_CATEGORIES[difficulty]
+    wrong = [category for category in selected if category not in allowed]
+    if wrong:
+        raise UserError(
+            f"category {wrong[0]!r} is not one of {difficulty}'s; choose from {', '.join(allowed)}"
+        )
+    return selected
+
+
+def category_split(category: Category, difficulty: Difficulty) -> Split:
+    """The split a category's goals come from in `difficulty`."""
+    return cast(Split, f"{difficulty}_{_SPLIT_PART[category]}")
+
+
+def run_category(goal: AnyGoal) -> Category:
+    """The goal set a run counts `goal` in: an EASY goal's own category; a Medium or Hard goal's
+    split (`train`, `paraphrased`, `new_objects`), as the paper's Table 2 groups them."""
+    if goal.difficulty == "easy" and isinstance(goal, Goal):
+        return goal.category
+    if goal.split.endswith("_train"):
+        return "train"
+    return "paraphrased" if goal.split.endswith("_test_paraphrased") else "new_objects"
+
+
 def parse_categories(spec: str | Iterable[str]) -> tuple[Category, ...]:
     """Category names from a comma-separated string or an iterable, checked and deduplicated."""
     # "one,combo" and ["one", "combo"] alike, also as one flag value among several.
@@ -102,13 +154,13 @@ def parse_categories(spec: str | Iterable[str]) -> tuple[Category, ...]:
     selected: list[Category] = []
     for raw in filter(str.strip, names):
         name = raw.strip().lower()
-        if name not in CATEGORIES:
-            raise UserError(f"unknown category {raw!r}; known: {', '.join(CATEGORIES)}")
+        if name not in ALL_CATEGORIES:
+            raise UserError(f"unknown category {raw!r}; known: {', '.join(ALL_CATEGORIES)}")
         category = cast(Category, name)
         if category not in selected:
             selected.append(category)
     if not selected:
-        raise UserError(f"no category selected; known: {', '.join(CATEGORIES)}")
+        raise UserError(f"no category selected; known: {', '.join(ALL_CATEGORIES)}")
     return tuple(selected)
 
 
@@ -314,8 +366,8 @@ class Instruction(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    goal: Goal
-    """The goal the text describes (an EASY-path achievements goal)."""
+    goal: AnyGoal
+    """The goal the text describes."""
     variant: int
     """0 for the original instruction, 1..n for the goal's paraphrases (n is usually 5)."""
     text: str
@@ -396,13 +448,34 @@ class Dataset(BaseModel):
             if isinstance(goal, Goal) and goal.difficulty == "easy" and goal.category in wanted
         ]
 
+    def select_goals(
+        self, categories: str | Iterable[str], difficulty: Difficulty = "easy"
+    ) -> list[AnyGoal]:
+        """The goals of `difficulty` in the given categories (see `run_category`), in dataset
+        order; a `UserError` for a category the difficulty has not or a selected split this
+        dataset lacks."""
+        wanted = check_categories(
+            categories.split(",") if isinstance(categories, str) else categories, difficulty
+        )
+        if difficulty != "easy":
+            for category in wanted:
+                self.split(category_split(category, difficulty))
+        return [
+            goal
+            for goal in self.goals
+            if goal.difficulty == difficulty and run_category(goal) in wanted
+        ]
+
     def instructions(
-        self, categories: str | Iterable[str], include_paraphrases: bool = True
+        self,
+        categories: str | Iterable[str],
+        include_paraphrases: bool = True,
+        difficulty: Difficulty = "easy",
     ) -> list[Instruction]:
         """Every instruction text of the selected goals: the original, then the paraphrases."""
         return [
             Instruction(goal=goal, variant=variant, text=text)
-            for goal in self.select(categories)
+            for goal in self.select_goals(categories, difficulty)
             for variant, text in enumerate(goal.texts if include_paraphrases else goal.texts[:1])
         ]
 
@@ -424,7 +497,7 @@ class Dataset(BaseModel):
         return counts
 
     def category_goals(self) -> dict[str, int]:
-        """Goals per category, zeros included."""
+        """Goals per EASY category, zeros included."""
         return {category: len(self.select(category)) for category in CATEGORIES}
 
     def save_json(self, path: str | Path) -> Path:

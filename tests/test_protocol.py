@@ -13,7 +13,7 @@ from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
 from llm_agents.evaluation.config import EvalConfig, build_config
-from llm_agents.evaluation.protocol import PROTOCOLS, apply_protocol, get_protocol
+from llm_agents.evaluation.protocol import PROTOCOLS, apply_protocol, get_protocol, protocol_for
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.store import read_episodes, read_results
 
@@ -48,6 +48,51 @@ def test_the_paper_protocol_sets_the_official_evaluation() -> None:
         assert choice.source
 
 
+def test_the_medium_paper_protocol_plays_classic_over_50_worlds_per_instruction() -> None:
+    config = build_config({"protocol": "paper", "difficulty": "medium"})
+    assert (config.variant, config.max_steps, config.success_rule) == (
+        Variant.CLASSIC,
+        250,
+        "official",
+    )
+    assert config.categories == ("train", "paraphrased", "new_objects")
+    # 50 worlds per instruction need 50 worlds: the one official world would repeat one sample.
+    assert (config.episodes_per_instruction, config.world_seeding) == (50, "per_episode")
+    assert config.generation.temperature == 0.7 and config.protocol_overrides == ()
+    for choice in protocol_for("paper", "medium").choices:
+        assert _value(config, choice.setting) == choice.value, choice.setting
+
+
+def test_hard_plays_full_craftax_and_its_only_split_by_default() -> None:
+    paper = build_config({"protocol": "paper", "difficulty": "hard"})
+    assert (paper.variant, paper.categories) == (Variant.FULL, ("train",))
+    # The official data has no Hard test splits, so no protocol asks for them.
+    assert build_config({"difficulty": "hard"}).categories == ("train",)
+    assert build_config({"difficulty": "medium"}).categories == (
+        "train",
+        "paraphrased",
+        "new_objects",
+    )
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"difficulty": "medum"}, "unknown difficulty 'medum'; known: easy, medium, hard"),
+        (
+            {"difficulty": "medium", "categories": "one"},
+            "category 'one' is not one of medium's; choose from train, paraphrased, new_objects",
+        ),
+        ({"categories": "train"}, "category 'train' is not one of easy's"),
+    ],
+)
+def test_a_difficulty_without_those_goal_sets_is_a_user_error(
+    settings: dict[str, object], message: str
+) -> None:
+    with pytest.raises(UserError, match=message):
+        build_config(settings)
+
+
 def test_explicit_settings_win_and_are_recorded_as_overrides() -> None:
     config = build_config(
         {"protocol": "paper", "history_length": 4, "categories": "one,combo,new_objects"},
@@ -70,7 +115,10 @@ def test_a_preset_only_fills_in() -> None:
 def test_every_choice_names_a_real_setting() -> None:
     fields = set(EvalConfig.model_fields)
     generation = set(GenerateConfig.model_fields)
-    for protocol in PROTOCOLS.values():
+    every = [
+        protocol_for(name, level) for name in PROTOCOLS for level in ("easy", "medium", "hard")
+    ]
+    for protocol in every:
         for choice in protocol.choices:
             head, _, leaf = choice.setting.rpartition(".")
             assert leaf in (generation if head == "generation" else fields), choice.setting

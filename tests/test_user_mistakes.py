@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 
+from env.dataset import Dataset, DatasetSource, Goal
 from llm_agents.cli import main
 
 #: A valid, tiny mock evaluation; rows append the mistake.
@@ -46,6 +47,19 @@ def with_message(mistake: Mistake, message: str) -> Mistake:
     return mistake
 
 
+EASY_ONLY_DATASET = Dataset(
+    source=DatasetSource(kind="json", path="easy.json"),
+    goals=(
+        Goal(
+            id="PLACE_TABLE",
+            split="easy_train",
+            category="one",
+            instruction="Place a table.",
+            paraphrases=(),
+            required=("PLACE_TABLE",),
+        ),
+    ),
+).model_dump_json()
 BROKEN_STEP = "{{ instruction }\n"
 UNDEFINED_STEP = "{{ no_such_variable }}\n"
 
@@ -92,6 +106,20 @@ MISTAKES: dict[str, Mistake] = {
     # names
     "unknown variant": Mistake([*EVAL, "--variant", "huge"], "invalid choice"),
     "unknown category": Mistake([*EVAL, "--categories", "combo", "hard"], "hard"),
+    "unknown difficulty": Mistake([*EVAL, "--difficulty", "medum"], "'medum'"),
+    "category of another difficulty": Mistake(
+        [*EVAL, "--difficulty", "medium"], "'combo' is not one of medium's"
+    ),
+    "dataset without the difficulty": Mistake(
+        [*EVAL, "--difficulty", "medium", "--categories", "train", "--dataset", "{tmp}/e.json"],
+        "has no medium_train goals",
+        files={"e.json": EASY_ONLY_DATASET},
+    ),
+    "split the official data lacks": Mistake(
+        [*EVAL, "--difficulty", "hard", "--categories", "paraphrased", "--dataset", "{tmp}/e.json"],
+        "has no hard_test_paraphrased goals",
+        files={"e.json": EASY_ONLY_DATASET},
+    ),
     "unknown renderer": Mistake([*EVAL, "--renderer", "pixels"], "pixels"),
     "unknown fallback action": Mistake([*EVAL, "--fallback-action", "JUMP"], "JUMP"),
     "fallback action of the other variant": Mistake(

@@ -17,7 +17,7 @@ from llm_agents.agents.registry import AGENTS
 from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 
 if TYPE_CHECKING:
-    from env.dataset import Goal
+    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
     from llm_agents.agents.types import Decision, StepPrompt
 
@@ -38,13 +38,13 @@ class Agent(Protocol):
     """The action names answers are constrained to, with their rule; None: free text."""
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None: ...
 
     def end_episode(self, slot: int) -> None: ...
 
     def check_templates(
-        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Build what the agent would send for an episode of `instruction` (and `plan`, `goal`)
         through the path a run builds it with, so a broken template fails before any work."""

@@ -19,7 +19,7 @@ from llm_agents.backends.base import ChatMessage, ModelOutput
 from prompts import render_template
 
 if TYPE_CHECKING:
-    from env.dataset import Goal
+    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
 
 CHARS_PER_TOKEN = 4
@@ -49,7 +49,7 @@ class ChainOfThoughtAgent(ZeroShotAgent):
         return {"steps": config.cot_steps, "max_tokens": config.cot_max_tokens}
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         super().start_episode(slot, instruction, plan, goal)
         self._replies[slot] = []

@@ -30,7 +30,7 @@ from llm_agents.run_data.store import (
 from prompts import render_template
 
 if TYPE_CHECKING:
-    from env.dataset import Goal
+    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
 
 TRAINING_CATEGORIES = frozenset({"one", "combo"})
@@ -163,7 +163,7 @@ class FewShotAgent(ZeroShotAgent):
         return {"demos": config.demos, "steps": config.few_shot_steps}
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         if goal is None:
             raise UserError("the few-shot agent needs the goal record to leave its own goal out")

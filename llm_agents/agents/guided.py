@@ -25,7 +25,7 @@ from llm_agents.backends.base import ModelAPI, ModelOutput
 from llm_agents.run_data.readings import Grounding
 
 if TYPE_CHECKING:
-    from env.dataset import Goal
+    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
 
 
@@ -71,7 +71,7 @@ class GuidedAgent:
         return dict(self._groundings)
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Begin an episode; `goal` (the dataset record) is never read: the model's reading is."""
         self._texts[slot] = instruction
@@ -90,7 +90,7 @@ class GuidedAgent:
         self.expert.end_episode(slot)
 
     def check_templates(
-        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Render the grounding request the run will send (the expert renders nothing)."""
         grounding_messages(instruction, self.variant, self.templates_dir)

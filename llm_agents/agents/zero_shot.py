@@ -26,7 +26,7 @@ from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOu
 from prompts import render_template
 
 if TYPE_CHECKING:
-    from env.dataset import Goal
+    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
 
 SYSTEM_TEMPLATE = "system"
@@ -87,7 +87,7 @@ class HistoryEntry(BaseModel):
 
 
 class _Episode:
-    def __init__(self, instruction: str, plan: str | None, goal: Goal | None = None):
+    def __init__(self, instruction: str, plan: str | None, goal: AnyGoal | None = None):
         self.instruction = instruction
         self.plan = plan
         self.goal = goal
@@ -220,7 +220,7 @@ class ZeroShotAgent:
         }
 
     def check_templates(
-        self, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Build the messages of an episode's second step (a placeholder observation after one
         answered step) the way a run builds them, so a broken template of any strategy (the step
@@ -236,7 +236,7 @@ class ZeroShotAgent:
             self.end_episode(slot)
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Begin a new episode in a slot, forgetting the slot's previous one.
 

@@ -26,6 +26,7 @@ from pydantic import (
 
 from env.dataset import PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
+from env.goals import Difficulty, check_categories
 from env.placement import EnvDevice
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
@@ -110,9 +111,13 @@ class EvalConfig(ModelSettings):
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
+    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
+    """CrafText difficulty: easy, medium (Craftax-Classic in the official configs) or hard
+    (full Craftax); --categories then picks its splits."""
     categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = PAPER_CATEGORIES
-    """Instruction categories to run: one, combo, paraphrased, new_objects (a config file's
-    `splits`, this setting's name before, still means it)."""
+    """Instruction categories to run: easy's one, combo, paraphrased, new_objects; medium's and
+    hard's train, paraphrased, new_objects (a config file's `splits`, this setting's name
+    before, still means it)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Run every paraphrase of each goal as well as its original instruction."""
     episodes_per_instruction: Annotated[int, CHANGES_RESULTS] = Field(1, ge=1)
@@ -207,6 +212,15 @@ class EvalConfig(ModelSettings):
     @classmethod
     def _known_categories(cls, value: Any) -> tuple[str, ...]:
         return tuple(parse_categories(value))
+
+    @model_validator(mode="after")
+    def _categories_of_the_difficulty(self) -> EvalConfig:
+        check_categories(self.categories, self.difficulty)
+        if self.agent == "guided" and self.difficulty != "easy":
+            raise ValueError(
+                "the guided agent grounds achievement goals only: use --difficulty easy"
+            )
+        return self
 
     @field_validator("renderer")
     @classmethod

@@ -24,6 +24,7 @@ from pydantic import BaseModel, Field, ValidationError, field_validator
 
 from env.dataset import CATEGORIES, Instruction, load_dataset, parse_categories
 from env.errors import UserError
+from env.goals import run_category
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
     grounding_messages,
@@ -260,7 +261,7 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
         key=instruction.key,
         goal_id=instruction.goal.id,
         split=instruction.goal.split,
-        category=instruction.goal.category,
+        category=run_category(instruction.goal),
         instruction_variant=instruction.variant,
         instruction=instruction.text,
         truth=truth,

@@ -125,7 +125,8 @@ class _Slots:
     def _task_rows(
         self, specs: Sequence[ScheduledEpisode]
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        from env import episode_key, goal_masks
+        from env import episode_key
+        from env.scenario_tasks import encode_goals
 
         seed = self.config.seed
         keys = np.stack(
@@ -134,8 +135,8 @@ class _Slots:
                 for s in specs
             ]
         )
-        required, forbidden = goal_masks([s.instruction.goal for s in specs])
-        return keys, required, forbidden
+        tasks = encode_goals([s.instruction.goal for s in specs], self.config.variant)
+        return keys, tasks.required, tasks.forbidden
 
     def _start(self, slots: list[int], specs: Sequence[ScheduledEpisode]) -> None:
         for slot, spec in zip(slots, specs, strict=True):
@@ -265,6 +266,7 @@ def _episode_record(
         instruction=spec.instruction.text,
         instruction_variant=spec.instruction.variant,
         category=spec.category,
+        scenario_class=spec.instruction.goal.scenario_class,
         seed=seed,
         episode_index=spec.index,
         success=termination == Termination.SUCCESS,

@@ -5,6 +5,14 @@
 set beside the published zero-shot numbers. A preset only fills in the settings a user did not
 set: `apply_protocol` puts it under the file and flag settings and lists the explicit settings
 that depart from it, which the run records as `protocol_overrides`.
+
+Each protocol has a version per CrafText difficulty (`protocol_for`): `PROTOCOLS` holds EASY's.
+Medium's `paper` protocol follows the official configs (Craftax-Classic, the official success
+rule, the LLM loop's 250 steps and 0.7 temperature) and the paper's evaluation of 50 worlds per
+instruction: the published Medium numbers are means over 50 worlds, so a run plays 50 episodes
+per instruction, each in its own world (`per_episode`), where the EASY protocol follows the LLM
+loop's one world. Hard's plays full Craftax (its configs) and only its train split (the
+official data has no Hard test splits); the paper publishes no Hard numbers beside it.
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ from pydantic import BaseModel, ConfigDict
 
 from env.dataset import PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
+from env.goals import DIFFICULTY_CATEGORIES, Difficulty, check_difficulty
 from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP
 from env.variant import DEFAULT_VARIANT
 
@@ -45,6 +54,8 @@ class Protocol(BaseModel):
 
     name: ProtocolName
     """The name `--protocol` takes."""
+    difficulty: Difficulty = "easy"
+    """The CrafText difficulty this version of the protocol is for."""
     summary: str
     """One line on what the protocol is for."""
     choices: tuple[ProtocolChoice, ...]
@@ -158,11 +169,85 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
 }
 
 
+_PAPER_WORLDS = "the paper's Table 2: success averaged over 50 worlds per instruction"
+
+
+def _later_difficulty(difficulty: Difficulty) -> dict[ProtocolName, Protocol]:
+    """Medium's or Hard's version of each protocol: EASY's with the difficulty's own splits,
+    and the paper's with what its configs and the paper's evaluation state."""
+    medium = difficulty == "medium"
+    paper_variant = "classic" if medium else "full"
+    replaced = {
+        "categories": ProtocolChoice(
+            setting="categories",
+            value=DIFFICULTY_CATEGORIES[difficulty] if medium else ("train",),
+            source="the paper's Table 2 columns (Train / Paraphrased / New objects)"
+            if medium
+            else f"{_OFFICIAL}: SMALL/test.py defines no Hard test splits",
+        ),
+        "variant": ProtocolChoice(
+            setting="variant",
+            value=paper_variant,
+            source=f"{_OFFICIAL}: its {difficulty}_* configs play "
+            + ("Craftax-Classic" if medium else "full Craftax"),
+        ),
+        "episodes_per_instruction": ProtocolChoice(
+            setting="episodes_per_instruction", value=50, source=_PAPER_WORLDS
+        ),
+        "world_seeding": ProtocolChoice(
+            setting="world_seeding",
+            value="per_episode",
+            source=f"{_PAPER_WORLDS}, so each episode plays its own world",
+        ),
+    }
+    every_split = (
+        ProtocolChoice(
+            setting="categories",
+            value=DIFFICULTY_CATEGORIES[difficulty],
+            source="ours: every split of the difficulty",
+        )
+        if medium
+        else replaced["categories"]
+    )
+    default, paper = PROTOCOLS["default"], PROTOCOLS["paper"]
+    return {
+        "default": default.model_copy(
+            update={
+                "difficulty": difficulty,
+                "choices": tuple(
+                    every_split if c.setting == "categories" else c for c in default.choices
+                ),
+            }
+        ),
+        "paper": paper.model_copy(
+            update={
+                "difficulty": difficulty,
+                "summary": f"the official CrafText evaluation of {difficulty} goals"
+                + (", to compare with the published Medium numbers" if medium else ""),
+                "choices": tuple(replaced.get(c.setting, c) for c in paper.choices),
+            }
+        ),
+    }
+
+
+_LATER_PROTOCOLS: dict[Difficulty, dict[ProtocolName, Protocol]] = {
+    "medium": _later_difficulty("medium"),
+    "hard": _later_difficulty("hard"),
+}
+
+
 def get_protocol(name: str) -> Protocol:
-    """The protocol called `name`, or a `UserError` listing the known ones."""
+    """The protocol called `name` (EASY's version), or a `UserError` listing the known ones."""
     if name not in PROTOCOLS:
         raise UserError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOL_NAMES)}")
     return PROTOCOLS[name]
+
+
+def protocol_for(name: str, difficulty: str = "easy") -> Protocol:
+    """The version of protocol `name` for `difficulty`; a `UserError` for an unknown either."""
+    protocol = get_protocol(name)
+    level = check_difficulty(difficulty)
+    return protocol if level == "easy" else _LATER_PROTOCOLS[level][protocol.name]
 
 
 def apply_protocol(
@@ -175,7 +260,9 @@ def apply_protocol(
     holds the keys the user set (`generation.NAME` for generation settings). Returns the
     completed settings and the explicit settings whose values depart from the protocol's.
     """
-    protocol = get_protocol(str(settings.get("protocol") or "default"))
+    protocol = protocol_for(
+        str(settings.get("protocol") or "default"), str(settings.get("difficulty") or "easy")
+    )
     chosen = set(explicit)
     result = copy.deepcopy(dict(settings))
     overrides = []

@@ -35,6 +35,8 @@ from typing import Any
 
 from env.dataset import load_dataset
 from env.errors import UserError
+from env.goals import run_category
+from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
@@ -126,12 +128,21 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     out = Path(config.output_dir)
     check_output_dir(out)
     dataset = load_dataset(config.dataset)
-    instructions = dataset.instructions(config.categories, include_paraphrases=config.paraphrases)
+    instructions = dataset.instructions(
+        config.categories, include_paraphrases=config.paraphrases, difficulty=config.difficulty
+    )
     if not instructions:
         raise UserError(
-            f"the dataset has no instructions in categories {', '.join(config.categories)}"
+            f"the dataset has no {config.difficulty} instructions in categories "
+            f"{', '.join(config.categories)}"
         )
-    present = {i.goal.category for i in instructions}
+    # A goal the variant cannot score (a block or item it lacks) is refused before anything runs.
+    encode_goals([i.goal for i in instructions], config.variant)
+    if config.difficulty != "easy":
+        raise UserError(
+            f"the env cannot play {config.difficulty} goals yet (it scores achievement goals only)"
+        )
+    present = {run_category(i.goal) for i in instructions}
     for category in config.categories:
         if category not in present:
             logger.warning(
@@ -159,7 +170,11 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
         config=config,
         output_dir=out,
         dataset_source=dataset.source.model_dump(mode="json")
-        | {"goals": dataset.category_goals(), "split_sha256": dataset.split_sha256()},
+        | {
+            "goals": dataset.category_goals(),
+            "scenario_goals": dataset.scenario_goals(),
+            "split_sha256": dataset.split_sha256(),
+        },
         instructions=len(instructions),
         schedule=schedule,
         missing_plans=missing,

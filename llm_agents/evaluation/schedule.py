@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from env.dataset import Instruction
+from env.goals import Category, run_category
 
 if TYPE_CHECKING:
     from llm_agents.evaluation.config import EvalConfig
@@ -24,8 +25,8 @@ class ScheduledEpisode:
     plan: str | None
 
     @property
-    def category(self) -> str:
-        return self.instruction.goal.category
+    def category(self) -> Category:
+        return run_category(self.instruction.goal)
 
     @property
     def episode_id(self) -> str:
@@ -46,7 +47,7 @@ def build_schedule(
     goals_seen: Counter[str] = Counter()
     keyed = []
     for instruction in instructions:
-        category = instruction.goal.category
+        category = run_category(instruction.goal)
         goal_key = (category, instruction.goal.id)
         if goal_key not in rank_in_category:
             rank_in_category[goal_key] = goals_seen[category]

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pydantic import BaseModel, Field
 
 from env.errors import UserError
-from env.goals import CATEGORIES
+from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES
 from env.termination import TERMINATIONS
 from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord
 
@@ -101,6 +101,9 @@ class Summary(BaseModel):
     """Success over every episode."""
     by_category: dict[str, SuccessRate]
     """Success per goal category present (`one`, `combo`, `new_objects`, `paraphrased`)."""
+    by_scenario: dict[str, dict[str, SuccessRate]] = {}
+    """Success per scenario class present, then per category present (the paper's Table 2:
+    `Build` -> `train` -> rate)."""
     by_goal: dict[str, SuccessRate]
     """Success per goal id."""
     terminations: dict[str, int]
@@ -129,9 +132,11 @@ def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
     if not episodes:
         raise UserError("no finished episodes to summarize")
     by_category: dict[str, list[bool]] = defaultdict(list)
+    by_scenario: dict[str, dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))
     by_goal: dict[str, list[bool]] = defaultdict(list)
     for episode in episodes:
         by_category[episode.category].append(episode.success)
+        by_scenario[episode.scenario_class][episode.category].append(episode.success)
         by_goal[episode.goal_id].append(episode.success)
     terminations = Counter(episode.termination for episode in episodes)
     success_steps = [episode.steps for episode in episodes if episode.success]
@@ -143,8 +148,19 @@ def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
     return Summary(
         overall=SuccessRate.of(len(success_steps), len(episodes)),
         by_category=_success_rates(
-            {category: by_category[category] for category in CATEGORIES if category in by_category}
+            {
+                category: by_category[category]
+                for category in ALL_CATEGORIES
+                if category in by_category
+            }
         ),
+        by_scenario={
+            scenario: _success_rates(
+                {c: per_category[c] for c in ALL_CATEGORIES if c in per_category}
+            )
+            for scenario in SCENARIO_CLASSES
+            if (per_category := by_scenario.get(scenario))
+        },
         by_goal=_success_rates(dict(sorted(by_goal.items()))),
         terminations={reason: terminations[reason] for reason in TERMINATIONS}
         | ({NOT_STARTED: terminations[NOT_STARTED]} if terminations[NOT_STARTED] else {}),

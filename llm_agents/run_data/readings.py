@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, field_validator, model_validator
 
 from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS
 from env.errors import UserError
-from env.goals import Goal
+from env.goals import AnyGoal, Goal
 
 __all__ = ["EasyReading", "GoalReading", "Grounding", "reading_of"]
 
@@ -59,9 +59,9 @@ GoalReading = EasyReading
 """Every scenario's reading; one class while only EASY goals are typed."""
 
 
-def reading_of(goal: Goal) -> GoalReading:
+def reading_of(goal: AnyGoal) -> GoalReading:
     """The dataset record's goal as a reading: the ground truth a model's reading is scored by."""
-    if goal.scenario != "easy":
+    if goal.scenario != "easy" or not isinstance(goal, Goal):
         raise UserError(
             f"goal {goal.id!r} is a {goal.scenario} goal, which has no typed reading yet "
             "(only EASY goals can be grounded)"

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, Field, computed_field, model_validator
 
-from env.goals import Category
+from env.goals import Category, ScenarioClass
 from env.termination import TERMINATIONS
 from llm_agents.run_data.readings import Grounding
 
@@ -95,6 +95,9 @@ class EpisodeRecord(BaseModel):
     """Which wording of the goal: 0 the original, 1-5 a paraphrase."""
     category: Category
     """The goal set the episode counts towards."""
+    scenario_class: ScenarioClass = "Achievements"
+    """The goal's scenario class (the paper's Table 2 rows: Achievements, Conditional,
+    Localization, Build); records written before Medium had only achievements goals."""
     seed: int
     """Environment seed of the episode."""
     episode_index: int = Field(ge=0)
