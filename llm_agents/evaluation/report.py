@@ -1,11 +1,15 @@
-"""The results table and chart of a run, beside the published zero-shot CrafText numbers.
+"""The results table and chart of a run, beside the published CrafText numbers.
 
-The table follows the paper's layout (success rate on the `one`, `combo` and `New objects`
-goal sets), adding the `paraphrased` set and the overall rate when the run has them. The
-published numbers sit beside a run's only when the run followed the paper's protocol where it
-changes the numbers (variant, dataset splits, step cap, success rule); otherwise they are printed
-under a heading that lists each difference. A run can be re-scored under either success rule
-from its records alone (`report_run(..., success_rule=...)`).
+The table follows the paper's layout: for an EASY run its zero-shot table (success rate on the
+`one`, `combo` and `New objects` goal sets), adding the `paraphrased` set and the overall rate
+when the run has them; for a Medium or Hard run its Table 2 (Train / Paraphrased / New objects),
+with a second table of success per scenario class (Conditional, Build, Localization,
+Achievements) and split. The published numbers of the run's difficulty (zero-shot LLMs for
+EASY, the paper's agents' totals for Medium; none for Hard) sit beside a run's only when the run
+followed the paper's protocol where it changes the numbers (variant, dataset splits, step cap,
+success rule); otherwise they are printed under a heading that lists each difference. A run can
+be re-scored under either success rule from its records alone (`report_run(...,
+success_rule=...)`).
 """
 
 from __future__ import annotations
@@ -18,14 +22,19 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict
 
 from env.dataset import (
-    CATEGORY_SPLIT,
     OFFICIAL_COMMIT,
     OFFICIAL_SPLIT_SHA256,
     PAPER_CATEGORIES,
 )
 from env.errors import UserError
+from env.goals import (
+    DIFFICULTY_CATEGORIES,
+    Difficulty,
+    ScenarioClass,
+    category_split,
+)
 from env.rules import SUCCESS_RULES, SuccessRule
-from llm_agents.evaluation.protocol import PROTOCOLS
+from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.run_data.metrics import SuccessRate, Summary, summarize
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import (
@@ -55,35 +64,54 @@ CHART_FILE = "success.png"
 
 
 class PublishedResult(BaseModel):
-    """Zero-shot success rates of one model as published for CrafText (EASY split)."""
+    """Success rates of one model or agent as the CrafText paper publishes them."""
 
     model_config = ConfigDict(frozen=True)
 
     model: str
-    """Model name as the paper gives it."""
-    one: float
-    """Success rate on single-achievement goals."""
-    combo: float
-    """Success rate on goals that combine achievements."""
-    new_objects: float
-    """Success rate on goals about objects unseen in the other sets."""
+    """Model or agent name as the paper gives it."""
+    rates: dict[str, float]
+    """Success rate per goal set (`one`, `combo`, `new_objects` for EASY; `train`,
+    `paraphrased`, `new_objects` for Medium, each the total over its scenario classes)."""
 
     def rate(self, category: str) -> float | None:
-        """The published rate of a category; None where the paper gives none (`paraphrased`)."""
-        return {"one": self.one, "combo": self.combo, "new_objects": self.new_objects}.get(category)
+        """The published rate of a goal set; None where the paper gives none."""
+        return self.rates.get(category)
+
+
+def _published(model: str, *rates: float, difficulty: Difficulty) -> PublishedResult:
+    categories = PAPER_CATEGORIES if difficulty == "easy" else DIFFICULTY_CATEGORIES[difficulty]
+    return PublishedResult(model=model, rates=dict(zip(categories, rates, strict=True)))
 
 
 PUBLISHED: tuple[PublishedResult, ...] = (
-    PublishedResult(model="Qwen QwQ-32B", one=0.21, combo=0.10, new_objects=0.07),
-    PublishedResult(model="Mistral-Small-24B", one=0.21, combo=0.10, new_objects=0.09),
-    PublishedResult(model="DeepSeek-R1-Distill-Qwen-32B", one=0.15, combo=0.07, new_objects=0.06),
+    _published("Qwen QwQ-32B", 0.21, 0.10, 0.07, difficulty="easy"),
+    _published("Mistral-Small-24B", 0.21, 0.10, 0.09, difficulty="easy"),
+    _published("DeepSeek-R1-Distill-Qwen-32B", 0.15, 0.07, 0.06, difficulty="easy"),
 )
+"""The paper's zero-shot LLM numbers (EASY)."""
+PUBLISHED_MEDIUM: tuple[PublishedResult, ...] = (
+    _published("PPO-T", 0.40, 0.36, 0.22, difficulty="medium"),
+    _published("PPO-T+", 0.45, 0.35, 0.28, difficulty="medium"),
+    _published("FiLM", 0.43, 0.35, 0.26, difficulty="medium"),
+    _published("Dynalang", 0.15, 0.05, 0.10, difficulty="medium"),
+)
+"""The paper's Medium totals (its Table 2, 50 worlds per instruction), trained agents."""
+PUBLISHED_BY_DIFFICULTY: dict[Difficulty, tuple[PublishedResult, ...]] = {
+    "easy": PUBLISHED,
+    "medium": PUBLISHED_MEDIUM,
+    "hard": (),
+}
+PUBLISHED_KIND: dict[Difficulty, str] = {
+    "easy": "zero-shot, EASY split",
+    "medium": "the paper's trained agents, Medium totals, 50 worlds per instruction",
+    "hard": "none for Hard",
+}
+#: The paper's Table 2 rows, in its order.
+SCENARIO_ROWS: tuple[ScenarioClass, ...] = ("Conditional", "Build", "Localization", "Achievements")
 
-# What the official evaluation does where it changes the numbers.
-_PAPER = PROTOCOLS["paper"]
-_PAPER_VARIANT: str = _PAPER.value("variant")
-_PAPER_MAX_STEPS: int = _PAPER.value("max_steps")
-_PAPER_SUCCESS_RULE: SuccessRule = _PAPER.value("success_rule")
+# Runs recorded before the difficulty was a setting played EASY.
+_RECORDED_DIFFICULTY_BEFORE_SETTING: Difficulty = "easy"
 # Runs recorded before the success rule was a setting scored the game-over step as a success.
 _RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
 NOT_IN_DATASET = "not in this dataset"
@@ -92,19 +120,45 @@ CATEGORY_LABELS = {
     "combo": "combo",
     "new_objects": "New objects",
     "paraphrased": "paraphrased",
+    "train": "Train",
     "overall": "overall",
 }
 
 
-def chart_categories(summary: Summary) -> list[str]:
+def difficulty_of_run(results: RunResults) -> Difficulty:
+    """The difficulty a run played."""
+    difficulty = results.config.get("difficulty", _RECORDED_DIFFICULTY_BEFORE_SETTING)
+    return difficulty if difficulty in DIFFICULTY_CATEGORIES else "easy"
+
+
+def published_for(difficulty: Difficulty) -> tuple[PublishedResult, ...]:
+    """The paper's numbers for runs of `difficulty`."""
+    return PUBLISHED_BY_DIFFICULTY[difficulty]
+
+
+def chart_categories(summary: Summary, difficulty: Difficulty = "easy") -> list[str]:
+    if difficulty != "easy":
+        return list(DIFFICULTY_CATEGORIES[difficulty])
     extra = ["paraphrased"] if "paraphrased" in summary.by_category else []
     return [*PAPER_CATEGORIES, *extra]
 
 
-def table_columns(summary: Summary) -> list[str]:
+def table_columns(summary: Summary, difficulty: Difficulty = "easy") -> list[str]:
     # With a single category the overall column would only repeat it.
     overall = ["overall"] if len(summary.by_category) > 1 else []
-    return [*chart_categories(summary), *overall]
+    return [*chart_categories(summary, difficulty), *overall]
+
+
+def scenario_rows(summary: Summary, difficulty: Difficulty) -> list[list[str]]:
+    """The paper's Table 2 for a run: a header, then one row per scenario class the run played,
+    success per goal set of the difficulty."""
+    columns = DIFFICULTY_CATEGORIES[difficulty]
+    rows = [["Scenario", *(CATEGORY_LABELS[c] for c in columns)]]
+    for scenario in SCENARIO_ROWS:
+        rates = summary.by_scenario.get(scenario)
+        if rates:
+            rows.append([scenario, *(our_cell(rates.get(c)) for c in columns)])
+    return rows
 
 
 def our_rate(summary: Summary, column: str) -> SuccessRate | None:
@@ -142,13 +196,16 @@ def format_table(
     differences: Sequence[str] = (),
     absent: Collection[str] = (),
     notes: Sequence[str] = (),
+    difficulty: Difficulty = "easy",
 ) -> str:
-    """Our success rates (95% Wilson interval, episodes) beside the published ones, as text.
+    """Our success rates (95% Wilson interval, episodes) beside the published ones, as text;
+    for Medium and Hard, then per scenario class and goal set.
 
     With `differences` (how the run departs from the paper's protocol) the published numbers
     go under a heading listing them instead. Categories in `absent` are not in the run's dataset.
     """
-    columns = table_columns(summary)
+    columns = table_columns(summary, difficulty)
+    published_rows = published_for(difficulty)
     ours_label = f"{model_name} (this run{', partial' if partial else ''})"
     header = ["Model", *(CATEGORY_LABELS[column] for column in columns)]
     ours = [
@@ -157,18 +214,24 @@ def format_table(
     ]
     published = [
         [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
-        for result in PUBLISHED
+        for result in published_rows
     ]
-    if differences:
+    if differences and published:
         table = [
             *_render([header, ours]),
             "",
-            "Published zero-shot numbers (EASY), NOT comparable with this run:",
+            f"Published numbers ({PUBLISHED_KIND[difficulty]}), NOT comparable with this run:",
             *(f"  - {difference}" for difference in differences),
             *_render([header, *published]),
         ]
     else:
         table = _render([header, ours, *published])
+    if difficulty != "easy":
+        table += [
+            "",
+            f"By scenario class ({difficulty}):",
+            *_render(scenario_rows(summary, difficulty)),
+        ]
     ends = summary.terminations
     steps = (
         f"mean {summary.steps_to_success_mean:.1f}, median {summary.steps_to_success_median:.1f}"
@@ -177,7 +240,7 @@ def format_table(
     )
     unstarted = f", not started {ends['not_started']}" if "not_started" in ends else ""
     footer = [
-        "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split.",
+        f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
         f"Episodes: {summary.overall.episodes} (success {ends['success']}, "
         f"death {ends['death']}, timeout {ends['timeout']}{unstarted}).",
         *understanding_lines(summary),
@@ -246,19 +309,25 @@ def run_summary(
 
 
 def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
-    """How a run departs from the paper's protocol where that changes the numbers: variant,
-    dataset splits, step cap, and the success rule it is scored under (`rule`)."""
+    """How a run departs from the paper's protocol of its difficulty where that changes the
+    numbers: variant, dataset splits, step cap, and the success rule it is scored under
+    (`rule`)."""
     config = results.config
+    difficulty = difficulty_of_run(results)
+    paper = protocol_for("paper", difficulty)
+    paper_variant: str = paper.value("variant")
+    paper_max_steps: int = paper.value("max_steps")
+    paper_rule: SuccessRule = paper.value("success_rule")
     differences = []
     variant = config.get("variant")
-    if variant != _PAPER_VARIANT:
-        differences.append(f"variant: {variant} Craftax (paper: {_PAPER_VARIANT})")
+    if variant != paper_variant:
+        differences.append(f"variant: {variant} Craftax (paper: {paper_variant})")
     digests = results.dataset.get("split_sha256")
     source = f"{results.dataset.get('kind', '?')} {results.dataset.get('path', '?')}"
     if not isinstance(digests, dict):
         differences.append(f"dataset: split digests not recorded (source: {source})")
     else:
-        splits = dict.fromkeys(CATEGORY_SPLIT[c] for c in PAPER_CATEGORIES)
+        splits = dict.fromkeys(category_split(c, difficulty) for c in paper.value("categories"))
         other = [split for split in splits if digests.get(split) != OFFICIAL_SPLIT_SHA256[split]]
         if other:
             differences.append(
@@ -266,12 +335,12 @@ def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
                 f"(source: {source})"
             )
     max_steps = config.get("max_steps")
-    if max_steps != _PAPER_MAX_STEPS:
-        differences.append(f"step cap: {max_steps} steps (paper: {_PAPER_MAX_STEPS})")
-    if rule != _PAPER_SUCCESS_RULE:
+    if max_steps != paper_max_steps:
+        differences.append(f"step cap: {max_steps} steps (paper: {paper_max_steps})")
+    if rule != paper_rule:
         differences.append(
             f"success rule: {rule}, a goal completed on the step the game ends counts "
-            f"(paper: {_PAPER_SUCCESS_RULE}, it does not; try --success-rule official)"
+            f"(paper: {paper_rule}, it does not; try --success-rule official)"
         )
     return differences
 
@@ -283,22 +352,30 @@ def _absent_categories(results: RunResults) -> set[str]:
     return {category for category, count in goals.items() if count == 0}
 
 
-def _tick_label(category: str, ours: SuccessRate | None) -> str:
+def _tick_label(
+    category: str, ours: SuccessRate | None, published: Sequence[PublishedResult]
+) -> str:
     notes = [f"n={ours.episodes}" if ours is not None else "not run"]
-    if category not in PAPER_CATEGORIES:
+    if all(result.rate(category) is None for result in published):
         notes.append("none published")
     return f"{CATEGORY_LABELS[category]}\n({', '.join(notes)})"
 
 
 def plot_success(
-    summary: Summary, model_name: str, path: Path, *, with_published: bool = True
+    summary: Summary,
+    model_name: str,
+    path: Path,
+    *,
+    with_published: bool = True,
+    difficulty: Difficulty = "easy",
 ) -> None:
     """Save a PNG bar chart of success per category: our run with its intervals, and the paper's
     (left out with `with_published=False`, for a run not comparable with it)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    categories = chart_categories(summary)
+    categories = chart_categories(summary, difficulty)
+    published_rows = published_for(difficulty)
     series: list[tuple[str, list[float], list[float], list[float]]] = []
     ours = [our_rate(summary, category) for category in categories]
     series.append(
@@ -309,7 +386,7 @@ def plot_success(
             [0.0 if rate is None else rate.high - rate.rate for rate in ours],
         )
     )
-    shown = PUBLISHED if with_published else ()
+    shown = published_rows if with_published else ()
     for result in shown:
         published = [result.rate(category) for category in categories]
         zeros = [0.0] * len(categories)
@@ -341,19 +418,22 @@ def plot_success(
         )
     axes.set_xticks(
         range(len(categories)),
-        [_tick_label(category, rate) for category, rate in zip(categories, ours, strict=True)],
+        [
+            _tick_label(category, rate, published_rows)
+            for category, rate in zip(categories, ours, strict=True)
+        ],
     )
     # Bars with no height (nothing published) do not count for autoscaling.
     axes.set_xlim(-0.5, len(categories) - 0.5)
     axes.set_ylabel("success rate")
     axes.set_title(
-        "CrafText zero-shot success (ours: 95% Wilson interval)"
-        if with_published
-        else "CrafText zero-shot success (ours: 95% Wilson interval; published: not comparable)"
+        f"CrafText {difficulty} success (ours: 95% Wilson interval)"
+        if with_published or not published_rows
+        else f"CrafText {difficulty} success (ours: 95% Wilson interval; published: not comparable)"
     )
     tallest = max(
         [rate.high for rate in ours if rate is not None]
-        + [rate for result in shown for rate in (result.one, result.combo, result.new_objects)]
+        + [rate for result in shown for rate in result.rates.values()]
         + [0.0]
     )
     axes.set_ylim(0, min(1.0, tallest * 1.25 + 0.02))
@@ -423,14 +503,22 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
     summary = run_summary(results, episodes, rule)
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)
-    plot_success(summary, model_name, run_dir / CHART_FILE, with_published=not differences)
+    difficulty = difficulty_of_run(results)
+    plot_success(
+        summary,
+        model_name,
+        run_dir / CHART_FILE,
+        with_published=not differences,
+        difficulty=difficulty,
+    )
     table = format_table(
         summary,
         model_name,
         partial=results.status != "complete",
         differences=differences,
-        absent=_absent_categories(results),
+        absent=_absent_categories(results) if difficulty == "easy" else (),
         notes=notes,
+        difficulty=difficulty,
     )
     return f"{table}\n{run_status(results)}"
 
@@ -466,8 +554,11 @@ def compared_run(run_dir: str | Path) -> ComparedRun:
 
 
 def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
-    """The columns of a comparison: the paper's categories, `paraphrased` when a run has it,
-    and the overall rate."""
+    """The columns of a comparison: the paper's categories of the first run's difficulty
+    (EASY's with `paraphrased` when a run has it), and the overall rate."""
+    difficulty = difficulty_of_run(runs[0].results)
+    if difficulty != "easy":
+        return [*DIFFICULTY_CATEGORIES[difficulty], "overall"]
     categories = {c for run in runs for c in run.summary.by_category}
     columns: list[str] = [
         c for c in (*PAPER_CATEGORIES, "paraphrased") if c in categories or c in PAPER_CATEGORIES
@@ -476,10 +567,14 @@ def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
 
 
 def comparison_notes(runs: Sequence[ComparedRun]) -> list[str]:
-    """What a reader of the comparison must know: the runs read different datasets."""
+    """What a reader of the comparison must know: the runs read different datasets or played
+    different difficulties."""
+    notes = []
     if len({run.results.dataset.get("sha256") for run in runs}) > 1:
-        return ["Note: the compared runs read different datasets (or one is unknown)."]
-    return []
+        notes.append("Note: the compared runs read different datasets (or one is unknown).")
+    if len({difficulty_of_run(run.results) for run in runs}) > 1:
+        notes.append("Note: the compared runs played different difficulties.")
+    return notes
 
 
 def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
@@ -489,9 +584,13 @@ def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
     columns = comparison_columns(runs)
     rows = [["Run", *(CATEGORY_LABELS[c] for c in columns)]]
     rows += [run.cells(columns) for run in runs]
+    difficulty = difficulty_of_run(runs[0].results)
     rows += [
         [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
-        for result in PUBLISHED
+        for result in published_for(difficulty)
     ]
-    notes = ["", "Success rate [95% Wilson interval] n=episodes. Published: zero-shot, EASY split."]
+    notes = [
+        "",
+        f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
+    ]
     return "\n".join(_render(rows) + notes + comparison_notes(runs))

@@ -26,18 +26,21 @@ from env.errors import UserError
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.report import (
     CATEGORY_LABELS,
-    PUBLISHED,
+    PUBLISHED_KIND,
     ComparedRun,
     chart_categories,
     compared_run,
     comparison_columns,
     comparison_notes,
+    difficulty_of_run,
     model_name_of,
     our_rate,
     paper_differences,
     published_cell,
+    published_for,
     recorded_rule,
     run_summary,
+    scenario_rows,
     table_columns,
 )
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
@@ -310,9 +313,13 @@ def _run_context(
     model = model_name_of(results)
     partial = results.status != "complete"
     differences = paper_differences(results, recorded_rule(results))
+    difficulty = difficulty_of_run(results)
+    published = published_for(difficulty)
     ours = ComparedRun(f"{model} (this run{', partial' if partial else ''})", summary, results)
     # With runs to compare, the columns are the comparison's (`report --compare`'s).
-    columns = comparison_columns([ours, *compared]) if compared else table_columns(summary)
+    columns = (
+        comparison_columns([ours, *compared]) if compared else table_columns(summary, difficulty)
+    )
     table = {
         "header": ["Model", *(CATEGORY_LABELS[column] for column in columns)],
         "ours": ours.cells(columns),
@@ -320,23 +327,29 @@ def _run_context(
         "compare_notes": comparison_notes([ours, *compared]) if compared else [],
         "published": [
             [f"{result.model} (published)", *(published_cell(result, c) for c in columns)]
-            for result in PUBLISHED
+            for result in published
         ],
+        "published_kind": PUBLISHED_KIND[difficulty],
         "differences": differences,
+        # The paper's Table 2 layout: scenario class x goal set (Medium and Hard runs).
+        "scenarios": scenario_rows(summary, difficulty) if difficulty != "easy" else [],
     }
-    rates = {category: our_rate(summary, category) for category in chart_categories(summary)}
+    rates = {
+        category: our_rate(summary, category) for category in chart_categories(summary, difficulty)
+    }
     categories = [
         {
             "label": CATEGORY_LABELS[category],
             "ours": rate,
-            "published": [(result.model, result.rate(category)) for result in PUBLISHED],
+            "published": [(result.model, result.rate(category)) for result in published],
         }
         for category, rate in rates.items()
     ]
     # The y range of report.plot_success: the tallest interval or published bar, plus headroom.
     tallest = max(
         [rate.high for rate in rates.values() if rate is not None]
-        + [rate for result in PUBLISHED for rate in (result.one, result.combo, result.new_objects)]
+        + [rate for result in published for rate in result.rates.values()]
+        + [0.0]
     )
     goals = sorted(summary.by_goal.items(), key=lambda item: (-item[1].rate, item[0]))
     steps_total = sum(record.steps for record in records)
@@ -353,7 +366,7 @@ def _run_context(
         "categories": categories,
         "chart_top": min(1.0, tallest * 1.25 + 0.02),
         "goals": goals,
-        "published_models": [result.model for result in PUBLISHED],
+        "published_models": [result.model for result in published],
         "steps_total": steps_total,
         "invalid_total": sum(record.invalid_actions for record in records),
         "prompt_tokens": sum(record.prompt_tokens for record in records),
