@@ -1,8 +1,10 @@
-"""Plans files side by side on the CrafText EASY splits: coverage, plan length, vocabulary.
+"""Plans files side by side on the CrafText splits: coverage, plan length, vocabulary.
 
 Every file is measured on the same instruction texts (instructions and paraphrases of the chosen
-splits), with the planner's own parser, limits and Craftax vocabulary, so a file we generated
-and CrafText's official GPT-4 file compare directly.
+splits, by default every split the dataset has, EASY, Medium and Hard), with the planner's own
+parser, limits and Craftax vocabulary, so a file we generated and CrafText's official GPT-4 file
+compare directly. `covered` says how many of a split's texts a file has a plan for (the README
+gives the official file's coverage of each split).
 
     python -m benchmarks.compare_plans OURS.json [--official FILE] [--dataset SOURCE]
         [--splits easy_train ...] [--variant full|classic] [--json OUT]
@@ -118,7 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--dataset", default=None, help="dataset source (see env.dataset.load_dataset)"
     )
-    parser.add_argument("--splits", nargs="+", default=list(SPLITS), help="EASY splits to measure")
+    parser.add_argument(
+        "--splits", nargs="+", default=None, help="splits to measure (default: all the dataset has)"
+    )
     parser.add_argument("--variant", default=Variant.FULL.value, choices=[v.value for v in Variant])
     parser.add_argument("--max-steps", type=int, default=PlanLimits().max_steps)
     parser.add_argument("--max-step-words", type=int, default=PlanLimits().max_step_words)
@@ -129,15 +133,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         variant = Variant(args.variant)
         dataset = load_dataset(args.dataset)
         files = {"ours": load_plans(args.ours), "official": load_plans(args.official)}
-        splits = [check_split(name) for name in args.splits]
+        names = args.splits or [split for split in SPLITS if dataset.has_split(split)]
+        splits = [check_split(name) for name in names]
+        by_split = {split: dataset.split(split) for split in splits}
     except UserError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     report: dict[str, dict[str, PlanStats]] = {}
     for scope in [*splits, "all"]:
-        goals = dataset.goals if scope == "all" else dataset.split(scope)
-        if scope == "all":
-            goals = tuple(goal for goal in goals if goal.split in splits)
+        goals = (
+            [g for split in splits for g in by_split[split]] if scope == "all" else by_split[scope]
+        )
         texts = goal_instructions(goals)
         report[scope] = {
             name: plan_stats(plans, texts, limits, variant) for name, plans in files.items()

@@ -23,6 +23,7 @@ import numpy as np
 
 from env.achievements import ACHIEVEMENTS
 from env.craftext_env import CrafTextEnv, EpisodeState, make_task
+from env.scenario_tasks import NUM_PARAMS
 from env.termination import Termination
 from env.variant import Variant
 
@@ -43,6 +44,10 @@ class ReplayInput:
     """Boolean mask over the 22 achievement ids: the goal's forbidden achievements."""
     actions: Sequence[int]
     """Action ids taken, one per step, in order."""
+    kind: int = 0
+    """The goal's kind index (`env.scenario_tasks.KIND_INDEX`); 0, achievements, by default."""
+    params: tuple[int, ...] = (0,) * NUM_PARAMS
+    """The goal's checker parameters (`env.scenario_tasks.encode_goal`); zeros for achievements."""
 
 
 @dataclass(frozen=True)
@@ -131,7 +136,10 @@ class Replayer:
         padded = batch + [batch[-1]] * (self.batch_size - len(batch))
         keys = jnp.asarray(np.stack([np.asarray(e.reset_key, np.uint32) for e in padded]))
         task = make_task(
-            np.stack([e.required for e in padded]), np.stack([e.forbidden for e in padded])
+            np.stack([e.required for e in padded]),
+            np.stack([e.forbidden for e in padded]),
+            np.array([e.kind for e in padded], np.int32),
+            np.array([e.params for e in padded], np.int32),
         )
         longest = max(len(e.actions) for e in padded)
         actions = np.zeros(

@@ -11,6 +11,7 @@ import pytest
 
 from env.dataset import Category, Dataset, DatasetSource, Goal, Split
 from env.errors import UserError
+from env.goals import BuildLineGoal, LocalizationGoal
 from env.variant import Variant
 from llm_agents.backends.base import ChatMessage, ChoiceSet, Conversation, ModelOutput
 from llm_agents.backends.mock import MockModel
@@ -310,6 +311,35 @@ def test_run_planner_plans_every_text_of_the_chosen_splits(tmp_path: Path) -> No
         run_planner(
             config(tmp_path, splits=["easy_hard"], dataset=dataset), CountingModel(scripted)
         )
+
+
+def test_run_planner_plans_medium_and_hard_goals_of_any_kind(tmp_path: Path) -> None:
+    line = BuildLineGoal(
+        id="INSTRUCTION_STONE_3",
+        split="medium_train",
+        scenario="medium",
+        instruction="Build a line of three stones.",
+        paraphrases=("Put three stones in a row.",),
+        block="STONE",
+        size=3,
+        diagonal=False,
+    )
+    placing = LocalizationGoal(
+        id="TABLE_RIGHT_OF_WATER",
+        split="hard_train",
+        scenario="hard",
+        instruction="Place a table two tiles right of water.",
+        paraphrases=(),
+        place="CRAFTING_TABLE",
+        target="WATER",
+        side="right",
+        distance=2,
+    )
+    source = DatasetSource(kind="json", path="test")
+    dataset = Dataset(source=source, goals=(line, placing)).save_json(tmp_path / "data.json")
+    cfg = config(tmp_path, splits=["medium_train", "hard_train"], dataset=dataset)
+    summary = run_planner(cfg, CountingModel(lambda conversation: GOOD))
+    assert list(load_plans(summary.output)) == [*line.texts, *placing.texts]
 
 
 def test_goal_instructions_keeps_order_and_drops_repeats() -> None:

@@ -124,7 +124,7 @@ class _Slots:
 
     def _task_rows(
         self, specs: Sequence[ScheduledEpisode]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         from env import episode_key
         from env.scenario_tasks import encode_goals
 
@@ -136,7 +136,7 @@ class _Slots:
             ]
         )
         tasks = encode_goals([s.instruction.goal for s in specs], self.config.variant)
-        return keys, tasks.required, tasks.forbidden
+        return keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params
 
     def _start(self, slots: list[int], specs: Sequence[ScheduledEpisode]) -> None:
         for slot, spec in zip(slots, specs, strict=True):

@@ -152,7 +152,7 @@ def export_episode(run_dir: str | Path, episode: str, path: str | Path) -> Repla
     if view.unreplayable:
         raise UserError(f"episode {view.record.episode_id} cannot be replayed: {view.unreplayable}")
     replayer = _replayer(run, batch_size=1)
-    replay = next(iter(replayer.replay([_replay_input(view)])))
+    replay = next(iter(replayer.replay([_replay_input(view, replayer.env.variant)])))
     export_animation(replay.frames, Path(path))
     return _status(view, replay)
 
@@ -171,7 +171,7 @@ def _replays(
     # Episodes of similar length share a batch, so little of a batch is padding.
     playable.sort(key=lambda view: view.record.steps)
     replayer = _replayer(run, batch_size=batch_size)
-    replays = replayer.replay([_replay_input(view) for view in playable])
+    replays = replayer.replay([_replay_input(view, replayer.env.variant) for view in playable])
     # Sheets are encoded on worker threads (Pillow lets go of the GIL while it quantizes and
     # compresses), in order, a batch or so ahead of the pages written from them.
     encoding: deque[tuple[EpisodeView, ReplayStatus, Future[SpriteSheet]]] = deque()
@@ -217,15 +217,19 @@ def _compiled_replayer(env_config_json: str, batch_size: int) -> Any:
     )
 
 
-def _replay_input(view: EpisodeView) -> Any:
+def _replay_input(view: EpisodeView, variant: Any) -> Any:
     from env.replay import ReplayInput
+    from env.scenario_tasks import encode_goals
 
     assert view.goal is not None
+    task = encode_goals([view.goal], variant)
     return ReplayInput(
         reset_key=view.reset_key(),
-        required=view.goal.required_mask(),
-        forbidden=view.goal.forbidden_mask(),
+        required=task.required[0],
+        forbidden=task.forbidden[0],
         actions=[step.action_id for step in view.steps],
+        kind=int(task.kind[0]),
+        params=tuple(int(value) for value in task.params[0]),
     )
 
 

@@ -8,8 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from env.dataset import CATEGORIES, Goal, load_dataset
+from env.dataset import load_dataset
 from env.errors import UserError
+from env.goals import DIFFICULTIES, AnyGoal, run_category
 from llm_agents.evaluation.report import scheduled_episodes
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import (
@@ -30,7 +31,7 @@ class EpisodeView:
     steps: list[StepRecord]
     errors: list[str]
     """Backend error text of each step whose record carries one (empty when none do)."""
-    goal: Goal | None
+    goal: AnyGoal | None
     """The episode's goal in the run's dataset; None when the dataset no longer has it."""
     unreplayable: str | None = None
     """Why the episode cannot be replayed; None when it can."""
@@ -100,7 +101,7 @@ def load_run(run_dir: str | Path) -> LoadedRun:
     finished = {record.episode_id for record in records}
     steps, errors, stages, latencies = _read_steps(path / STEPS_FILE, finished)
     try:
-        goals = _goals(results.config.get("dataset"))
+        goals = _goals(results.config.get("dataset"), results.config.get("difficulty"))
         no_dataset = None
     except UserError as exc:
         # The pages are still worth having; only the replays need the goals.
@@ -146,9 +147,11 @@ def _read_steps(
     return steps, errors, stages, latencies
 
 
-def _goals(dataset: Any) -> dict[tuple[str, str], Goal]:
+def _goals(dataset: Any, difficulty: Any) -> dict[tuple[str, str], AnyGoal]:
     data = load_dataset(dataset if isinstance(dataset, str) else None)
-    return {(goal.category, goal.id): goal for goal in data.select(CATEGORIES)}
+    # Runs recorded before the difficulty was a setting played EASY.
+    level = difficulty if difficulty in DIFFICULTIES else "easy"
+    return {(run_category(goal), goal.id): goal for goal in data.goals if goal.difficulty == level}
 
 
 def _why_unreplayable(view: EpisodeView, *, has_steps: bool) -> str | None:

@@ -1,0 +1,98 @@
+"""Medium and Hard goals played end to end on the mock backend: the runner hands the env each
+goal's checker encoding, and episodes are recorded and reported by goal set and scenario class."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from env.dataset import Dataset, DatasetSource
+from env.errors import UserError
+from env.official_source import parse_directory
+from llm_agents.backends import get_model
+from llm_agents.evaluation.config import EvalConfig, build_config
+from llm_agents.evaluation.report import report_run
+from llm_agents.evaluation.runner import prepare_run, run_eval
+from llm_agents.run_data.store import read_episodes
+
+#: A straight line of 2 furnaces: the official checker looks for a window without any furnace
+#: (env.scenario_checker), so a fresh world meets it on the first step.
+MET_AT_ONCE = "INSTRUCTION_FURNACE_2"
+#: Spend 4 iron with 3 furnaces standing: out of reach in a few steps.
+OUT_OF_REACH = "INSTRUCTION_PLACE_IRON_FURNACE_4_3"
+
+
+@pytest.fixture(scope="module")
+def medium_dataset(official_repository: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    official = parse_directory(official_repository)
+    picked = tuple(
+        goal
+        for goal in official.goals
+        if goal.split == "medium_train" and goal.id in (MET_AT_ONCE, OUT_OF_REACH)
+    )
+    assert len(picked) == 2
+    path = tmp_path_factory.mktemp("medium") / "medium.json"
+    Dataset(source=DatasetSource(kind="json", path=str(path)), goals=picked).save_json(path)
+    return path
+
+
+def medium_config(out: Path, dataset: Path, **overrides: object) -> EvalConfig:
+    settings: dict[str, object] = {
+        "model": "mock:hash:ACTION: NOOP|ACTION: LEFT",
+        "difficulty": "medium",
+        "categories": ["train"],
+        "variant": "classic",
+        "paraphrases": False,
+        "max_steps": 3,
+        "batch_size": 2,
+        "dataset": str(dataset),
+        "output_dir": str(out),
+        "probe": False,
+    }
+    return build_config(settings | overrides)
+
+
+def test_a_medium_run_scores_each_goal_with_its_own_checker(
+    medium_dataset: Path, tmp_path: Path
+) -> None:
+    config = medium_config(tmp_path / "run", medium_dataset)
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model)
+    episodes = {e.goal_id: e for e in read_episodes(tmp_path / "run" / "episodes.jsonl")}
+
+    met, missed = episodes[MET_AT_ONCE], episodes[OUT_OF_REACH]
+    assert (met.success, met.steps, met.termination) == (True, 1, "success")
+    assert (missed.success, missed.steps, missed.termination) == (False, 3, "timeout")
+    assert (met.category, met.scenario_class) == ("train", "Build")
+    assert (missed.category, missed.scenario_class) == ("train", "Conditional")
+    assert met.episode_id == f"train/{MET_AT_ONCE}/0/0"
+
+    table = report_run(tmp_path / "run")
+    assert "By scenario class (medium):" in table
+    assert "PPO-T (published)" in table
+
+
+def test_the_difficulty_is_part_of_the_runs_identity(medium_dataset: Path, tmp_path: Path) -> None:
+    medium = prepare_run(medium_config(tmp_path / "run", medium_dataset))
+    assert medium.identity.settings["difficulty"] == "medium"
+    # The official order: line goals come before conditional placing in medium_train.
+    assert [spec.episode_id for spec in medium.schedule] == [
+        f"train/{MET_AT_ONCE}/0/0",
+        f"train/{OUT_OF_REACH}/0/0",
+    ]
+
+
+def test_a_goal_the_variant_cannot_score_is_refused_before_anything_is_written(
+    official_repository: Path, tmp_path: Path
+) -> None:
+    official = parse_directory(official_repository)
+    # Hard goals name full-Craftax blocks (enchantment tables) that Classic lacks.
+    data = tmp_path / "hard.json"
+    official.save_json(data)
+    config = medium_config(tmp_path / "run", data, difficulty="hard", variant="classic")
+    with pytest.raises(
+        UserError, match="needs block ENCHANTMENT_TABLE_ICE, which classic Craftax lacks"
+    ):
+        prepare_run(config)
+    assert not (tmp_path / "run").exists()
