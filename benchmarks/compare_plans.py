@@ -21,7 +21,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from env.dataset import SPLITS, check_split, load_dataset
+from env.dataset import SPLITS, AnyGoal, check_split, load_dataset
 from env.errors import UserError
 from env.variant import Variant
 from llm_agents.planning import (
@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         files = {"ours": load_plans(args.ours), "official": load_plans(args.official)}
         names = args.splits or [split for split in SPLITS if dataset.has_split(split)]
         splits = [check_split(name) for name in names]
-        by_split = {split: dataset.split(split) for split in splits}
+        by_split: dict[str, list[AnyGoal]] = {split: dataset.split(split) for split in splits}
     except UserError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
