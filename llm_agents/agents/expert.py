@@ -70,6 +70,8 @@ _MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
 _DEEP = frozenset({"iron", "diamond"})
 _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
+#: The official line check's radius: no other block of the line's kind may stand that close.
+_LINE_APART = 10
 
 
 def _add(a: Cell, b: Cell) -> Cell:
@@ -613,16 +615,20 @@ class _Step:
                     return None
                 return [min(near, key=lambda c: (self._steps_to(c), c))]
         offsets = self._offsets(block)
-        existing = set(self.world.cells([block]))
+        # A line counts only when it is all of its kind within 10 cells of the player; a square
+        # or star needs its border clear.
+        apart = _LINE_APART if getattr(goal, "kind", "") == "build_line" else 1
+        existing = [c for c in self.world.cells([block]) if self._steps_to(c) <= 2 * _LINE_APART]
         anchors = sorted(self.dist, key=lambda c: (self.dist[c], c))[:400]
         for anchor in anchors:
             cells = [_add(anchor, o) for o in offsets]
             if any(self.world.get(c) not in ground or c in self.mobs for c in cells):
                 continue
-            ring = {(c[0] + dx, c[1] + dy) for c in cells for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
-            if ring & existing:
-                continue
-            return cells
+            crowded = any(
+                max(abs(e[0] - c[0]), abs(e[1] - c[1])) <= apart for e in existing for c in cells
+            )
+            if not crowded:
+                return cells
         return None
 
     def _closest_to(self, cells: set[Cell]) -> str | None:

@@ -509,7 +509,8 @@ def supply_task(ctx: PlanContext, block: str, pieces: int) -> ExpertTask | None:
     if pieces <= 0:
         return None
     if block == "plant":
-        return ExpertTask("forage", "grass") if ctx.count("sapling") < pieces else None
+        # Saplings come from one DO on grass in ten: plant each as it comes rather than hoard.
+        return ExpertTask("forage", "grass") if ctx.count("sapling") < 1 else None
     if block == "crafting_table":
         return _material(ctx, "wood", TABLE_WOOD * pieces, None)
     stone = _material(ctx, "stone", pieces, None)
