@@ -3,14 +3,17 @@
 It sees exactly the `textualizer.Observation` sequence an LLM agent's prompts are rendered from,
 remembers the blocks it has seen (`WorldMap`), and knows the game's fixed rules (recipes, tools,
 dangers; `expert_plan`). The goal comes from the dataset record's required and forbidden
-achievements: the instruction text is never read. Each step it:
+achievements, or for the Medium/Hard placing goals the block, shape, side and distance, and
+the item to collect: the instruction text is never read. Each step it:
 
 1. keeps itself alive: fights (or, when that is forbidden, flees) a zombie next to it, drinks and
    eats when low, never walks into lava;
 2. asks the planner for the current task and walks to it by the shortest path over known cells
    (Dijkstra; stone costs an extra step to mine through once it has a pickaxe), exploring towards
    unseen cells when what it needs has not been seen;
-3. never takes an action that could unlock a forbidden achievement.
+3. never takes an action that could unlock a forbidden achievement;
+4. for a placing goal, once the materials are in hand, chooses the cells to fill (the shape on
+   free ground, or beside the reference block) and fills them, each from the cell before it.
 
 Its episodes give the reference row of a report, prove a goal solvable through our observation,
 and are the demonstrations of the `few-shot` agent.
