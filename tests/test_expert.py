@@ -5,12 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from env.achievements import NUM_ACHIEVEMENTS
+from env.craftax_names import CLASSIC_BLOCKS
+from env.craftext_env import VectorEnv
 from env.dataset import Dataset, DatasetSource, Goal
 from env.errors import UserError
+from env.goals import BuildLineGoal, LocalizationGoal
 from env.variant import Variant
 from llm_agents.agents import NoModel
+from llm_agents.agents.actions import action_id
 from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.expert_plan import (
     PlanContext,
@@ -22,6 +28,7 @@ from llm_agents.agents.expert_plan import (
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.store import read_episodes
+from textualizer import observe_batch
 from textualizer.observation import Inventory, Mob, Observation, Position, Vitals
 
 
@@ -231,3 +238,72 @@ def test_an_expert_run_collects_wood_and_places_a_table(classic_env: Any, tmp_pa
     assert len(episodes) == 4 and all(e.success for e in episodes)
     assert all(e.steps < 120 for e in episodes)
     assert outcome.results.versions["model.backend"] == "none"
+
+
+# --------------------------------------------------------------- Medium/Hard placing goals
+
+
+def _play(env: Any, goal: Any, seed: int, max_steps: int = 250) -> np.ndarray:
+    """One Classic episode of the expert on `goal`; the final map (`[row, col]` block ids)."""
+    vector = VectorEnv(env, 1)
+    required, forbidden = (
+        np.zeros((1, NUM_ACHIEVEMENTS), bool),
+        np.zeros((1, NUM_ACHIEVEMENTS), bool),
+    )
+    host = vector.reset(np.array([[seed, 7]], dtype=np.uint32), required, forbidden)
+    agent = ExpertAgent(Variant.CLASSIC)
+    agent.start_episode(0, "ignored", goal=goal)
+    for _ in range(max_steps):
+        obs = observe_batch(host.game, Variant.CLASSIC)[0]
+        name, _ = agent.choose(0, obs)
+        host = vector.step(np.array([action_id(name, Variant.CLASSIC)]))
+    return np.asarray(host.game.map[0])
+
+
+def _runs(hits: np.ndarray, length: int) -> bool:
+    """Whether `hits` holds `length` consecutive True cells along a row or a column."""
+    for grid in (hits, hits.T):
+        for row in grid:
+            run = 0
+            for hit in row:
+                run = run + 1 if hit else 0
+                if run >= length:
+                    return True
+    return False
+
+
+@pytest.mark.slow
+def test_the_expert_builds_a_line_of_tables_on_the_map(classic_env: Any) -> None:
+    goal = BuildLineGoal(
+        id="line",
+        split="medium_train",
+        scenario="medium",
+        instruction="ignored",
+        paraphrases=(),
+        block="CRAFTING_TABLE",
+        size=3,
+        diagonal=False,
+    )
+    game_map = _play(classic_env.env, goal, seed=3)
+    tables = game_map == CLASSIC_BLOCKS.index("CRAFTING_TABLE")
+    assert _runs(tables, 3)
+
+
+@pytest.mark.slow
+def test_the_expert_places_a_table_at_the_side_and_distance_of_a_tree(classic_env: Any) -> None:
+    goal = LocalizationGoal(
+        id="beside",
+        split="medium_train",
+        scenario="medium",
+        instruction="ignored",
+        paraphrases=(),
+        place="CRAFTING_TABLE",
+        target="TREE",
+        side="up",
+        distance=2,
+    )
+    game_map = _play(classic_env.env, goal, seed=4)
+    table, tree = CLASSIC_BLOCKS.index("CRAFTING_TABLE"), CLASSIC_BLOCKS.index("TREE")
+    # The official side 2 ("up") is a smaller first (row) index.
+    rows, cols = np.nonzero(game_map == table)
+    assert any(game_map[r + 2, c] == tree for r, c in zip(rows, cols, strict=True))

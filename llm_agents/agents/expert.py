@@ -3,14 +3,17 @@
 It sees exactly the `textualizer.Observation` sequence an LLM agent's prompts are rendered from,
 remembers the blocks it has seen (`WorldMap`), and knows the game's fixed rules (recipes, tools,
 dangers; `expert_plan`). The goal comes from the dataset record's required and forbidden
-achievements: the instruction text is never read. Each step it:
+achievements, or for the Medium/Hard placing goals the block, shape, side and distance, and
+the item to collect: the instruction text is never read. Each step it:
 
 1. keeps itself alive: fights (or, when that is forbidden, flees) a zombie next to it, drinks and
    eats when low, never walks into lava;
 2. asks the planner for the current task and walks to it by the shortest path over known cells
    (Dijkstra; stone costs an extra step to mine through once it has a pickaxe), exploring towards
    unseen cells when what it needs has not been seen;
-3. never takes an action that could unlock a forbidden achievement.
+3. never takes an action that could unlock a forbidden achievement;
+4. for a placing goal, once the materials are in hand, chooses the cells to fill (the shape on
+   free ground, or beside the reference block) and fills them, each from the cell before it.
 
 Its episodes give the reference row of a report, prove a goal solvable through our observation,
 and are the demonstrations of the `few-shot` agent.
@@ -32,13 +35,19 @@ from llm_agents.agents.expert_plan import (
     FREE_GROUND,
     KILL_ACHIEVEMENT,
     MINING,
+    PLACE_ACTION,
+    PLACE_GROUND,
+    SIDE_STEP,
     STONE_GROUND,
     WALKABLE,
     Cell,
     ExpertTask,
     PlanContext,
     WorldMap,
+    gather_task,
     next_task,
+    shape_offsets,
+    supply_task,
 )
 from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.types import Decision, StepPrompt, messages_hash
@@ -47,6 +56,7 @@ from textualizer.observation import Observation
 
 if TYPE_CHECKING:
     from env.dataset import Goal
+    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
 
 #: Move action -> (dx, dy) in the observation's axes (+x east, +y north).
@@ -63,6 +73,8 @@ _MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
 _DEEP = frozenset({"iron", "diamond"})
 _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
+#: The official line check's radius: no other block of the line's kind may stand that close.
+_LINE_APART = 10
 
 
 def _add(a: Cell, b: Cell) -> Cell:
@@ -82,9 +94,14 @@ def _direction(src: Cell, dst: Cell) -> str:
 
 
 class _ExpertEpisode:
-    def __init__(self, required: Sequence[str], forbidden: Sequence[str]):
+    def __init__(
+        self, required: Sequence[str], forbidden: Sequence[str], goal: AnyGoal | None = None
+    ):
+        self.goal = goal
         self.required = tuple(required)
         self.forbidden = tuple(forbidden)
+        self.site: list[Cell] | None = None
+        """The world cells a placing goal fills, chosen once the materials are in hand."""
         self.world = WorldMap()
         self.explore_target: Cell | None = None
         self.heading: Cell = (1, 0)
@@ -118,12 +135,17 @@ class ExpertAgent:
         return cls(config.variant, renderer=config.renderer, fallback_action=config.fallback_action)
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: Goal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | Goal | None = None,
     ) -> None:
         """Begin an episode; `goal` (the dataset record) is required, the text is ignored."""
         if goal is None:
             raise UserError("the expert agent needs the goal record, not only the instruction text")
-        self.start_goal(slot, goal.required, goal.forbidden)
+        required, forbidden = getattr(goal, "required", ()), getattr(goal, "forbidden", ())
+        self._episodes[slot] = _ExpertEpisode(required, forbidden, goal)
 
     def start_goal(self, slot: int, required: Sequence[str], forbidden: Sequence[str]) -> None:
         """Begin an episode towards these achievements (the goal as another agent read it)."""
@@ -313,13 +335,73 @@ class _Step:
         urgent = self._survive()
         if urgent is not None:
             return urgent
-        task = self._keep_gathering() or next_task(self.context())
+        task = self._keep_gathering() or self._goal_task()
         action = self.perform(task)
         if action is None:
             action = self.explore(task.target if task.kind in ("explore", "hunt") else None)
             if action is None:
                 action = "NOOP"
         return action, task
+
+    def _goal_task(self) -> ExpertTask:
+        goal = self.episode.goal
+        kind = getattr(goal, "kind", "achievements")
+        if kind == "achievements":
+            return next_task(self.context())
+        if kind == "conditional_placing":
+            return self._conditional_task()
+        block = str(getattr(goal, "place", None) or getattr(goal, "block", "")).lower()
+        if block not in PLACE_ACTION:
+            return ExpertTask("idle", note=f"no way to place {block}")
+        pieces = len(self._remaining(block)) if self.episode.site else len(self._offsets(block))
+        return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
+
+    def _conditional_task(self) -> ExpertTask:
+        """Place the blocks first, then collect: the official check wants the inventory to cross
+        `collect_count` on a step when the blocks already stand."""
+        goal = self.episode.goal
+        block = str(getattr(goal, "place", "")).lower()
+        wanted = int(getattr(goal, "place_count", 0))
+        if block not in PLACE_ACTION:
+            return ExpertTask("idle", note=f"no way to place {block}")
+        standing = len(self.world.cells([block]))
+        if standing < wanted:
+            site = self.episode.site
+            pieces = wanted - standing if site is None else len(self._remaining(block))
+            return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
+        item = str(getattr(goal, "collect", ""))
+        threshold = int(getattr(goal, "collect_count", 0))
+        if self.obs.inventory.materials.get(item, 0) >= threshold:
+            return ExpertTask(
+                "idle", note=f"{item} is already at {threshold}: it cannot cross it again"
+            )
+        if item == "sapling":
+            return ExpertTask("forage", "grass")
+        block_of = {"wood": "tree"}.get(item, item)
+        return gather_task(self.context(), block_of, threshold)
+
+    def _offsets(self, block: str) -> list[Cell]:
+        """The shape the goal asks for, relative to its first cell."""
+        goal = self.episode.goal
+        kind = getattr(goal, "kind", "")
+        if kind in ("build_line", "build_square", "build_star"):
+            return shape_offsets(
+                kind,
+                int(getattr(goal, "size", 1)),
+                diagonal=bool(getattr(goal, "diagonal", False)),
+                cross=str(getattr(goal, "cross", "straight")),
+            )
+        if kind == "conditional_placing":
+            # Spaced out, so every block is placed from open ground.
+            count = int(getattr(goal, "place_count", 1))
+            return [(2 * i, 0) for i in range(count - len(self.world.cells([block])))]
+        # Localization onto a block of its own kind: place the reference block too.
+        step = SIDE_STEP[str(getattr(goal, "side", "right"))]
+        distance = int(getattr(goal, "distance", 1))
+        return [(0, 0), (step[0] * distance, step[1] * distance)]
+
+    def _remaining(self, block: str) -> list[Cell]:
+        return [cell for cell in self.episode.site or [] if self.world.get(cell) != block]
 
     def _keep_gathering(self) -> ExpertTask | None:
         """The last gathering task while its amount is not reached and its block is close:
@@ -399,6 +481,8 @@ class _Step:
             return self._craft(target, task.needs_furnace)
         if kind == "place" and target is not None:
             return self._place(target)
+        if kind == "build" and target is not None:
+            return self._build(target)
         if kind == "forage":
             return self._face_ground({"grass"}, "DO")
         if kind == "sleep":
@@ -471,6 +555,83 @@ class _Step:
                 if self.facing_cell == cell:
                     return "DO"
                 return name
+        return None
+
+    def _build(self, block: str) -> str | None:
+        """Fill the goal's site with `block`, choosing the site first (None: explore)."""
+        episode = self.episode
+        if episode.site is None:
+            episode.site = self._choose_site(block)
+            if episode.site is None:
+                return None
+        remaining = self._remaining(block)
+        if not remaining:
+            return "NOOP"
+        target = remaining[0]
+        ground = PLACE_GROUND[block]
+        if target in self.mobs:
+            return "NOOP"  # creatures move on
+        if self.world.get(target) not in ground:
+            episode.site = None  # something else took the cell: choose again
+            return None
+        return self._place_at(target, PLACE_ACTION[block])
+
+    def _place_at(self, target: Cell, action: str) -> str | None:
+        """`action` when facing `target`, else the way to stand beside it facing it: a move
+        onto a free cell steps onto it, so the stand is entered from the cell behind it."""
+        if self.facing_cell == target and self._steps_to(target) == 1:
+            return action
+        backs: set[Cell] = set()
+        for name, step in MOVES.items():
+            stand = (target[0] - step[0], target[1] - step[1])
+            back = (stand[0] - step[0], stand[1] - step[1])
+            free = self.world.get(stand) in WALKABLE and stand not in self.mobs
+            if not free and stand != self.pos:
+                continue
+            if self.pos == back and free:
+                return name
+            if self.pos == stand:
+                if self.world.get(back) in WALKABLE and back not in self.mobs:
+                    return _direction(self.pos, back)
+                continue
+            backs.add(back)
+        return self.step_towards(backs)
+
+    def _choose_site(self, block: str) -> list[Cell] | None:
+        """The nearest reachable cells for the goal's shape (or beside its reference block) on
+        ground `block` may go on, kept apart from other blocks of its kind (the official shape
+        checks count every one of them nearby)."""
+        goal = self.episode.goal
+        ground = PLACE_GROUND[block]
+        if getattr(goal, "kind", "") == "localization_placing":
+            reference = str(getattr(goal, "target", "")).lower()
+            if reference != block:
+                step = SIDE_STEP[str(getattr(goal, "side", "right"))]
+                distance = int(getattr(goal, "distance", 1))
+                spots = [
+                    (t[0] + step[0] * distance, t[1] + step[1] * distance)
+                    for t in self.world.cells([reference])
+                ]
+                free = [c for c in spots if self.world.get(c) in ground and c not in self.mobs]
+                near = [c for c in free if any(n in self.dist for n in _neighbours(c))]
+                if not near:
+                    return None
+                return [min(near, key=lambda c: (self._steps_to(c), c))]
+        offsets = self._offsets(block)
+        # A line counts only when it is all of its kind within 10 cells of the player; a square
+        # or star needs its border clear.
+        apart = _LINE_APART if getattr(goal, "kind", "") == "build_line" else 1
+        existing = [c for c in self.world.cells([block]) if self._steps_to(c) <= 2 * _LINE_APART]
+        anchors = sorted(self.dist, key=lambda c: (self.dist[c], c))[:400]
+        for anchor in anchors:
+            cells = [_add(anchor, o) for o in offsets]
+            if any(self.world.get(c) not in ground or c in self.mobs for c in cells):
+                continue
+            crowded = any(
+                max(abs(e[0] - c[0]), abs(e[1] - c[1])) <= apart for e in existing for c in cells
+            )
+            if not crowded:
+                return cells
         return None
 
     def _closest_to(self, cells: set[Cell]) -> str | None:

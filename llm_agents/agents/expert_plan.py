@@ -18,7 +18,9 @@ from typing import Literal
 from textualizer.observation import Observation
 
 Cell = tuple[int, int]
-TaskKind = Literal["gather", "craft", "place", "hunt", "forage", "sleep", "explore", "wait", "idle"]
+TaskKind = Literal[
+    "gather", "craft", "place", "build", "hunt", "forage", "sleep", "explore", "wait", "idle"
+]
 
 #: Blocks the player can stand on (lava too, but it kills: never planned).
 WALKABLE = frozenset({"grass", "sand", "path", "fire_grass", "ice_grass"})
@@ -188,7 +190,8 @@ class ExpertTask:
     """What the expert works on now."""
 
     kind: TaskKind
-    """gather: DO on a block; craft/place: that action (near a table / on free ground); hunt:
+    """gather: DO on a block; craft/place: that action (near a table / on free ground); build:
+    fill the episode's chosen cells with `target` blocks; hunt:
     kill a creature; forage: DO on grass for a sapling; sleep; explore: walk to unseen cells
     looking for `target`; wait: stay around `target` cells; idle: nothing left to do."""
     target: str | None = None
@@ -452,3 +455,65 @@ def next_task(ctx: PlanContext) -> ExpertTask:
             continue
         return task
     return waiting or ExpertTask("idle", note="every required achievement is unlocked")
+
+
+# ---------------------------------------------------------------- Medium/Hard: placing goals
+
+#: The action that places each block a placing goal names (Craftax block name, lower case).
+PLACE_ACTION: dict[str, str] = {
+    "stone": "PLACE_STONE",
+    "crafting_table": "PLACE_TABLE",
+    "furnace": "PLACE_FURNACE",
+    "plant": "PLACE_PLANT",
+}
+#: Where each placed block may go (stone also fills water and lava, but a shape on land is
+#: reachable from every side).
+PLACE_GROUND: dict[str, frozenset[str]] = {
+    "stone": FREE_GROUND,
+    "crafting_table": FREE_GROUND,
+    "furnace": FREE_GROUND,
+    "plant": frozenset({"grass"}),
+}
+#: Observation axes (+x right, +y up) of the official sides (0 right/col+, 1 left, 2 up/row-,
+#: 3 down).
+SIDE_STEP: dict[str, Cell] = {"right": (1, 0), "left": (-1, 0), "up": (0, 1), "down": (0, -1)}
+
+
+def shape_offsets(
+    kind: str, size: int, diagonal: bool = False, cross: str = "straight"
+) -> list[Cell]:
+    """The cells of a line, filled square or star, relative to its first cell, top row first
+    (placing row by row from the top keeps the cells below free to stand on)."""
+    if kind == "build_line":
+        cells = [(i, -i) if diagonal else (i, 0) for i in range(size)]
+    elif kind == "build_square":
+        cells = [(i, -j) for j in range(size) for i in range(size)]
+    else:
+        arms: list[Cell] = []
+        if cross in ("straight", "combined"):
+            arms += [(1, 0), (-1, 0), (0, 1), (0, -1)]
+        if cross in ("diagonal", "combined"):
+            arms += [(1, 1), (-1, 1), (1, -1), (-1, -1)]
+        cells = [(0, 0)] + [(dx * k, dy * k) for dx, dy in arms for k in range(1, size + 1)]
+    return sorted(cells, key=lambda c: (-c[1], c[0]))
+
+
+def gather_task(ctx: PlanContext, block: str, amount: int) -> ExpertTask:
+    """Collect `block` until the inventory holds `amount` (tools first, explore when unseen)."""
+    return _gather(ctx, block, None, amount)
+
+
+def supply_task(ctx: PlanContext, block: str, pieces: int) -> ExpertTask | None:
+    """A task that brings the materials for `pieces` more `block`s into the inventory (and a
+    table beside the player for furnaces), or None when they are in hand."""
+    if pieces <= 0:
+        return None
+    if block == "plant":
+        # Saplings come from one DO on grass in ten: plant each as it comes rather than hoard.
+        return ExpertTask("forage", "grass") if ctx.count("sapling") < 1 else None
+    if block == "crafting_table":
+        return _material(ctx, "wood", TABLE_WOOD * pieces, None)
+    stone = _material(ctx, "stone", pieces, None)
+    if stone or block != "furnace":
+        return stone
+    return _table(ctx, None, 0)
