@@ -97,15 +97,21 @@ class StepInfo:
 
 
 def make_task(required: Any, forbidden: Any, kind: Any = 0, params: Any = None) -> Task:
-    """A task from boolean masks of length 22 (numpy or JAX); without `kind` and `params`, an
-    achievements goal."""
+    """A task from boolean masks of length 22 (numpy or JAX), one episode's or a batch's (a
+    leading axis); without `kind` and `params`, achievements goals. A scalar `kind` or a single
+    `params` row is repeated over the batch, so callers never build a task of mixed shapes."""
+    required = jnp.asarray(required, dtype=jnp.bool_)
+    batch = required.shape[:-1]
     return Task(
-        required=jnp.asarray(required, dtype=jnp.bool_),
+        required=required,
         forbidden=jnp.asarray(forbidden, dtype=jnp.bool_),
-        kind=jnp.asarray(kind, dtype=jnp.int32),
-        params=jnp.zeros(NUM_PARAMS, jnp.int32)
-        if params is None
-        else jnp.asarray(params, dtype=jnp.int32),
+        kind=jnp.broadcast_to(jnp.asarray(kind, dtype=jnp.int32), batch),
+        params=jnp.broadcast_to(
+            jnp.zeros(NUM_PARAMS, jnp.int32)
+            if params is None
+            else jnp.asarray(params, dtype=jnp.int32),
+            (*batch, NUM_PARAMS),
+        ),
     )
 
 

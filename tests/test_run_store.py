@@ -202,6 +202,7 @@ OTHER_VALUES: dict[str, object] = {
     "probe": False,
     "choice": "guided",
     "categories": ("combo",),
+    "difficulty": "hard",
     "paraphrases": False,
     "episodes_per_instruction": 2,
     "max_steps": 9,
@@ -256,7 +257,12 @@ def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_change
     from llm_agents.backends.base import result_fields
     from llm_agents.evaluation.config import EvalConfig
 
-    base = EvalConfig()
+    # Categories belong to a difficulty: a split both difficulties have keeps them valid.
+    base = (
+        EvalConfig(difficulty="medium", categories=("train",))
+        if name == "difficulty"
+        else EvalConfig()
+    )
     changed = EvalConfig.model_validate(base.model_dump() | {name: OTHER_VALUES[name]})
     assert getattr(changed, name) != getattr(base, name)
     moved = changed.result_settings() != base.result_settings()
