@@ -38,6 +38,7 @@ from llm_agents.agents.expert_plan import (
     PLACE_ACTION,
     PLACE_GROUND,
     SIDE_STEP,
+    SPEND_ACTION,
     STONE_GROUND,
     WALKABLE,
     Cell,
@@ -47,6 +48,7 @@ from llm_agents.agents.expert_plan import (
     gather_task,
     next_task,
     shape_offsets,
+    spend_task,
     supply_task,
 )
 from llm_agents.agents.parser import ParseResult
@@ -357,28 +359,32 @@ class _Step:
         return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
 
     def _conditional_task(self) -> ExpertTask:
-        """Place the blocks first, then collect: the official check wants the inventory to cross
-        `collect_count` on a step when the blocks already stand."""
+        """Blocks first, then the item: the official check succeeds on the step the item's count
+        falls from at least `collect_count` to below it (it is spent) while the map already held
+        `place_count` blocks on the step before. So: place the blocks, hold `collect_count` of the
+        item, then spend it until the count crosses."""
         goal = self.episode.goal
         block = str(getattr(goal, "place", "")).lower()
         wanted = int(getattr(goal, "place_count", 0))
-        if block not in PLACE_ACTION:
-            return ExpertTask("idle", note=f"no way to place {block}")
+        item = str(getattr(goal, "collect", ""))
+        threshold = int(getattr(goal, "collect_count", 0))
+        if threshold < 1:
+            return ExpertTask("idle", note="a count of 0 can never be fallen below")
+        if item not in SPEND_ACTION:
+            return ExpertTask("idle", note=f"nothing in Craftax-Classic spends {item}")
+        # The check counts the whole map, so blocks of the kind already there (stone) count too.
         standing = len(self.world.cells([block]))
         if standing < wanted:
+            if block not in PLACE_ACTION:
+                return ExpertTask("idle", note=f"no way to place {block}")
             site = self.episode.site
             pieces = wanted - standing if site is None else len(self._remaining(block))
             return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
-        item = str(getattr(goal, "collect", ""))
-        threshold = int(getattr(goal, "collect_count", 0))
-        if self.obs.inventory.materials.get(item, 0) >= threshold:
-            return ExpertTask(
-                "idle", note=f"{item} is already at {threshold}: it cannot cross it again"
-            )
-        if item == "sapling":
-            return ExpertTask("forage", "grass")
-        block_of = {"wood": "tree"}.get(item, item)
-        return gather_task(self.context(), block_of, threshold)
+        if self.obs.inventory.materials.get(item, 0) < threshold:
+            if item == "sapling":
+                return ExpertTask("forage", "grass")
+            return gather_task(self.context(), {"wood": "tree"}.get(item, item), threshold)
+        return spend_task(self.context(), item)
 
     def _offsets(self, block: str) -> list[Cell]:
         """The shape the goal asks for, relative to its first cell."""
