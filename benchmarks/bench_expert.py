@@ -34,7 +34,7 @@ from env.dataset import Dataset, DatasetSource, Goal, category_of, load_dataset
 from env.goals import DIFFICULTY_CATEGORIES, AnyGoal, Category, Difficulty, run_category
 from llm_agents.agents import NoModel
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.report import CATEGORY_LABELS, PUBLISHED_MEDIUM, SCENARIO_ROWS
+from llm_agents.evaluation.report import PUBLISHED_MEDIUM, SCENARIO_ROWS
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import EPISODES_FILE, STEPS_FILE, read_episodes, read_steps
@@ -42,6 +42,8 @@ from llm_agents.run_data.store import EPISODES_FILE, STEPS_FILE, read_episodes, 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 REFERENCE = SHARED / "craftext_official_easy.json"
 OFFICIAL_ZIP = SHARED / "craftext_official_1c518ae.zip"
+#: The paper's Table 2 column names.
+SPLIT_LABELS = {"train": "Train", "paraphrased": "Paraphrased", "new_objects": "New objects"}
 DEFAULT_CATEGORIES: dict[Difficulty, tuple[Category, ...]] = {
     "easy": ("one", "combo", "new_objects"),
     "medium": DIFFICULTY_CATEGORIES["medium"],
@@ -120,7 +122,7 @@ def print_table2(episodes: list[EpisodeRecord], categories: list[str]) -> None:
     for episode in episodes:
         cells[(episode.scenario_class, episode.category)].append(episode.success)
         cells[("Total", episode.category)].append(episode.success)
-    labels = [CATEGORY_LABELS.get(c, c) for c in categories]
+    labels = [SPLIT_LABELS.get(c, c) for c in categories]
     print(f"  {'':14s}" + "".join(f"{label:>14s}" for label in labels))
     for row in (*SCENARIO_ROWS, "Total"):
         print(

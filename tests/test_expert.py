@@ -380,3 +380,20 @@ def test_the_expert_plants_saplings_through_the_threshold_once_a_plant_stands(
 ) -> None:
     goal = _conditional("sapling", 3, "PLANT", 1)
     assert _play_checked(classic_env.env, goal, seed=4) == Termination.SUCCESS
+
+
+@pytest.mark.slow
+def test_the_expert_places_the_missing_reference_block_too(classic_env: Any) -> None:
+    # No plant stands in a new world: the expert plants one, then puts a stone 2 right of it.
+    goal = LocalizationGoal(
+        id="beside_plant",
+        split="medium_train",
+        scenario="medium",
+        instruction="ignored",
+        paraphrases=(),
+        place="STONE",
+        target="PLANT",
+        side="right",
+        distance=2,
+    )
+    assert _play_checked(classic_env.env, goal, seed=5) == Termination.SUCCESS
