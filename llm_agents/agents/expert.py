@@ -13,7 +13,9 @@ the item to collect: the instruction text is never read. Each step it:
    unseen cells when what it needs has not been seen;
 3. never takes an action that could unlock a forbidden achievement;
 4. for a placing goal, once the materials are in hand, chooses the cells to fill (the shape on
-   free ground, or beside the reference block) and fills them, each from the cell before it.
+   free ground, or beside the reference block, placing that too when none stands) and fills
+   them, each from the cell before it; for a conditional goal it then holds the item's count
+   and spends the item until the count falls below it, as the official check wants.
 
 Its episodes give the reference row of a report, prove a goal solvable through our observation,
 and are the demonstrations of the `few-shot` agent.
