@@ -13,7 +13,9 @@ from env.craftax_names import CLASSIC_BLOCKS
 from env.craftext_env import VectorEnv
 from env.dataset import Dataset, DatasetSource, Goal
 from env.errors import UserError
-from env.goals import BuildLineGoal, LocalizationGoal
+from env.goals import BuildLineGoal, ConditionalPlacingGoal, LocalizationGoal
+from env.scenario_tasks import encode_goals
+from env.termination import Termination
 from env.variant import Variant
 from llm_agents.agents import NoModel
 from llm_agents.agents.actions import action_id
@@ -24,6 +26,8 @@ from llm_agents.agents.expert_plan import (
     infeasible,
     next_task,
     plan_order,
+    spend_task,
+    supply_task,
 )
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval
@@ -216,6 +220,29 @@ def test_the_expert_never_does_what_is_forbidden() -> None:
         agent.start_episode(2, "collect wood")
 
 
+def test_spending_picks_an_action_that_takes_the_item_out_of_the_inventory() -> None:
+    stone = spend_task(context((), materials={"stone": 3}), "stone")
+    assert (stone.kind, stone.target) == ("place", "PLACE_STONE")
+    sapling = spend_task(context((), materials={"sapling": 1}), "sapling")
+    assert (sapling.kind, sapling.target) == ("place", "PLACE_PLANT")
+    # Wood beside a table: a wood pickaxe (1 wood), not a sword swapped in.
+    wood = spend_task(
+        context((), materials={"wood": 3}, blocks={"crafting_table": [(1, 0)]}), "wood"
+    )
+    assert (wood.kind, wood.target) == ("craft", "MAKE_WOOD_PICKAXE")
+    # Coal is spent only by an iron tool: its missing inputs are fetched first.
+    coal = spend_task(context((), materials={"coal": 4}, tools=("stone_pickaxe",)), "coal")
+    assert coal.kind in ("gather", "explore") and coal.target == "tree"
+    assert spend_task(context((), materials={"diamond": 3}), "diamond").kind == "idle"
+
+
+def test_gathering_never_asks_for_more_than_the_inventory_holds() -> None:
+    # Five tables are 10 wood; the inventory stops at 9, so 9 are gathered and placed first.
+    task = supply_task(context((), blocks={"tree": [(2, 0)]}), "crafting_table", 5)
+    assert task is not None and task.kind == "gather" and task.amount == 9
+    assert supply_task(context((), materials={"wood": 9}), "crafting_table", 5) is None
+
+
 @pytest.mark.slow
 def test_an_expert_run_collects_wood_and_places_a_table(classic_env: Any, tmp_path: Path) -> None:
     goals = (expert_goal(("COLLECT_WOOD",)), expert_goal(("PLACE_TABLE",)))
@@ -307,3 +334,66 @@ def test_the_expert_places_a_table_at_the_side_and_distance_of_a_tree(classic_en
     # The official side 2 ("up") is a smaller first (row) index.
     rows, cols = np.nonzero(game_map == table)
     assert any(game_map[r + 2, c] == tree for r, c in zip(rows, cols, strict=True))
+
+
+def _play_checked(env: Any, goal: Any, seed: int, max_steps: int = 250) -> int:
+    """One Classic episode of the expert on `goal`, scored by the env's own checker (the
+    official one's equal); its termination."""
+    vector = VectorEnv(env, 1)
+    tasks = encode_goals([goal], Variant.CLASSIC)
+    keys = np.array([[seed, 7]], dtype=np.uint32)
+    host = vector.reset(keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params)
+    agent = ExpertAgent(Variant.CLASSIC)
+    agent.start_episode(0, "ignored", goal=goal)
+    for _ in range(max_steps):
+        if host.done[0]:
+            break
+        obs = observe_batch(host.game, Variant.CLASSIC)[0]
+        name, _ = agent.choose(0, obs)
+        host = vector.step(np.array([action_id(name, Variant.CLASSIC)]))
+    return int(host.termination[0])
+
+
+def _conditional(collect: str, count: int, place: str, place_count: int) -> ConditionalPlacingGoal:
+    return ConditionalPlacingGoal(
+        id=f"{collect}_{place}",
+        split="medium_train",
+        scenario="medium",
+        instruction="ignored",
+        paraphrases=(),
+        collect=collect,
+        collect_count=count,
+        place=place,
+        place_count=place_count,
+    )
+
+
+@pytest.mark.slow
+def test_the_expert_spends_wood_through_the_threshold_once_a_table_stands(classic_env: Any) -> None:
+    goal = _conditional("wood", 3, "CRAFTING_TABLE", 1)
+    assert _play_checked(classic_env.env, goal, seed=3) == Termination.SUCCESS
+
+
+@pytest.mark.slow
+def test_the_expert_plants_saplings_through_the_threshold_once_a_plant_stands(
+    classic_env: Any,
+) -> None:
+    goal = _conditional("sapling", 3, "PLANT", 1)
+    assert _play_checked(classic_env.env, goal, seed=4) == Termination.SUCCESS
+
+
+@pytest.mark.slow
+def test_the_expert_places_the_missing_reference_block_too(classic_env: Any) -> None:
+    # No plant stands in a new world: the expert plants one, then puts a stone 2 right of it.
+    goal = LocalizationGoal(
+        id="beside_plant",
+        split="medium_train",
+        scenario="medium",
+        instruction="ignored",
+        paraphrases=(),
+        place="STONE",
+        target="PLANT",
+        side="right",
+        distance=2,
+    )
+    assert _play_checked(classic_env.env, goal, seed=5) == Termination.SUCCESS

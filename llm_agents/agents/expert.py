@@ -13,7 +13,9 @@ the item to collect: the instruction text is never read. Each step it:
    unseen cells when what it needs has not been seen;
 3. never takes an action that could unlock a forbidden achievement;
 4. for a placing goal, once the materials are in hand, chooses the cells to fill (the shape on
-   free ground, or beside the reference block) and fills them, each from the cell before it.
+   free ground, or beside the reference block, placing that too when none stands) and fills
+   them, each from the cell before it; for a conditional goal it then holds the item's count
+   and spends the item until the count falls below it, as the official check wants.
 
 Its episodes give the reference row of a report, prove a goal solvable through our observation,
 and are the demonstrations of the `few-shot` agent.
@@ -24,6 +26,7 @@ from __future__ import annotations
 import heapq
 import importlib
 import math
+from collections import Counter
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -38,6 +41,7 @@ from llm_agents.agents.expert_plan import (
     PLACE_ACTION,
     PLACE_GROUND,
     SIDE_STEP,
+    SPEND_ACTION,
     STONE_GROUND,
     WALKABLE,
     Cell,
@@ -47,6 +51,7 @@ from llm_agents.agents.expert_plan import (
     gather_task,
     next_task,
     shape_offsets,
+    spend_task,
     supply_task,
 )
 from llm_agents.agents.parser import ParseResult
@@ -75,6 +80,9 @@ _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
 #: The official line check's radius: no other block of the line's kind may stand that close.
 _LINE_APART = 10
+#: The official localization check's radius: both blocks within it of the player (Chebyshev).
+_LOCAL_REACH = 5
+_ORES = frozenset({"coal", "iron", "diamond"})
 
 
 def _add(a: Cell, b: Cell) -> Cell:
@@ -100,8 +108,12 @@ class _ExpertEpisode:
         self.goal = goal
         self.required = tuple(required)
         self.forbidden = tuple(forbidden)
-        self.site: list[Cell] | None = None
-        """The world cells a placing goal fills, chosen once the materials are in hand."""
+        self.site: dict[Cell, str] | None = None
+        """The world cells a placing goal fills and the block each gets, in placing order,
+        chosen once the materials are in hand."""
+        self.near: list[Cell] = []
+        """Localization: the placed and reference cells, which the official check wants within
+        5 tiles of the player."""
         self.world = WorldMap()
         self.explore_target: Cell | None = None
         self.heading: Cell = (1, 0)
@@ -353,55 +365,94 @@ class _Step:
         block = str(getattr(goal, "place", None) or getattr(goal, "block", "")).lower()
         if block not in PLACE_ACTION:
             return ExpertTask("idle", note=f"no way to place {block}")
-        pieces = len(self._remaining(block)) if self.episode.site else len(self._offsets(block))
-        return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
+        ctx = self.context()
+        if kind == "localization_placing" and self._reference() in _ORES and self.pickaxe < 1:
+            # Ores sit inside stone: the cell beside one is usually mined free first.
+            return gather_task(ctx, "stone", 1)
+        if self.episode.site:
+            pieces = Counter(name for _, name in self._remaining())
+        else:
+            pieces = Counter(name for _, name in self._plan(block))
+        for name, count in pieces.items():
+            if task := supply_task(ctx, name, count):
+                return task
+        return ExpertTask("build", block)
 
     def _conditional_task(self) -> ExpertTask:
-        """Place the blocks first, then collect: the official check wants the inventory to cross
-        `collect_count` on a step when the blocks already stand."""
+        """Blocks first, then the item: the official check succeeds on the step the item's count
+        falls from at least `collect_count` to below it (it is spent) while the map already held
+        `place_count` blocks on the step before. So: place the blocks, hold `collect_count` of the
+        item, then spend it until the count crosses."""
         goal = self.episode.goal
         block = str(getattr(goal, "place", "")).lower()
         wanted = int(getattr(goal, "place_count", 0))
-        if block not in PLACE_ACTION:
-            return ExpertTask("idle", note=f"no way to place {block}")
-        standing = len(self.world.cells([block]))
-        if standing < wanted:
-            site = self.episode.site
-            pieces = wanted - standing if site is None else len(self._remaining(block))
-            return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
         item = str(getattr(goal, "collect", ""))
         threshold = int(getattr(goal, "collect_count", 0))
-        if self.obs.inventory.materials.get(item, 0) >= threshold:
-            return ExpertTask(
-                "idle", note=f"{item} is already at {threshold}: it cannot cross it again"
-            )
-        if item == "sapling":
-            return ExpertTask("forage", "grass")
-        block_of = {"wood": "tree"}.get(item, item)
-        return gather_task(self.context(), block_of, threshold)
+        if threshold < 1:
+            return ExpertTask("idle", note="a count of 0 can never be fallen below")
+        if item not in SPEND_ACTION:
+            return ExpertTask("idle", note=f"nothing in Craftax-Classic spends {item}")
+        # The check counts the whole map, so blocks of the kind already there (stone) count too.
+        standing = len(self.world.cells([block]))
+        if standing < wanted:
+            if block not in PLACE_ACTION:
+                return ExpertTask("idle", note=f"no way to place {block}")
+            site = self.episode.site
+            pieces = wanted - standing if site is None else len(self._remaining())
+            return supply_task(self.context(), block, pieces) or ExpertTask("build", block)
+        if self.obs.inventory.materials.get(item, 0) < threshold:
+            if item == "sapling":
+                return ExpertTask("forage", "grass")
+            return gather_task(self.context(), {"wood": "tree"}.get(item, item), threshold)
+        return spend_task(self.context(), item)
 
-    def _offsets(self, block: str) -> list[Cell]:
-        """The shape the goal asks for, relative to its first cell."""
+    def _reference(self) -> str:
+        return str(getattr(self.episode.goal, "target", "")).lower()
+
+    def _plan(self, block: str) -> list[tuple[Cell, str]]:
+        """The blocks the goal asks to place, relative to the first one."""
         goal = self.episode.goal
         kind = getattr(goal, "kind", "")
         if kind in ("build_line", "build_square", "build_star"):
-            return shape_offsets(
-                kind,
-                int(getattr(goal, "size", 1)),
-                diagonal=bool(getattr(goal, "diagonal", False)),
-                cross=str(getattr(goal, "cross", "straight")),
+            size = int(getattr(goal, "size", 1))
+            diagonal = bool(getattr(goal, "diagonal", False))
+            if kind == "build_line" and not diagonal and size == 2:
+                # The official straight line of 2 looks for two empty cells and no such block
+                # at all around the player: nothing to place, only somewhere clear of them.
+                return []
+            if kind == "build_line" and diagonal and size == 2:
+                # The official diagonal line of 2 looks for exactly 3 such blocks around the
+                # player (and two empty cells): a diagonal of 3 is that.
+                size = 3
+            offsets = shape_offsets(
+                kind, size, diagonal=diagonal, cross=str(getattr(goal, "cross", "straight"))
             )
+            return [(offset, block) for offset in offsets]
         if kind == "conditional_placing":
             # Spaced out, so every block is placed from open ground.
             count = int(getattr(goal, "place_count", 1))
-            return [(2 * i, 0) for i in range(count - len(self.world.cells([block])))]
-        # Localization onto a block of its own kind: place the reference block too.
+            return [((2 * i, 0), block) for i in range(count - len(self.world.cells([block])))]
+        reference = self._reference()
         step = SIDE_STEP[str(getattr(goal, "side", "right"))]
         distance = int(getattr(goal, "distance", 1))
-        return [(0, 0), (step[0] * distance, step[1] * distance)]
+        offset = (step[0] * distance, step[1] * distance)
+        if reference == block or (reference in PLACE_ACTION and not self.world.cells([reference])):
+            # No reference block to use (or one of its own kind): place the reference too.
+            return [((0, 0), reference), (offset, block)]
+        return [((0, 0), block)]
 
-    def _remaining(self, block: str) -> list[Cell]:
-        return [cell for cell in self.episode.site or [] if self.world.get(cell) != block]
+    def _remaining(self) -> list[tuple[Cell, str]]:
+        """The site's cells not yet holding their block, in placing order."""
+        site = self.episode.site or {}
+        return [(cell, kind) for cell, kind in site.items() if self.world.get(cell) != kind]
+
+    def _ground_for(self, kind: str, cell: Cell) -> bool:
+        """Whether `kind` can go on `cell` now, or once its stone is mined away (not plants:
+        mined stone leaves path, and plants need grass)."""
+        if cell in self.mobs:
+            return False
+        here = self.world.get(cell)
+        return here in PLACE_GROUND[kind] or (kind != "plant" and self.minable(here))
 
     def _keep_gathering(self) -> ExpertTask | None:
         """The last gathering task while its amount is not reached and its block is close:
@@ -558,23 +609,55 @@ class _Step:
         return None
 
     def _build(self, block: str) -> str | None:
-        """Fill the goal's site with `block`, choosing the site first (None: explore)."""
+        """Fill the goal's site, choosing the site first (None: explore)."""
         episode = self.episode
+        if not self._plan(block):
+            return self._clear_of(block)
         if episode.site is None:
             episode.site = self._choose_site(block)
             if episode.site is None:
                 return None
-        remaining = self._remaining(block)
+        remaining = self._remaining()
         if not remaining:
-            return "NOOP"
-        target = remaining[0]
-        ground = PLACE_GROUND[block]
+            return self._stay_near()
+        target, kind = remaining[0]
         if target in self.mobs:
             return "NOOP"  # creatures move on
-        if self.world.get(target) not in ground:
+        here = self.world.get(target)
+        if here not in PLACE_GROUND[kind]:
+            if self._ground_for(kind, target):
+                return self.interact({target})  # mine the stone away first
             episode.site = None  # something else took the cell: choose again
             return None
-        return self._place_at(target, PLACE_ACTION[block])
+        return self._place_at(target, PLACE_ACTION[kind])
+
+    def _clear_of(self, block: str) -> str | None:
+        """A step to the nearest cell with no known `block` within the official line check's
+        window; standing on one, explore (the window's unseen cells may hold some)."""
+        known = self.world.cells([block])
+
+        def clear(cell: Cell) -> bool:
+            return all(max(abs(cell[0] - b[0]), abs(cell[1] - b[1])) > _LINE_APART for b in known)
+
+        if clear(self.pos):
+            return None
+        spots = {cell for cell in sorted(self.dist, key=self.dist.__getitem__)[:400] if clear(cell)}
+        return self.step_towards(spots)
+
+    def _stay_near(self) -> str:
+        """Once a localization site is filled: a step to where both blocks are within the
+        official check's 5 tiles (it reads them around the player)."""
+        near = self.episode.near
+        if not near:
+            return "NOOP"
+
+        def spread(cell: Cell) -> int:
+            return max(max(abs(cell[0] - n[0]), abs(cell[1] - n[1])) for n in near)
+
+        if spread(self.pos) <= _LOCAL_REACH:
+            return "NOOP"
+        spots = {cell for cell in self.dist if spread(cell) <= _LOCAL_REACH - 1}
+        return self.step_towards(spots) or "NOOP"
 
     def _place_at(self, target: Cell, action: str) -> str | None:
         """`action` when facing `target`, else the way to stand beside it facing it: a move
@@ -597,41 +680,49 @@ class _Step:
             backs.add(back)
         return self.step_towards(backs)
 
-    def _choose_site(self, block: str) -> list[Cell] | None:
+    def _choose_site(self, block: str) -> dict[Cell, str] | None:
         """The nearest reachable cells for the goal's shape (or beside its reference block) on
-        ground `block` may go on, kept apart from other blocks of its kind (the official shape
-        checks count every one of them nearby)."""
+        ground their blocks may go on, kept apart from other blocks of their kind (the official
+        shape checks count every one of them nearby)."""
         goal = self.episode.goal
-        ground = PLACE_GROUND[block]
-        if getattr(goal, "kind", "") == "localization_placing":
-            reference = str(getattr(goal, "target", "")).lower()
-            if reference != block:
-                step = SIDE_STEP[str(getattr(goal, "side", "right"))]
-                distance = int(getattr(goal, "distance", 1))
-                spots = [
-                    (t[0] + step[0] * distance, t[1] + step[1] * distance)
-                    for t in self.world.cells([reference])
-                ]
-                free = [c for c in spots if self.world.get(c) in ground and c not in self.mobs]
-                near = [c for c in free if any(n in self.dist for n in _neighbours(c))]
-                if not near:
-                    return None
-                return [min(near, key=lambda c: (self._steps_to(c), c))]
-        offsets = self._offsets(block)
+        kind = getattr(goal, "kind", "")
+        plan = self._plan(block)
+        if kind == "localization_placing" and len(plan) == 1:
+            step = SIDE_STEP[str(getattr(goal, "side", "right"))]
+            distance = int(getattr(goal, "distance", 1))
+            offset = (step[0] * distance, step[1] * distance)
+            pairs = [(_add(t, offset), t) for t in self.world.cells([self._reference()])]
+            free = [
+                (spot, ref)
+                for spot, ref in pairs
+                if self._ground_for(block, spot) and any(n in self.dist for n in _neighbours(spot))
+            ]
+            if not free:
+                return None
+            spot, ref = min(free, key=lambda pair: (self._steps_to(pair[0]), pair[0]))
+            self.episode.near = [spot, ref]
+            return {spot: block}
         # A line counts only when it is all of its kind within 10 cells of the player; a square
         # or star needs its border clear.
-        apart = _LINE_APART if getattr(goal, "kind", "") == "build_line" else 1
-        existing = [c for c in self.world.cells([block]) if self._steps_to(c) <= 2 * _LINE_APART]
+        apart = _LINE_APART if kind == "build_line" else 1
+        existing = {
+            name: [c for c in self.world.cells([name]) if self._steps_to(c) <= 2 * _LINE_APART]
+            for name in {name for _, name in plan}
+        }
         anchors = sorted(self.dist, key=lambda c: (self.dist[c], c))[:400]
         for anchor in anchors:
-            cells = [_add(anchor, o) for o in offsets]
-            if any(self.world.get(c) not in ground or c in self.mobs for c in cells):
+            cells = [(_add(anchor, offset), name) for offset, name in plan]
+            if any(self.world.get(c) not in PLACE_GROUND[n] or c in self.mobs for c, n in cells):
                 continue
             crowded = any(
-                max(abs(e[0] - c[0]), abs(e[1] - c[1])) <= apart for e in existing for c in cells
+                max(abs(e[0] - c[0]), abs(e[1] - c[1])) <= apart
+                for c, name in cells
+                for e in existing[name]
             )
             if not crowded:
-                return cells
+                if kind == "localization_placing":
+                    self.episode.near = [c for c, _ in cells]
+                return dict(cells)
         return None
 
     def _closest_to(self, cells: set[Cell]) -> str | None:

@@ -74,6 +74,9 @@ RECIPES: dict[str, Recipe] = {
 }
 TABLE_WOOD = 2
 FURNACE_STONE = 1
+#: The most of one material the inventory holds (craftax caps every count at 9): a gathering
+#: target above it would never be reached.
+INVENTORY_CAP = 9
 
 #: The achievements each one needs unlocked first (on the only route to it).
 PREREQUISITES: dict[str, tuple[str, ...]] = {
@@ -319,9 +322,10 @@ def _material(
     ctx: PlanContext, material: str, amount: int, achievement: str | None
 ) -> ExpertTask | None:
     """A task that brings `material` to `amount` (the plan's budget when gathering), or None."""
+    amount = min(amount, INVENTORY_CAP)
     if ctx.count(material) >= amount:
         return None
-    target = max(amount, _budget(ctx, material))
+    target = min(max(amount, _budget(ctx, material)), INVENTORY_CAP)
     block = "tree" if material == "wood" else material
     return _gather(ctx, block, achievement, target)
 
@@ -339,7 +343,9 @@ def _table(ctx: PlanContext, achievement: str | None, extra_wood: int) -> Expert
     return wood or ExpertTask("place", "PLACE_TABLE", achievement)
 
 
-def _craft(ctx: PlanContext, action: str, achievement: str | None) -> ExpertTask:
+def _craft(
+    ctx: PlanContext, action: str, achievement: str | None, sword_first: bool = True
+) -> ExpertTask:
     recipe = RECIPES[action]
     if not ctx.allowed(action):
         return ExpertTask("idle", note=f"{action} is forbidden")
@@ -351,7 +357,8 @@ def _craft(ctx: PlanContext, action: str, achievement: str | None) -> ExpertTask
         return task
     if recipe.furnace and (task := _furnace(ctx, achievement)):
         return task
-    return ExpertTask("craft", _with_sword(ctx, action), achievement, needs_furnace=recipe.furnace)
+    chosen = _with_sword(ctx, action) if sword_first else action
+    return ExpertTask("craft", chosen, achievement, needs_furnace=recipe.furnace)
 
 
 def _with_sword(ctx: PlanContext, action: str) -> str:
@@ -517,3 +524,27 @@ def supply_task(ctx: PlanContext, block: str, pieces: int) -> ExpertTask | None:
     if stone or block != "furnace":
         return stone
     return _table(ctx, None, 0)
+
+
+#: How a conditional-placing goal's item is spent: the action, and (crafts) the recipe that
+#: holds it. Nothing in Craftax-Classic spends diamonds.
+SPEND_ACTION: dict[str, str] = {
+    "wood": "MAKE_WOOD_PICKAXE",
+    "stone": "PLACE_STONE",
+    "sapling": "PLACE_PLANT",
+    "coal": "MAKE_IRON_PICKAXE",
+    "iron": "MAKE_IRON_PICKAXE",
+}
+
+
+def spend_task(ctx: PlanContext, item: str) -> ExpertTask:
+    """A task whose action takes `item` out of the inventory (a table's 2 wood, a placed stone
+    or sapling, a craft's inputs), gathering the recipe's other inputs and its table and furnace
+    first; idle when nothing can spend it."""
+    action = SPEND_ACTION.get(item)
+    if action is None:
+        return ExpertTask("idle", note=f"nothing in Craftax-Classic spends {item}")
+    if action in RECIPES:
+        # No sword in between: it would spend the wood and stone the chosen craft needs.
+        return _craft(ctx, action, None, sword_first=False)
+    return ExpertTask("place", action, note=f"spending {item}")
