@@ -23,7 +23,12 @@ from pydantic import AliasChoices, BaseModel, Field
 
 from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES, SPLITS
 from llm_agents.run_data.metrics import SuccessRate
-from llm_agents.run_data.readings import AchievementsReading, GoalReading, Grounding
+from llm_agents.run_data.readings import (
+    READING_CLASSES,
+    AchievementsReading,
+    GoalReading,
+    Grounding,
+)
 
 __all__ = [
     "KIND_CONFUSION",
@@ -41,6 +46,14 @@ __all__ = [
 TOP_CONFUSIONS = 15
 #: The confusion kind of a goal read as a goal of another kind.
 KIND_CONFUSION = "goal kind misread"
+#: Every placing-goal parameter, as `kind.field`, in goal-kind then field order.
+_PARAMETER_ORDER = tuple(
+    f"{kind}.{field}"
+    for kind, reading in READING_CLASSES.items()
+    if reading is not AchievementsReading
+    for field in reading.model_fields
+    if field != "kind"
+)
 
 
 @dataclass(frozen=True)
@@ -160,7 +173,9 @@ def score(items: Sequence[Scored]) -> GroundingScore:
             ),
             len(items),
         ),
-        parameters={key: SuccessRate.of(right[key], asked[key]) for key in sorted(asked)},
+        parameters={
+            key: SuccessRate.of(right[key], asked[key]) for key in _PARAMETER_ORDER if key in asked
+        },
     )
 
 
