@@ -5,6 +5,7 @@ the `guided` agent playing a grounded Medium goal, on the mock backend and the o
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
@@ -14,12 +15,26 @@ from env.dataset import Dataset, DatasetSource
 from env.goals import SPLITS, AnyGoal
 from env.official_source import parse_directory
 from llm_agents.agents.grounding import grounding_messages, parse_grounding, reading_json
+from llm_agents.backends.base import ChatMessage
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
+from llm_agents.evaluation.config import build_config, build_settings
+from llm_agents.evaluation.grounding_run import (
+    GroundConfig,
+    execute_grounding,
+    prepare_grounding,
+    read_ground_results,
+    read_groundings,
+    summarize_records,
+)
 from llm_agents.evaluation.runner import run_eval
-from llm_agents.run_data.grounding_metrics import KIND_CONFUSION, Scored, confusions, score
+from llm_agents.run_data.grounding_metrics import (
+    KIND_CONFUSION,
+    Confusion,
+    Scored,
+    confusions,
+    score,
+)
 from llm_agents.run_data.readings import (
     AchievementsReading,
     BuildLineReading,
@@ -333,3 +348,52 @@ def test_guided_medium_garbage_leaves_the_episode_unstarted(
     (episode,) = read_episodes(tmp_path / "run" / "episodes.jsonl")
     assert (actions, read_right, episode.termination) == ([], False, "not_started")
     assert episode.grounding is not None and "unknown kind" in (episode.grounding.reason or "")
+
+
+def test_choice_options_are_the_runs_typed_goals_read_by_the_same_parser(
+    medium_goals: tuple[AnyGoal, ...], medium_file: Path, tmp_path: Path
+) -> None:
+    settings = {
+        "model": "mock:", "dataset": str(medium_file), "variant": "classic",
+        "difficulty": "medium", "paraphrases": False, "choice": "loglik",
+        "output_dir": str(tmp_path / "run"),
+    }  # fmt: skip
+    texts = {goal.instruction: reading_json(reading_of(goal)) for goal in medium_goals}
+    model = MockModel(outputs=lambda conversation: texts[instruction_of(conversation)])
+    results = execute_grounding(prepare_grounding(build_settings(GroundConfig, settings)), model)
+    options = model.requests[0][1]
+    assert options is not None and set(options.options) == set(texts.values())
+    assert results.summary is not None and results.summary.overall.exact.rate == 1.0
+
+
+def test_an_easy_run_written_before_goal_kinds_still_reads_and_scores_the_same(
+    tmp_path: Path,
+) -> None:
+    # A groundings line and a confusion as they were written while only EASY goals were typed.
+    line = {
+        "key": "easy_train/G/0", "goal_id": "G", "split": "easy_train", "category": "combo",
+        "instruction_variant": 0, "instruction": "Make a table, no saplings.",
+        "truth": {"scenario": "easy", "required": ["PLACE_TABLE"], "forbidden": ["COLLECT_SAPLING"]},
+        "grounding": {"outcome": "valid", "stage": "json", "raw": "{}", "reading": {
+            "scenario": "easy", "required": ["PLACE_TABLE", "COLLECT_SAPLING"], "forbidden": []}},
+        "correct": False,
+    }  # fmt: skip
+    (tmp_path / "groundings.jsonl").write_text(json.dumps(line) + "\n")
+    (record,) = read_groundings(tmp_path)
+    assert record.truth == AchievementsReading(
+        required=("PLACE_TABLE",), forbidden=("COLLECT_SAPLING",)
+    )
+    assert record.scenario_class == "Achievements"
+    summary = summarize_records([record])
+    assert summary is not None and summary.overall.exact.successes == 0
+    assert [(c.kind, c.subject) for c in summary.confusions] == [
+        ("forbidden read as required", "COLLECT_SAPLING")
+    ]
+    old = Confusion.model_validate(
+        {"kind": "required missed", "achievement": "EAT_COW", "count": 2}
+    )
+    assert old.subject == "EAT_COW"
+
+
+def instruction_of(conversation: Sequence[ChatMessage]) -> str:
+    return conversation[-1].content.removeprefix("Instruction: ").strip()
