@@ -82,6 +82,25 @@ DIFFICULTY_CATEGORIES: dict[Difficulty, tuple[Category, ...]] = {
     "medium": ("train", "paraphrased", "new_objects"),
     "hard": ("train", "paraphrased", "new_objects"),
 }
+#: The goal kinds each difficulty's official splits hold (Medium: achievements and the Classic
+#: placing goals, no star; Hard: placing goals only): what a model grounding them is offered.
+DIFFICULTY_KINDS: dict[Difficulty, tuple[GoalKind, ...]] = {
+    "easy": ("achievements",),
+    "medium": (
+        "achievements",
+        "conditional_placing",
+        "localization_placing",
+        "build_line",
+        "build_square",
+    ),
+    "hard": (
+        "conditional_placing",
+        "localization_placing",
+        "build_line",
+        "build_square",
+        "build_star",
+    ),
+}
 _SPLIT_PART: dict[Category, str] = {
     "one": "train",
     "combo": "train",

@@ -208,7 +208,7 @@ def test_ground_scores_every_text_by_split_and_category(tmp_path: Path, dataset_
     assert summary.by_category["combo"].exact.successes == 1
     assert summary.by_category["one"].exact.successes == 2
     assert summary.by_split["easy_test_other_params"].exact.rate == 1.0
-    assert [(c.kind, c.achievement, c.count) for c in summary.confusions] == [
+    assert [(c.kind, c.subject, c.count) for c in summary.confusions] == [
         ("forbidden read as required", "COLLECT_SAPLING", 1)
     ]
     records = read_groundings(tmp_path / "run")

@@ -63,6 +63,7 @@ if TYPE_CHECKING:
     from env.dataset import Goal
     from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
+    from llm_agents.run_data.readings import GoalReading
 
 #: Move action -> (dx, dy) in the observation's axes (+x east, +y north).
 MOVES: dict[str, Cell] = {"LEFT": (-1, 0), "RIGHT": (1, 0), "UP": (0, 1), "DOWN": (0, -1)}
@@ -103,7 +104,10 @@ def _direction(src: Cell, dst: Cell) -> str:
 
 class _ExpertEpisode:
     def __init__(
-        self, required: Sequence[str], forbidden: Sequence[str], goal: AnyGoal | None = None
+        self,
+        required: Sequence[str],
+        forbidden: Sequence[str],
+        goal: AnyGoal | GoalReading | None = None,
     ):
         self.goal = goal
         self.required = tuple(required)
@@ -159,9 +163,11 @@ class ExpertAgent:
         required, forbidden = getattr(goal, "required", ()), getattr(goal, "forbidden", ())
         self._episodes[slot] = _ExpertEpisode(required, forbidden, goal)
 
-    def start_goal(self, slot: int, required: Sequence[str], forbidden: Sequence[str]) -> None:
-        """Begin an episode towards these achievements (the goal as another agent read it)."""
-        self._episodes[slot] = _ExpertEpisode(required, forbidden)
+    def start_goal(self, slot: int, reading: GoalReading) -> None:
+        """Begin an episode towards a goal as another agent read it (its typed parameters are
+        named as the dataset goal's, so the expert plays it as it would the record)."""
+        required, forbidden = getattr(reading, "required", ()), getattr(reading, "forbidden", ())
+        self._episodes[slot] = _ExpertEpisode(required, forbidden, reading)
 
     def end_episode(self, slot: int) -> None:
         self._episodes.pop(slot, None)

@@ -1,12 +1,15 @@
 """Grounding: asking a model what an instruction's goal is, and reading its answer as a typed goal.
 
-The prompt (`ground.j2`) shows the achievement names the variant's EASY goals can use (the 22 the
-checker scores, in either variant) and asks for one JSON object `{"required": [...],
-"forbidden": [...]}`. The answer is read in stages: the whole answer as JSON, else a fenced code
-block, else the first `{...}` in the text; names are matched case-insensitively with spaces or
-underscores. Anything that is not exactly a well-formed goal over known names is `invalid`, with
-the reason: an answer is never guessed at. `--choice` answers pick one of the goals' canonical
-JSON (`reading_options`) instead, read by the same parser.
+The prompt (`ground.j2`) offers the goal kinds of the difficulty being grounded
+(`env.goals.DIFFICULTY_KINDS`) with the names their fields take in the variant: for EASY only
+achievements goals, `{"required": [...], "forbidden": [...]}` over the achievement names the
+checker scores; for Medium and Hard also the placing goals, `{"kind": ..., ...}` with their typed
+parameters (Craftax block names, inventory items, sides, sizes, counts). The answer is read in
+stages: the whole answer as JSON, else a fenced code block, else the first `{...}` in the text;
+names are matched case-insensitively with spaces or underscores; an answer with no `kind` is an
+achievements goal. Anything that is not exactly a well-formed goal of an offered kind over known
+names is `invalid`, with the reason: an answer is never guessed at. `--choice` answers pick one
+of the goals' canonical JSON (`reading_options`) instead, read by the same parser.
 """
 
 from __future__ import annotations
@@ -20,19 +23,32 @@ from typing import Literal
 from pydantic import ValidationError
 
 from env.achievements import ACHIEVEMENT_IDS
+from env.goals import CROSS_TYPES, DIFFICULTY_KINDS, SIDES, Difficulty, GoalKind
+from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS
 from env.variant import Variant
 from llm_agents.backends.base import ChatMessage
-from llm_agents.run_data.readings import EasyReading, GoalReading, Grounding
+from llm_agents.run_data.readings import (
+    READING_CLASSES,
+    AchievementsReading,
+    GoalReading,
+    Grounding,
+)
 from prompts import render_blocks
 
 GROUND_TEMPLATE = "ground"
 _FENCED = re.compile(r"```(?:json)?\s*(\{.*?\})\s*```", re.DOTALL)
 _FIELDS = ("required", "forbidden")
+_Stage = Literal["json", "fenced", "embedded", "none"]
+#: The placing goals' fields that name a block, an inventory item, or take a fixed word.
+_BLOCK_FIELDS = frozenset({"place", "target", "block"})
+_ITEM_FIELDS = frozenset({"collect"})
+_WORDS: dict[str, tuple[str, ...]] = {"side": SIDES, "cross": CROSS_TYPES}
 
 __all__ = [
     "GROUND_TEMPLATE",
     "goal_vocabulary",
     "grounding_messages",
+    "inventory_items",
     "parse_grounding",
     "reading_json",
     "reading_options",
@@ -44,16 +60,31 @@ def goal_vocabulary(variant: Variant) -> tuple[str, ...]:
     return tuple(name for name in variant.achievement_names if name in ACHIEVEMENT_IDS)
 
 
+def inventory_items(variant: Variant) -> tuple[str, ...]:
+    """The items a conditional-placing goal of `variant` can count (the checker's slots)."""
+    return CLASSIC_INVENTORY_SLOTS if variant is Variant.CLASSIC else INVENTORY_SLOTS
+
+
 def grounding_messages(
-    instruction: str, variant: Variant, templates_dir: str | Path | None = None
+    instruction: str,
+    variant: Variant,
+    templates_dir: str | Path | None = None,
+    difficulty: Difficulty = "easy",
 ) -> list[ChatMessage]:
-    """The conversation asking for `instruction`'s goal as JSON."""
+    """The conversation asking for `instruction`'s goal as JSON, offering `difficulty`'s kinds."""
+    kinds = DIFFICULTY_KINDS[difficulty]
     context = {
         "instruction": instruction,
         "achievements": [
             {"name": name, "words": name.lower().replace("_", " ")}
             for name in goal_vocabulary(variant)
         ],
+        "placing": [kind for kind in kinds if kind != "achievements"],
+        "with_achievements": "achievements" in kinds,
+        "blocks": list(variant.block_names),
+        "items": list(inventory_items(variant)),
+        "sides": list(SIDES),
+        "crosses": list(CROSS_TYPES),
     }
     return [
         ChatMessage(role=role, content=text)
@@ -62,8 +93,13 @@ def grounding_messages(
 
 
 def reading_json(reading: GoalReading) -> str:
-    """The canonical JSON of a reading, as the prompt asks for it."""
-    return json.dumps({"required": list(reading.required), "forbidden": list(reading.forbidden)})
+    """The canonical JSON of a reading, as the prompt asks for it (an achievements goal without
+    its kind, as EASY's prompt shows it)."""
+    if isinstance(reading, AchievementsReading):
+        return json.dumps(
+            {"required": list(reading.required), "forbidden": list(reading.forbidden)}
+        )
+    return json.dumps(reading.model_dump(mode="json"))
 
 
 def reading_options(readings: Iterable[GoalReading]) -> tuple[str, ...]:
@@ -71,9 +107,7 @@ def reading_options(readings: Iterable[GoalReading]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(reading_json(reading) for reading in readings))
 
 
-def _invalid(
-    stage: Literal["json", "fenced", "embedded", "none"], reason: str, raw: str
-) -> Grounding:
+def _invalid(stage: _Stage, reason: str, raw: str) -> Grounding:
     return Grounding(outcome="invalid", stage=stage, reason=" ".join(reason.split()), raw=raw)
 
 
@@ -91,7 +125,7 @@ def _first_object(text: str) -> str | None:
     return None
 
 
-def _located(raw: str) -> tuple[Literal["json", "fenced", "embedded", "none"], object]:
+def _located(raw: str) -> tuple[_Stage, object]:
     """Where the answer's JSON object is, and it parsed; (`none`, None) when there is none."""
     text = raw.strip()
     try:
@@ -113,6 +147,10 @@ def _located(raw: str) -> tuple[Literal["json", "fenced", "embedded", "none"], o
     return "none", None
 
 
+def _spelled(item: str) -> str:
+    return " ".join(item.replace("_", " ").split()).upper()
+
+
 def _names(value: object, field: str, vocabulary: Sequence[str]) -> list[str] | str:
     """The field's names in the vocabulary's spelling, or why they cannot be read."""
     if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
@@ -120,15 +158,67 @@ def _names(value: object, field: str, vocabulary: Sequence[str]) -> list[str] | 
     known = {name.replace("_", " "): name for name in vocabulary}
     names = []
     for item in value:
-        name = known.get(" ".join(item.replace("_", " ").split()).upper())
+        name = known.get(_spelled(item))
         if name is None:
             return f"unknown achievement: {item!r} in {field}"
         names.append(name)
     return names
 
 
-def parse_grounding(raw: str, variant: Variant) -> Grounding:
-    """The goal an answer states, or `invalid` with the reason (never a guess)."""
+def _name(value: object, vocabulary: Sequence[str]) -> str | None:
+    """`value` in the vocabulary's spelling; None when it is not one of its names."""
+    if not isinstance(value, str):
+        return None
+    known = {_spelled(name): name for name in vocabulary}
+    return known.get(_spelled(value))
+
+
+def _achievements(parsed: dict[str, object], variant: Variant) -> AchievementsReading | str:
+    vocabulary = goal_vocabulary(variant)
+    fields: dict[str, list[str]] = {}
+    for field in _FIELDS:
+        names = _names(parsed.get(field, []), field, vocabulary)
+        if isinstance(names, str):
+            return names
+        fields[field] = names
+    return AchievementsReading(**fields)
+
+
+def _placing(kind: GoalKind, parsed: dict[str, object], variant: Variant) -> GoalReading | str:
+    """The placing goal's fields checked one by one against the variant's names; numbers must
+    be JSON integers and flags JSON booleans (a "2" or a 1 for true is not read as one)."""
+    wanted = [name for name in READING_CLASSES[kind].model_fields if name != "kind"]
+    missing = [name for name in wanted if name not in parsed]
+    if missing:
+        return f"not a goal: {kind} lacks {', '.join(missing)}"
+    fields: dict[str, object] = {"kind": kind}
+    for field in wanted:
+        value = parsed[field]
+        if field in _BLOCK_FIELDS or field in _ITEM_FIELDS or field in _WORDS:
+            if field in _BLOCK_FIELDS:
+                vocabulary, what = variant.block_names, "block"
+            elif field in _ITEM_FIELDS:
+                vocabulary, what = inventory_items(variant), "item"
+            else:
+                vocabulary, what = _WORDS[field], field
+            name = _name(value, vocabulary)
+            if name is None:
+                return f"unknown {what}: {value!r} in {field}"
+            fields[field] = name
+        elif field == "diagonal":
+            if not isinstance(value, bool):
+                return f"not a goal: {field} is not true or false"
+            fields[field] = value
+        else:
+            if isinstance(value, bool) or not isinstance(value, int):
+                return f"not a goal: {field} is not a whole number"
+            fields[field] = value
+    return READING_CLASSES[kind].model_validate(fields)  # type: ignore[return-value]
+
+
+def parse_grounding(raw: str, variant: Variant, difficulty: Difficulty = "easy") -> Grounding:
+    """The goal an answer states, or `invalid` with the reason (never a guess). The goal kinds
+    read are those the prompt of `difficulty` offers."""
     stage, parsed = _located(raw)
     if parsed is None:
         return _invalid(stage, "no JSON object in the answer", raw)
@@ -136,19 +226,25 @@ def parse_grounding(raw: str, variant: Variant) -> Grounding:
         return _invalid(stage, f"JSON does not parse: {parsed.msg}", raw)
     if not isinstance(parsed, dict):
         return _invalid(stage, "not a goal: the JSON is not an object", raw)
-    extra = sorted(set(parsed) - set(_FIELDS))
+    offered = DIFFICULTY_KINDS[difficulty]
+    # No kind means an achievements goal: EASY's prompt never asks for one.
+    stated = parsed.get("kind", "achievements")
+    kind = next((known for known in offered if known == stated), None)
+    if kind is None:
+        return _invalid(stage, f"unknown kind: {stated!r}; known: {', '.join(offered)}", raw)
+    fields = _FIELDS if kind == "achievements" else tuple(READING_CLASSES[kind].model_fields)
+    extra = sorted(set(parsed) - {"kind", *fields})
     if extra:
         return _invalid(stage, f"not a goal: unexpected keys {', '.join(map(str, extra))}", raw)
-    vocabulary = goal_vocabulary(variant)
-    fields: dict[str, list[str]] = {}
-    for field in _FIELDS:
-        names = _names(parsed.get(field, []), field, vocabulary)
-        if isinstance(names, str):
-            return _invalid(stage, names, raw)
-        fields[field] = names
     try:
-        reading = EasyReading(**fields)
+        reading = (
+            _achievements(parsed, variant)
+            if kind == "achievements"
+            else _placing(kind, parsed, variant)
+        )
     except ValidationError as err:
         message = err.errors()[0]["msg"].removeprefix("Value error, ")
         return _invalid(stage, f"not a goal: {message}", raw)
+    if isinstance(reading, str):
+        return _invalid(stage, reading, raw)
     return Grounding(outcome="valid", stage=stage, reading=reading, raw=raw)

@@ -1,9 +1,10 @@
 """The guided agent (`guided`): the model reads the instruction, the scripted expert acts on it.
 
-At the start of each episode the model grounds the instruction once (`ground.j2`, parsed by
-`parse_grounding`, cached per text, so the paraphrase played again in another world costs no
-request); then the expert (`expert.py`) plays the goal as the model read it, never the dataset
-record's. This separates understanding from acting: its success is what a model that plays
+At the start of each episode the model grounds the instruction once (`ground.j2` offering the
+run's difficulty's goal kinds, parsed by `parse_grounding`, cached per text, so the paraphrase
+played again in another world costs no request); then the expert (`expert.py`) plays the goal as
+the model read it, never the dataset record's: the achievements it read, or on Medium and Hard
+the placing goal with the block, side, distance, size and counts it read. This separates understanding from acting: its success is what a model that plays
 perfectly-scripted moves would reach with its own reading of the goals. An invalid grounding is
 an episode the agent could not start: its first decision carries the invalid grounding and the
 runner ends it there, unscored as play but counted as a failure.
@@ -25,7 +26,7 @@ from llm_agents.backends.base import ModelAPI, ModelOutput
 from llm_agents.run_data.readings import Grounding
 
 if TYPE_CHECKING:
-    from env.goals import AnyGoal
+    from env.goals import AnyGoal, Difficulty
     from llm_agents.agents.registry import AgentSettings
 
 
@@ -42,9 +43,11 @@ class GuidedAgent:
         renderer: str = "objects",
         fallback_action: str = "NOOP",
         templates_dir: str | Path | None = None,
+        difficulty: Difficulty = "easy",
     ):
         self.variant = as_variant(variant)
         self.templates_dir = templates_dir
+        self.difficulty = difficulty
         self.expert = ExpertAgent(self.variant, renderer=renderer, fallback_action=fallback_action)
         self.fallback_id = self.expert.fallback_id
         self._groundings: dict[str, Grounding] = {}
@@ -63,6 +66,7 @@ class GuidedAgent:
             renderer=config.renderer,
             fallback_action=config.fallback_action,
             templates_dir=config.templates_dir,
+            difficulty=config.difficulty,
         )
 
     @property
@@ -82,7 +86,7 @@ class GuidedAgent:
     def _begin(self, slot: int, grounding: Grounding) -> None:
         self._unreported[slot] = grounding
         if grounding.reading is not None:
-            self.expert.start_goal(slot, grounding.reading.required, grounding.reading.forbidden)
+            self.expert.start_goal(slot, grounding.reading)
 
     def end_episode(self, slot: int) -> None:
         self._texts.pop(slot, None)
@@ -93,7 +97,7 @@ class GuidedAgent:
         self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Render the grounding request the run will send (the expert renders nothing)."""
-        grounding_messages(instruction, self.variant, self.templates_dir)
+        grounding_messages(instruction, self.variant, self.templates_dir, self.difficulty)
 
     def _text(self, slot: int) -> str:
         if slot not in self._texts:
@@ -107,7 +111,7 @@ class GuidedAgent:
         step = self.expert.prepare(slot, observation)
         if text in self._groundings:
             return step
-        messages = grounding_messages(text, self.variant, self.templates_dir)
+        messages = grounding_messages(text, self.variant, self.templates_dir, self.difficulty)
         return StepPrompt(slot=slot, observation=observation, messages=messages, text=step.text)
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
@@ -119,7 +123,7 @@ class GuidedAgent:
                 # The backend failed, not the model: nothing is cached, the runner aborts it.
                 return self._fallback(prompt, output)
             if text not in self._groundings:
-                self._groundings[text] = parse_grounding(output.text, self.variant)
+                self._groundings[text] = parse_grounding(output.text, self.variant, self.difficulty)
             self._begin(slot, self._groundings[text])
         grounding = self._unreported.pop(slot, None)
         if grounding is not None and grounding.reading is None:

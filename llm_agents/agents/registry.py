@@ -8,6 +8,7 @@ imports only the one a run uses.
 
 from typing import Protocol
 
+from env.goals import Difficulty
 from env.variant import Variant
 from llm_agents.backends.base import ChoiceRule
 
@@ -28,6 +29,8 @@ class AgentSettings(Protocol):
     def agent(self) -> str: ...
     @property
     def variant(self) -> Variant: ...
+    @property
+    def difficulty(self) -> Difficulty: ...
     @property
     def renderer(self) -> str: ...
     @property

@@ -216,10 +216,6 @@ class EvalConfig(ModelSettings):
     @model_validator(mode="after")
     def _categories_of_the_difficulty(self) -> EvalConfig:
         check_categories(self.categories, self.difficulty)
-        if self.agent == "guided" and self.difficulty != "easy":
-            raise ValueError(
-                "the guided agent grounds achievement goals only: use --difficulty easy"
-            )
         return self
 
     @field_validator("renderer")

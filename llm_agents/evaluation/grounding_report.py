@@ -1,5 +1,8 @@
 """The text report of a grounding run (`craftext-llm report` on a `ground` run directory):
-understanding by split and category, with 95% Wilson intervals, and the commonest confusions."""
+understanding by split and category, with 95% Wilson intervals, and the commonest confusions.
+
+A Medium or Hard run adds kind accuracy, rows per scenario class (its splits are its categories,
+so it has no category rows) and a table of each placing-goal parameter read right, by split."""
 
 from __future__ import annotations
 
@@ -29,18 +32,36 @@ def _rate(rate: SuccessRate | None) -> str:
     return "-" if rate is None else f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}]"
 
 
-def _row(label: str, score: GroundingScore) -> list[str]:
+def _row(label: str, score: GroundingScore, kinds: bool = False) -> list[str]:
     required, forbidden = score.fields.get("required"), score.fields.get("forbidden")
     return [
         label,
         str(score.texts),
         _rate(score.exact),
         str(score.invalid),
+        *([_rate(score.kind)] if kinds else []),
         _rate(required.precision if required else None),
         _rate(required.recall if required else None),
         _rate(forbidden.precision if forbidden else None),
         _rate(forbidden.recall if forbidden else None),
     ]
+
+
+def _parameters(overall: GroundingScore, by_split: dict[str, GroundingScore]) -> list[str]:
+    """Each placing-goal parameter read right, overall and per split (n after the rate)."""
+    if not overall.parameters:
+        return []
+    rows = [["Parameter", "all", *by_split]]
+    for key, rate in overall.parameters.items():
+        cells = [by_split[split].parameters.get(key) for split in by_split]
+        rows.append(
+            [
+                key,
+                f"{_rate(rate)} n={rate.episodes}",
+                *(f"{_rate(cell)} n={cell.episodes}" if cell else "-" for cell in cells),
+            ]
+        )
+    return ["Parameters read right:", "", *_render(rows), ""]
 
 
 def _render(rows: list[list[str]]) -> list[str]:
@@ -59,25 +80,43 @@ def report_grounding(run_dir: str | Path) -> str:
         raise UserError(f"{out} holds no {RESULTS_FILE}: not a run directory")
     results = read_ground_results(out / RESULTS_FILE)
     config = results.config
+    difficulty = str(config.get("difficulty") or "easy")
+    later = difficulty != "easy"
     head = (
-        f"Grounding by {config.get('model')} ({config.get('variant')} Craftax"
+        f"Grounding{' of ' + difficulty + ' goals' if later else ''} by {config.get('model')} "
+        f"({config.get('variant')} Craftax"
         f"{', choice ' + str(config['choice']) if config.get('choice') else ''}): "
         f"{results.status} ({results.finished} of {results.scheduled} instruction texts)."
     )
     summary = results.summary
     if summary is None:
         return f"{head}\nNo instruction answered yet."
-    rows = [_HEADER, _row("all", summary.overall)]
-    rows += [_row(split, score) for split, score in summary.by_split.items()]
-    rows += [_row(category, score) for category, score in summary.by_category.items()]
-    lines = [head, "", *_render(rows), ""]
-    lines.append(
-        "exact: read exactly as the dataset's goal; P / R: precision / recall of the "
-        "achievements read into each field; [95% Wilson interval]."
-    )
+    if not later:
+        rows = [_HEADER, _row("all", summary.overall)]
+        rows += [_row(split, score) for split, score in summary.by_split.items()]
+        rows += [_row(category, score) for category, score in summary.by_category.items()]
+        legend = (
+            "exact: read exactly as the dataset's goal; P / R: precision / recall of the "
+            "achievements read into each field; [95% Wilson interval]."
+        )
+        lines = [head, "", *_render(rows), "", legend]
+    else:
+        rows = [[*_HEADER[:4], "kind", *_HEADER[4:]], _row("all", summary.overall, kinds=True)]
+        rows += [_row(split, score, kinds=True) for split, score in summary.by_split.items()]
+        lines = [head, "", *_render(rows), "", f"By scenario class ({difficulty}):", ""]
+        rows = [["Class", *rows[0][1:]]]
+        rows += [_row(c, score, kinds=True) for c, score in summary.by_scenario_class.items()]
+        lines += [*_render(rows), ""]
+        lines += _parameters(summary.overall, summary.by_split)
+        lines.append(
+            "exact: read exactly as the dataset's goal (every field); kind: read as a goal of "
+            "its kind; P / R: precision / recall of the achievements read into each field of "
+            "the achievements goals; parameters: read right, of the texts read as the right "
+            "kind; [95% Wilson interval]."
+        )
     if summary.confusions:
         lines += ["", "Commonest confusions (texts):"]
-        lines += [f"  {c.count:4d}  {c.kind}: {c.achievement}" for c in summary.confusions]
+        lines += [f"  {c.count:4d}  {c.kind}: {c.subject}" for c in summary.confusions]
     if summary.invalid_reasons:
         lines += ["", "Invalid answers (texts):"]
         lines += [f"  {count:4d}  {reason}" for reason, count in summary.invalid_reasons.items()]

@@ -1,6 +1,10 @@
 """`craftext-llm ground`: every instruction text of the chosen splits read by the model as a
 typed goal, and scored against the dataset's.
 
+`--difficulty` picks the goals as eval's does (EASY's categories, or Medium's and Hard's splits
+`train`, `paraphrased`, `new_objects`); the prompt then offers that difficulty's goal kinds, and
+the run records the difficulty in its identity.
+
 A grounding run lives in a run directory as an evaluation does, through the same store:
 `groundings.jsonl` (a line per instruction text, appended and fsynced as answers arrive) and
 `results.json` (kind `ground`: the resolved config, the run's identity, versions, dataset source,
@@ -20,11 +24,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, Field, ValidationError, field_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from env.dataset import CATEGORIES, Instruction, load_dataset, parse_categories
 from env.errors import UserError
-from env.goals import run_category
+from env.goals import DIFFICULTY_KINDS, Difficulty, check_categories, run_category
+from env.scenario_tasks import encode_goals
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
     grounding_messages,
@@ -39,6 +44,7 @@ from llm_agents.backends.base import (
     result_values,
 )
 from llm_agents.evaluation.config import TRANSPORT_BACKEND_OPTIONS, ModelSettings
+from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
 from llm_agents.run_data.store import (
@@ -65,8 +71,13 @@ class GroundConfig(ModelSettings):
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
 
+    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
+    """CrafText difficulty: easy, medium or hard; --categories then picks its splits, and the
+    prompt offers its goal kinds."""
     categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
-    """Instruction categories whose texts are grounded: one, combo, paraphrased, new_objects."""
+    """Instruction categories whose texts are grounded: easy's one, combo, paraphrased,
+    new_objects; medium's and hard's train, paraphrased, new_objects (unset: every one of the
+    difficulty's that eval's default protocol plays, all four for easy)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Ground every paraphrase of each goal as well as its original instruction."""
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
@@ -77,10 +88,28 @@ class GroundConfig(ModelSettings):
     requests_per_call: int = Field(16, ge=1)
     """Conversations sent to the backend in one call (a server gets them concurrently)."""
 
+    @classmethod
+    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        """Categories, when unset, from the difficulty (an unknown one is left to validation)."""
+        difficulty = settings.get("difficulty", "easy")
+        if "categories" in settings or difficulty == "easy" or difficulty not in DIFFICULTY_KINDS:
+            return settings
+        default = next(
+            choice.value
+            for choice in protocol_for("default", difficulty).choices
+            if choice.setting == "categories"
+        )
+        return settings | {"categories": default}
+
     @field_validator("categories", mode="before")
     @classmethod
     def _known_categories(cls, value: Any) -> tuple[str, ...]:
         return tuple(parse_categories(value))
+
+    @model_validator(mode="after")
+    def _categories_of_the_difficulty(self) -> GroundConfig:
+        check_categories(self.categories, self.difficulty)
+        return self
 
     def result_settings(self) -> dict[str, Any]:
         """The settings that change answers (marked `CHANGES_RESULTS`): what a resumed run
@@ -105,6 +134,8 @@ class GroundingRecord(BaseModel):
     """The dataset split."""
     category: str
     """The goal's category."""
+    scenario_class: str = "Achievements"
+    """The paper's Table 2 row of the goal (Achievements, Conditional, Localization, Build)."""
     instruction_variant: int = Field(ge=0)
     """0 for the original instruction, 1..n for a paraphrase."""
     instruction: str
@@ -176,22 +207,39 @@ ProgressFactory = Callable[[int, int], Any]
 
 def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
     """Check everything that needs no model; write nothing. A chosen category the dataset has
-    no goals in, a goal without a typed reading, a template that does not render, an unusable
-    directory or one holding another run: a `UserError`."""
+    no goals in, a goal the variant has no names for, a template that does not render, an
+    unusable directory or one holding another run: a `UserError`."""
     out = Path(config.output_dir)
     check_output_dir(out)
     dataset = load_dataset(config.dataset)
-    empty = [category for category in config.categories if not dataset.select(category)]
+    difficulty = config.difficulty
+    empty = [
+        category
+        for category in config.categories
+        if not dataset.select_goals([category], difficulty)
+    ]
     if empty:
         raise UserError(
-            f"the dataset ({dataset.source.path}) has no goals in {', '.join(empty)}; "
-            "choose other --splits, or pass the official data with --dataset"
+            f"the dataset ({dataset.source.path}) has no {difficulty} goals in "
+            f"{', '.join(empty)}; choose other --categories, or pass the official data with "
+            "--dataset"
         )
-    instructions = dataset.instructions(config.categories, include_paraphrases=config.paraphrases)
-    truths = [reading_of(goal) for goal in dataset.select(config.categories)]
+    goals = dataset.select_goals(config.categories, difficulty)
+    unoffered = [goal for goal in goals if goal.kind not in DIFFICULTY_KINDS[difficulty]]
+    if unoffered:
+        raise UserError(
+            f"goal {unoffered[0].id!r} ({unoffered[0].split}) is a {unoffered[0].kind} goal, "
+            f"which {difficulty} grounding does not offer: {', '.join(DIFFICULTY_KINDS[difficulty])}"
+        )
+    # A goal naming a block the variant lacks could never be read right: refused as eval does.
+    encode_goals(goals, config.variant)
+    instructions = dataset.instructions(
+        config.categories, include_paraphrases=config.paraphrases, difficulty=difficulty
+    )
+    truths = [reading_of(goal) for goal in goals]
     if config.limit is not None:
         instructions = instructions[: config.limit]
-    grounding_messages(instructions[0].text, config.variant, config.templates_dir)
+    grounding_messages(instructions[0].text, config.variant, config.templates_dir, difficulty)
     source = template_source(GROUND_TEMPLATE, config.templates_dir)
     identity = RunIdentity(
         settings=config.result_settings(),
@@ -262,6 +310,7 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
         goal_id=instruction.goal.id,
         split=instruction.goal.split,
         category=run_category(instruction.goal),
+        scenario_class=instruction.goal.scenario_class,
         instruction_variant=instruction.variant,
         instruction=instruction.text,
         truth=truth,
@@ -277,7 +326,7 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
 def summarize_records(records: Sequence[GroundingRecord]) -> GroundingSummary | None:
     """The scores of answered texts."""
     return summarize_groundings(
-        [Scored(r.split, r.category, r.truth, r.grounding) for r in records]
+        [Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class) for r in records]
     )
 
 
@@ -294,6 +343,7 @@ def execute_grounding(
 ) -> GroundResults:
     """Ask for every text not yet answered, writing as answers arrive; return the results."""
     config, out = prepared.config, prepared.output_dir
+    difficulty = config.difficulty
     make_output_dir(out)
     path = out / GROUNDINGS_FILE
     wanted = {i.key for i in prepared.instructions}
@@ -327,7 +377,10 @@ def execute_grounding(
         for start in range(0, len(pending), config.requests_per_call):
             group = pending[start : start + config.requests_per_call]
             outputs = model.generate(
-                [grounding_messages(i.text, config.variant, config.templates_dir) for i in group],
+                [
+                    grounding_messages(i.text, config.variant, config.templates_dir, difficulty)
+                    for i in group
+                ],
                 choices=prepared.choices,
             )
             fresh = []
@@ -336,9 +389,8 @@ def execute_grounding(
                     results.failed_calls += 1
                     results.last_error = output.error or "unknown backend error"
                     continue
-                fresh.append(
-                    _record(instruction, parse_grounding(output.text, config.variant), output)
-                )
+                grounding = parse_grounding(output.text, config.variant, difficulty)
+                fresh.append(_record(instruction, grounding, output))
             append_records(path, fresh)
             kept.extend(fresh)
             answered += len(fresh)

@@ -1,10 +1,16 @@
 """How well instructions were understood: a model's readings scored against the dataset's goals.
 
-Exact match is counted per instruction text. Precision and recall are counted per field over
-atoms (for EASY, the achievement names of `required` and of `forbidden` separately), pooled over
-the texts; an invalid answer read nothing, so it lowers recall and leaves precision alone. Every
-rate carries a 95% Wilson interval (`SuccessRate`). Confusions name, per achievement, the field
-the goal put it in and the field the model put it in ("forbidden read as required").
+Exact match (the whole typed goal) is counted per instruction text. Kind accuracy counts texts
+read as a goal of their goal's kind (an invalid answer is not). An achievements goal's fields are
+sets: precision and recall are counted per field over atoms (the achievement names of `required`
+and of `forbidden` separately), pooled over the texts whose goal is an achievements goal; an
+invalid answer, or one of another kind, read nothing, so it lowers recall and leaves precision
+alone. A placing goal's typed parameters (block, side, distance, size, ...) are each scored as
+right or wrong over the texts read with the right kind, so they measure the parameters apart
+from the kind (`parameters`, keyed `kind.field`). Every rate carries a 95% Wilson interval
+(`SuccessRate`). Confusions name the goal kind read as another, per achievement the field the
+goal put it in and the field the model put it in ("forbidden read as required"), and per
+parameter the value read for the goal's.
 """
 
 from __future__ import annotations
@@ -13,13 +19,19 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from pydantic import BaseModel, Field
+from pydantic import AliasChoices, BaseModel, Field
 
-from env.goals import CATEGORIES, SPLITS
+from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES, SPLITS
 from llm_agents.run_data.metrics import SuccessRate
-from llm_agents.run_data.readings import GoalReading, Grounding
+from llm_agents.run_data.readings import (
+    READING_CLASSES,
+    AchievementsReading,
+    GoalReading,
+    Grounding,
+)
 
 __all__ = [
+    "KIND_CONFUSION",
     "Confusion",
     "FieldScore",
     "GroundingScore",
@@ -32,6 +44,16 @@ __all__ = [
 
 #: Confusions kept in a summary, commonest first.
 TOP_CONFUSIONS = 15
+#: The confusion kind of a goal read as a goal of another kind.
+KIND_CONFUSION = "goal kind misread"
+#: Every placing-goal parameter, as `kind.field`, in goal-kind then field order.
+_PARAMETER_ORDER = tuple(
+    f"{kind}.{field}"
+    for kind, reading in READING_CLASSES.items()
+    if reading is not AchievementsReading
+    for field in reading.model_fields
+    if field != "kind"
+)
 
 
 @dataclass(frozen=True)
@@ -42,6 +64,7 @@ class Scored:
     category: str
     truth: GoalReading
     grounding: Grounding
+    scenario_class: str = "Achievements"
 
 
 class FieldScore(BaseModel):
@@ -63,22 +86,29 @@ class GroundingScore(BaseModel):
     invalid: int = Field(ge=0)
     """Texts whose answer was not a well-formed goal."""
     fields: dict[str, FieldScore]
-    """Per field of the goal (`required`, `forbidden`)."""
+    """Per field of the achievements goals among them (`required`, `forbidden`)."""
+    kind: SuccessRate | None = None
+    """Texts read as a goal of their goal's kind (None in runs scored before goals had kinds)."""
+    parameters: dict[str, SuccessRate] = Field(default_factory=dict)
+    """Per placing-goal parameter (`kind.field`, e.g. `localization_placing.side`): texts whose
+    goal has it and that were read with the right kind, of which the parameter was read right."""
 
 
 class Confusion(BaseModel):
-    """One kind of misreading of one achievement, and how often it happened."""
+    """One kind of misreading of one thing, and how often it happened."""
 
     kind: str
-    """E.g. `forbidden read as required`, `required missed`, `forbidden added`."""
-    achievement: str
-    """The achievement misread."""
+    """E.g. `forbidden read as required`, `required missed`, `forbidden added`, `goal kind
+    misread`, `localization_placing side misread`."""
+    subject: str = Field(validation_alias=AliasChoices("subject", "achievement"))
+    """What was misread: the achievement; for a kind or a parameter, `TRUE as READ`."""
     count: int = Field(ge=1)
     """Texts where it happened."""
 
 
 class GroundingSummary(BaseModel):
-    """Understanding overall, by split and by category, with the commonest confusions."""
+    """Understanding overall, by split, category and scenario class, with the commonest
+    confusions."""
 
     overall: GroundingScore
     """Every text."""
@@ -86,6 +116,9 @@ class GroundingSummary(BaseModel):
     """Per dataset split present."""
     by_category: dict[str, GroundingScore]
     """Per goal category present."""
+    by_scenario_class: dict[str, GroundingScore] = Field(default_factory=dict)
+    """Per scenario class present (the paper's Table 2 rows: Achievements, Conditional,
+    Localization, Build)."""
     confusions: list[Confusion]
     """The commonest misreadings, most frequent first (at most `TOP_CONFUSIONS`)."""
     invalid_reasons: dict[str, int]
@@ -96,20 +129,33 @@ def _rate(hits: int, total: int) -> SuccessRate | None:
     return SuccessRate.of(hits, total) if total else None
 
 
+def _atoms(reading: GoalReading | None) -> dict[str, frozenset[str]]:
+    return reading.atoms() if isinstance(reading, AchievementsReading) else {}
+
+
 def score(items: Sequence[Scored]) -> GroundingScore:
-    """Exact match, invalid answers and per-field precision / recall over `items` (not empty)."""
+    """Exact match, kind accuracy, invalid answers, per-field precision / recall and
+    per-parameter accuracy over `items` (not empty)."""
     hits: Counter[str] = Counter()
     read: Counter[str] = Counter()
     true: Counter[str] = Counter()
+    right: Counter[str] = Counter()
+    asked: Counter[str] = Counter()
     for item in items:
-        truth = item.truth.atoms()
-        reading = item.grounding.reading.atoms() if item.grounding.reading else {}
-        for field, atoms in truth.items():
-            got = reading.get(field, frozenset())
+        reading = item.grounding.reading
+        for field, atoms in _atoms(item.truth).items():
+            got = _atoms(reading).get(field, frozenset())
             hits[field] += len(atoms & got)
             read[field] += len(got)
             true[field] += len(atoms)
-    names = list(items[0].truth.atoms()) if items else []
+        if reading is not None and reading.kind == item.truth.kind:
+            got_values = reading.parameters()
+            for field, value in item.truth.parameters().items():
+                key = f"{item.truth.kind}.{field}"
+                asked[key] += 1
+                right[key] += got_values[field] == value
+    achievements = any(isinstance(i.truth, AchievementsReading) for i in items)
+    names = ["required", "forbidden"] if achievements else []
     return GroundingScore(
         texts=len(items),
         exact=SuccessRate.of(sum(i.grounding.matches(i.truth) for i in items), len(items)),
@@ -120,18 +166,38 @@ def score(items: Sequence[Scored]) -> GroundingScore:
             )
             for name in names
         },
+        kind=SuccessRate.of(
+            sum(
+                i.grounding.reading is not None and i.grounding.reading.kind == i.truth.kind
+                for i in items
+            ),
+            len(items),
+        ),
+        parameters={
+            key: SuccessRate.of(right[key], asked[key]) for key in _PARAMETER_ORDER if key in asked
+        },
     )
 
 
 def confusions(items: Iterable[Scored]) -> Counter[tuple[str, str]]:
-    """(kind, achievement) -> texts, over the valid readings that differ from their goal."""
+    """(kind, subject) -> texts, over the valid readings that differ from their goal."""
     found: Counter[tuple[str, str]] = Counter()
     for item in items:
-        if item.grounding.reading is None:
+        reading = item.grounding.reading
+        if reading is None:
             continue
-        truth, reading = item.truth.atoms(), item.grounding.reading.atoms()
-        where_true = {atom: field for field, atoms in truth.items() for atom in atoms}
-        where_read = {atom: field for field, atoms in reading.items() for atom in atoms}
+        if reading.kind != item.truth.kind:
+            found[(KIND_CONFUSION, f"{item.truth.kind} as {reading.kind}")] += 1
+            continue
+        got_values = reading.parameters()
+        for field, value in item.truth.parameters().items():
+            if got_values[field] != value:
+                found[
+                    (f"{item.truth.kind} {field} misread", f"{value} as {got_values[field]}")
+                ] += 1
+        truth, atoms = _atoms(item.truth), _atoms(reading)
+        where_true = {atom: field for field, names in truth.items() for atom in names}
+        where_read = {atom: field for field, names in atoms.items() for atom in names}
         for atom in where_true.keys() | where_read.keys():
             was, got = where_true.get(atom), where_read.get(atom)
             if was == got:
@@ -152,9 +218,11 @@ def summarize_groundings(items: Sequence[Scored]) -> GroundingSummary | None:
         return None
     by_split: dict[str, list[Scored]] = defaultdict(list)
     by_category: dict[str, list[Scored]] = defaultdict(list)
+    by_class: dict[str, list[Scored]] = defaultdict(list)
     for item in items:
         by_split[item.split].append(item)
         by_category[item.category].append(item)
+        by_class[item.scenario_class].append(item)
     reasons = Counter(
         (item.grounding.reason or "").split(":")[0]
         for item in items
@@ -163,10 +231,11 @@ def summarize_groundings(items: Sequence[Scored]) -> GroundingSummary | None:
     return GroundingSummary(
         overall=score(items),
         by_split={split: score(by_split[split]) for split in SPLITS if split in by_split},
-        by_category={c: score(by_category[c]) for c in CATEGORIES if c in by_category},
+        by_category={c: score(by_category[c]) for c in ALL_CATEGORIES if c in by_category},
+        by_scenario_class={c: score(by_class[c]) for c in SCENARIO_CLASSES if c in by_class},
         confusions=[
-            Confusion(kind=kind, achievement=atom, count=count)
-            for (kind, atom), count in sorted(
+            Confusion(kind=kind, subject=subject, count=count)
+            for (kind, subject), count in sorted(
                 confusions(items).items(), key=lambda entry: (-entry[1], entry[0])
             )[:TOP_CONFUSIONS]
         ],
