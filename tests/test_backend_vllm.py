@@ -187,6 +187,9 @@ def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]],
     return conversations, list(agent.choices.options)
 
 
+SCORED_OPTIONS = ("UP", "DO", "PLACE_STONE", "PLACE_FURNACE", "MAKE_WOOD_SWORD", "MAKE_IRON_SWORD")
+
+
 def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     model_dir: Path, tmp_path: Path, classic_env: Any
 ) -> None:
@@ -194,7 +197,11 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     pytest.importorskip("transformers")
     from llm_agents.backends.hf import HFModel
 
-    conversations, options = real_agent_conversations(classic_env)
+    conversations, actions = real_agent_conversations(classic_env)
+    # vLLM on CPU scores each option as a request of its own, the whole prompt included: six
+    # names (one token or several, sharing prefixes, each conversation's favourite among them)
+    # prove the agreement in a quarter of the time all 17 took.
+    options = [name for name in actions if name in SCORED_OPTIONS]
     request = tmp_path / "request.json"
     request.write_text(
         json.dumps(
