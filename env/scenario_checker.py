@@ -23,11 +23,11 @@ published success rates were scored with them (the named rule `official`; docs i
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import goal_reached
@@ -85,20 +85,39 @@ def _window(game: Any, block: jax.Array, variant: Variant) -> jax.Array:
     )
 
 
-def _cell_index(offset: int) -> np.ndarray:
-    """Window index of every center plus `offset`: negative wraps once, past the end clamps."""
-    shifted = np.arange(_WINDOW) + offset
-    return np.clip(np.where(shifted < 0, shifted + _WINDOW, shifted), 0, _WINDOW - 1)
+_REACH = 4
+"""The farthest neighbour offset any line or square looks at, in rows or columns."""
 
 
-def _cells(window: jax.Array, offsets: list[tuple[int, int]]) -> jax.Array:
-    """(len(offsets), 21, 21): the window's value at each center plus each offset."""
-    return jnp.stack(
-        [window[_cell_index(dr)[:, None], _cell_index(dc)[None, :]] for dr, dc in offsets]
-    )
+def _extended(window: jax.Array) -> jax.Array:
+    """The window with `_REACH` extra cells on every side holding what JAX indexing reads there:
+    a negative index wraps once to the far end, an index past the end clamps to the last cell."""
+
+    def extend(array: jax.Array, axis: int) -> jax.Array:
+        size = array.shape[axis]
+        wrapped = jax.lax.slice_in_dim(array, size - _REACH, size, axis=axis)
+        last = jax.lax.slice_in_dim(array, size - 1, size, axis=axis)
+        clamped = jnp.repeat(last, _REACH, axis=axis)
+        return jnp.concatenate([wrapped, array, clamped], axis=axis)
+
+    return extend(extend(window, 0), 1)
 
 
-def _line_found(window: jax.Array, length: int, diagonal: jax.Array) -> jax.Array:
+def _all_at(extended: jax.Array, offsets: list[tuple[int, int]], value: int) -> jax.Array:
+    """(21, 21): whether the window holds `value` at each center plus every one of `offsets`.
+
+    Static slices of the extended window, and-ed one by one, rather than a gather per offset
+    stacked: XLA fuses them, which made the line and square checks a small part of the step."""
+    held = [
+        extended[_REACH + dr : _REACH + dr + _WINDOW, _REACH + dc : _REACH + dc + _WINDOW] == value
+        for dr, dc in offsets
+    ]
+    return functools.reduce(jnp.logical_and, held)
+
+
+def _line_found(
+    window: jax.Array, extended: jax.Array, length: int, diagonal: jax.Array
+) -> jax.Array:
     # A line of 2 is looked for as two empty cells (the official check compares with 0).
     wanted = 0 if length == 2 else 1
     total = jnp.sum(window)
@@ -110,9 +129,7 @@ def _line_found(window: jax.Array, length: int, diagonal: jax.Array) -> jax.Arra
         "down_right": [(k, k) for k in range(length)],
         "down_left": [(k, -k) for k in range(length)],
     }
-    complete = {
-        name: jnp.all(_cells(window, offs) == wanted, axis=0) for name, offs in runs.items()
-    }
+    complete = {name: _all_at(extended, offs, wanted) for name, offs in runs.items()}
     straight = (total == straight_total) & jnp.any(complete["down"] | complete["right"])
     slanted = (total == diagonal_total) & jnp.any(complete["down_right"] | complete["down_left"])
     return jnp.where(diagonal, slanted, straight)
@@ -121,7 +138,8 @@ def _line_found(window: jax.Array, length: int, diagonal: jax.Array) -> jax.Arra
 def _line(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
     window = _window(game, params[0], variant)
     diagonal = params[2] != 0
-    found = jnp.stack([_line_found(window, length, diagonal) for length in (2, 3, 4)])
+    extended = _extended(window)
+    found = jnp.stack([_line_found(window, extended, length, diagonal) for length in (2, 3, 4)])
     return found[jnp.clip(params[1] - 2, 0, 2)]
 
 
@@ -140,12 +158,12 @@ def _square_offsets(side: int) -> tuple[list[tuple[int, int]], list[tuple[int, i
 
 
 def _square(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
-    window = _window(game, params[0], variant)
+    extended = _extended(_window(game, params[0], variant))
     found = []
     for side in (2, 3, 4):
         filled, ring = _square_offsets(side)
-        solid = jnp.all(_cells(window, filled) != 0, axis=0)
-        clear = jnp.all(_cells(window, ring) != 1, axis=0)
+        solid = _all_at(extended, filled, 1)
+        clear = _all_at(extended, ring, 0)
         found.append(jnp.any(solid & clear))
     return jnp.stack(found)[jnp.clip(params[1] - 2, 0, 2)]
 
