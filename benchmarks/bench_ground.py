@@ -10,6 +10,7 @@
     python benchmarks/bench_ground.py [--models hf:smollm2-135m hf:/path/to/qwen2.5-coder-0.5b]
         [--categories one combo paraphrased new_objects] [--no-paraphrases]
         [--play-categories one combo new_objects] [--play-limit 30] [--max-steps 250]
+        [--agents expert guided zero-shot]
         [--max-tokens 64] [--no-play]
         [--dataset PATH] [--out runs/bench-ground]
 
@@ -31,6 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 OFFICIAL_ARCHIVE = REPO.parent / "shared" / "data" / "craftext_official_1c518ae.zip"
+PLAYERS = ("expert", "guided", "zero-shot")
 
 
 def _dataset(args: argparse.Namespace, out: Path) -> list[str]:
@@ -68,7 +70,16 @@ def main() -> None:
     )
     parser.add_argument("--no-paraphrases", action="store_true")
     parser.add_argument("--play-categories", nargs="+", default=["one", "combo", "new_objects"])
-    parser.add_argument("--play-limit", type=int, default=30, help="episodes per agent")
+    parser.add_argument(
+        "--play-limit", type=int, default=30, help="episodes per agent and play category"
+    )
+    parser.add_argument(
+        "--agents",
+        nargs="+",
+        default=list(PLAYERS),
+        choices=PLAYERS,
+        help="the agents that play (zero-shot costs a model call per step)",
+    )
     parser.add_argument("--no-play", action="store_true", help="grounding figures only")
     parser.add_argument("--max-steps", type=int, default=250)
     parser.add_argument(
@@ -121,24 +132,28 @@ def main() -> None:
     # The agents act with the model that read the instructions best.
     player = max(grounded, key=lambda m: grounded[m].summary.overall.exact.rate)  # type: ignore[union-attr]
     print(
-        f"\nPlaying {args.play_limit} episodes of {' '.join(args.play_categories)} "
-        f"(Classic, {args.max_steps} steps, one world per text; model {_label(player)}):"
+        f"\nPlaying the first {args.play_limit} episodes of each of "
+        f"{' '.join(args.play_categories)} (Classic, {args.max_steps} steps, one world per text; "
+        f"model {_label(player)}):"
     )
-    for agent in ("expert", "guided", "zero-shot"):
-        run_dir = out / f"play-{agent}-{_label(player)}"
+    for agent in args.agents:
         model = (
             [] if agent == "expert" else ["--model", player, "--max-tokens", str(args.max_tokens)]
         )
         if agent == "zero-shot":
             # Scored action names (as `make demo`): a small model's free text is mostly unparsable.
             model += ["--choice", "loglik"]
-        seconds = _cli(
-            "eval", "--agent", agent, *model, "--variant", "classic", "--categories",
-            *args.play_categories, "--max-steps", str(args.max_steps), "--limit",
-            str(args.play_limit), "--output-dir", str(run_dir), "--no-progress",
-            "--batch-size", "8", *dataset,
-        )  # fmt: skip
-        episodes = read_episodes(run_dir / "episodes.jsonl")
+        episodes = []
+        seconds = 0.0
+        # One run per category, so `--play-limit` takes the same number from each.
+        for category in args.play_categories:
+            run_dir = out / f"play-{agent}-{_label(player)}-{category}"
+            seconds += _cli(
+                "eval", "--agent", agent, *model, "--variant", "classic", "--categories",
+                category, "--max-steps", str(args.max_steps), "--limit", str(args.play_limit),
+                "--output-dir", str(run_dir), "--no-progress", "--batch-size", "8", *dataset,
+            )  # fmt: skip
+            episodes += read_episodes(run_dir / "episodes.jsonl")
         by_category = {
             c: [e.success for e in episodes if e.category == c] for c in args.play_categories
         }
