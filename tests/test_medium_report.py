@@ -81,13 +81,13 @@ def test_a_medium_table_has_the_papers_columns_totals_and_scenario_rows() -> Non
     table = format_table(summarize(episodes()), "m", difficulty="medium")
     lines = table.splitlines()
     totals = rows_of(lines)
-    assert list(totals["m (this run)"]) == ["Train", "paraphrased", "New objects", "overall"]
+    assert list(totals["m (this run)"]) == ["Train", "Paraphrased", "New objects", "overall"]
     assert totals["m (this run)"]["Train"] == cell(4, 11)
-    assert totals["m (this run)"]["paraphrased"] == cell(3, 5)
+    assert totals["m (this run)"]["Paraphrased"] == cell(3, 5)
     assert totals["m (this run)"]["New objects"] == cell(0, 3)
     assert totals["PPO-T (published)"] == {
         "Train": "0.40",
-        "paraphrased": "0.36",
+        "Paraphrased": "0.36",
         "New objects": "0.22",
         "overall": "-",
     }
@@ -98,9 +98,9 @@ def test_a_medium_table_has_the_papers_columns_totals_and_scenario_rows() -> Non
     scenarios = rows_of(lines[start:])
     # The paper's row order, and only the classes the run played.
     assert list(scenarios) == ["Conditional", "Build", "Localization", "Achievements"]
-    assert scenarios["Conditional"] == {"Train": cell(2, 4), "paraphrased": "-", "New objects": "-"}
+    assert scenarios["Conditional"] == {"Train": cell(2, 4), "Paraphrased": "-", "New objects": "-"}
     assert scenarios["Build"]["New objects"] == cell(0, 3)
-    assert scenarios["Localization"]["paraphrased"] == cell(3, 3)
+    assert scenarios["Localization"]["Paraphrased"] == cell(3, 3)
     assert scenarios["Achievements"]["Train"] == cell(1, 2)
 
 

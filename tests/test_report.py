@@ -134,17 +134,17 @@ def test_table_adds_paraphrased_and_marks_missing_categories() -> None:
     rows = table_rows(format_table(summarize(episodes_with(counts)), "m", partial=True))
 
     ours = rows["m (this run, partial)"]
-    assert ours["paraphrased"] == expected_cell(1, 4)
+    assert ours["Paraphrased"] == expected_cell(1, 4)
     assert ours["combo"] == "-"
     assert ours["New objects"] == "-"
     for result in PUBLISHED:
-        assert rows[f"{result.model} (published)"]["paraphrased"] == "-"
+        assert rows[f"{result.model} (published)"]["Paraphrased"] == "-"
 
 
 def test_table_has_no_overall_column_for_a_single_category() -> None:
     rows = table_rows(format_table(summarize(episodes_with({"combo": (1, 3)})), "m"))
     assert "overall" not in rows["m (this run)"]
-    assert "paraphrased" not in rows["m (this run)"]
+    assert "Paraphrased" not in rows["m (this run)"]
 
 
 def test_chart_is_a_png(tmp_path: Path) -> None:

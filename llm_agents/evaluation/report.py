@@ -119,7 +119,7 @@ CATEGORY_LABELS = {
     "one": "one",
     "combo": "combo",
     "new_objects": "New objects",
-    "paraphrased": "paraphrased",
+    "paraphrased": "Paraphrased",
     "train": "Train",
     "overall": "overall",
 }
