@@ -11,6 +11,7 @@ import argparse
 import contextlib
 import logging
 import sys
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -267,6 +268,11 @@ def cmd_data(args: argparse.Namespace) -> int:
     def counts(goals: dict[str, int]) -> str:
         return ", ".join(f"{category} {count}" for category, count in goals.items())
 
+    def all_counts(dataset: Any) -> str:
+        """EASY's categories, then each Medium and Hard split the dataset holds."""
+        later = Counter(g.split for g in dataset.goals if not g.split.startswith("easy_"))
+        return counts({**dataset.category_goals(), **later})
+
     if args.action == "show":
         print(f"cache: {cache_root()}")
         for entry in cache_status():
@@ -284,7 +290,7 @@ def cmd_data(args: argparse.Namespace) -> int:
         dataset = load_official(refresh=args.refresh)
         print(
             f"official data at {dataset.source.version} from {dataset.source.path}\n"
-            f"goals: {counts(dataset.category_goals())}"
+            f"goals: {all_counts(dataset)}"
         )
         return 0
     if not args.path:
@@ -292,7 +298,7 @@ def cmd_data(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     target = dataset.save_json(args.path)
     print(
-        f"wrote {target}: goals {counts(dataset.category_goals())} "
+        f"wrote {target}: goals {all_counts(dataset)} "
         f"from {dataset.source.kind} {dataset.source.path}; splits equal to the official data: "
         f"{', '.join(official_splits(dataset)) or 'none'}"
     )

@@ -806,3 +806,18 @@ def test_without_either_source_the_error_names_both(
     assert "nor the craftext 0.2.2 wheel (pip could not download craftext==0.2.2" in message
     assert message.endswith("with --dataset")
     assert _all_entries(tmp_path) == []
+
+
+def test_data_export_counts_every_difficulty_it_writes(
+    official_repository: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from llm_agents.cli import main
+
+    target = tmp_path / "official.json"
+    assert main(["data", "export", str(target), "--dataset", str(official_repository)]) == 0
+    printed = capsys.readouterr().out
+    dataset = load_dataset(target)
+    for split in ("medium_train", "medium_test_paraphrased", "medium_test_other_params"):
+        assert f"{split} {len(dataset.split(split))}," in printed
+    assert f"hard_train {len(dataset.split('hard_train'))} from" in printed
+    assert "goals one 20, combo 37, paraphrased 41, new_objects 44," in printed
