@@ -342,21 +342,14 @@ class VectorEnv:
     ) -> HostBatch:
         """Start a new episode in every slot. Without `kind` and `params` (rows of
         `env.scenario_tasks.EncodedTasks`) every goal is an achievements goal."""
-        keys = np.asarray(keys, dtype=np.uint32).reshape(self.batch_size, 2)
-        required = np.asarray(required, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS)
-        forbidden = np.asarray(forbidden, dtype=bool).reshape(self.batch_size, NUM_ACHIEVEMENTS)
-        kind, params = _kind_rows(kind, params, self.batch_size)
         # One world at a time, with the function refills use: XLA's vectorised world generation
         # gives slots past the eighth other worlds than generating them alone (measured on CPU),
         # so a batched reset would make an episode's world depend on the batch size.
         worlds = [
-            jax.device_get(
-                self._reset_one(
-                    jnp.asarray(keys[row]),
-                    make_task(required[row], forbidden[row], kind[row], params[row]),
-                )
+            jax.device_get(self._reset_one(key, task))
+            for key, task in _episode_tasks(
+                self.batch_size, keys, required, forbidden, kind, params
             )
-            for row in range(self.batch_size)
         ]
         self._state = jax.tree.map(lambda *leaves: jnp.asarray(np.stack(leaves)), *worlds)
         return self._fresh_host()
@@ -376,16 +369,9 @@ class VectorEnv:
         refilled slot, in the order of `slots`.
         """
         state = self._require_state()
-        keys = np.asarray(keys, dtype=np.uint32).reshape(len(slots), 2)
-        required = np.asarray(required, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
-        forbidden = np.asarray(forbidden, dtype=bool).reshape(len(slots), NUM_ACHIEVEMENTS)
-        kind, params = _kind_rows(kind, params, len(slots))
-        for row, slot in enumerate(slots):
-            fresh = self._reset_one(
-                jnp.asarray(keys[row]),
-                make_task(required[row], forbidden[row], kind[row], params[row]),
-            )
-            state = self._place(state, fresh, jnp.int32(slot))
+        tasks = _episode_tasks(len(slots), keys, required, forbidden, kind, params)
+        for slot, (key, task) in zip(slots, tasks, strict=True):
+            state = self._place(state, self._reset_one(key, task), jnp.int32(slot))
         self._state = state
         return self._fresh_host()
 
@@ -457,17 +443,29 @@ class VectorEnv:
         return _host_batch(game, termination, steps, reward_np, new_np, at_game_over)
 
 
-def _kind_rows(
-    kind: np.ndarray | None, params: np.ndarray | None, rows: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Kind and parameter rows, achievements goals where none are given."""
+def _episode_tasks(
+    rows: int,
+    keys: np.ndarray,
+    required: np.ndarray,
+    forbidden: np.ndarray,
+    kind: np.ndarray | None,
+    params: np.ndarray | None,
+) -> list[tuple[jax.Array, Task]]:
+    """Each row's reset key and task, from host rows (achievements goals where `kind` and
+    `params` are not given)."""
+    keys = np.asarray(keys, dtype=np.uint32).reshape(rows, 2)
+    required = np.asarray(required, dtype=bool).reshape(rows, NUM_ACHIEVEMENTS)
+    forbidden = np.asarray(forbidden, dtype=bool).reshape(rows, NUM_ACHIEVEMENTS)
     kind = np.zeros(rows, np.int32) if kind is None else np.asarray(kind, np.int32).reshape(rows)
     params = (
         np.zeros((rows, NUM_PARAMS), np.int32)
         if params is None
         else np.asarray(params, np.int32).reshape(rows, NUM_PARAMS)
     )
-    return kind, params
+    return [
+        (jnp.asarray(keys[row]), make_task(required[row], forbidden[row], kind[row], params[row]))
+        for row in range(rows)
+    ]
 
 
 def _host_batch(

@@ -345,8 +345,9 @@ class BuildStarGoal(_GoalText):
         return "Build"
 
 
-def _goal_kind(value: object) -> str:
-    # Datasets saved before Medium and Hard existed have achievements goals with no `kind`.
+def kind_of(value: object) -> str:
+    """The `kind` of a goal (or a goal as read), as a record or as its JSON; records saved
+    before Medium and Hard existed carry none: they are achievements goals."""
     if isinstance(value, dict):
         return str(value.get("kind", "achievements"))
     return str(getattr(value, "kind", "achievements"))
@@ -359,7 +360,7 @@ AnyGoal = Annotated[
     | Annotated[BuildLineGoal, Tag("build_line")]
     | Annotated[BuildSquareGoal, Tag("build_square")]
     | Annotated[BuildStarGoal, Tag("build_star")],
-    Discriminator(_goal_kind),
+    Discriminator(kind_of),
 ]
 """Any CrafText goal, told apart by its `kind`."""
 

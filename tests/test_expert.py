@@ -8,7 +8,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from env.achievements import NUM_ACHIEVEMENTS
 from env.craftax_names import CLASSIC_BLOCKS
 from env.craftext_env import VectorEnv
 from env.dataset import Dataset, DatasetSource, Goal
@@ -270,21 +269,22 @@ def test_an_expert_run_collects_wood_and_places_a_table(classic_env: Any, tmp_pa
 # --------------------------------------------------------------- Medium/Hard placing goals
 
 
-def _play(env: Any, goal: Any, seed: int, max_steps: int = 250) -> np.ndarray:
-    """One Classic episode of the expert on `goal`; the final map (`[row, col]` block ids)."""
+def _play(env: Any, goal: Any, seed: int, max_steps: int = 250) -> Any:
+    """One Classic episode of the expert on `goal`, scored by the env's own checker (the
+    official one's equal); the host batch it ended with (map `game.map[0]`, `termination`)."""
     vector = VectorEnv(env, 1)
-    required, forbidden = (
-        np.zeros((1, NUM_ACHIEVEMENTS), bool),
-        np.zeros((1, NUM_ACHIEVEMENTS), bool),
-    )
-    host = vector.reset(np.array([[seed, 7]], dtype=np.uint32), required, forbidden)
+    tasks = encode_goals([goal], Variant.CLASSIC)
+    keys = np.array([[seed, 7]], dtype=np.uint32)
+    host = vector.reset(keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params)
     agent = ExpertAgent(Variant.CLASSIC)
     agent.start_episode(0, "ignored", goal=goal)
     for _ in range(max_steps):
+        if host.done[0]:
+            break
         obs = observe_batch(host.game, Variant.CLASSIC)[0]
         name, _ = agent.choose(0, obs)
         host = vector.step(np.array([action_id(name, Variant.CLASSIC)]))
-    return np.asarray(host.game.map[0])
+    return host
 
 
 def _runs(hits: np.ndarray, length: int) -> bool:
@@ -311,7 +311,7 @@ def test_the_expert_builds_a_line_of_tables_on_the_map(classic_env: Any) -> None
         size=3,
         diagonal=False,
     )
-    game_map = _play(classic_env.env, goal, seed=3)
+    game_map = np.asarray(_play(classic_env.env, goal, seed=3).game.map[0])
     tables = game_map == CLASSIC_BLOCKS.index("CRAFTING_TABLE")
     assert _runs(tables, 3)
 
@@ -329,29 +329,11 @@ def test_the_expert_places_a_table_at_the_side_and_distance_of_a_tree(classic_en
         side="up",
         distance=2,
     )
-    game_map = _play(classic_env.env, goal, seed=4)
+    game_map = np.asarray(_play(classic_env.env, goal, seed=4).game.map[0])
     table, tree = CLASSIC_BLOCKS.index("CRAFTING_TABLE"), CLASSIC_BLOCKS.index("TREE")
     # The official side 2 ("up") is a smaller first (row) index.
     rows, cols = np.nonzero(game_map == table)
     assert any(game_map[r + 2, c] == tree for r, c in zip(rows, cols, strict=True))
-
-
-def _play_checked(env: Any, goal: Any, seed: int, max_steps: int = 250) -> int:
-    """One Classic episode of the expert on `goal`, scored by the env's own checker (the
-    official one's equal); its termination."""
-    vector = VectorEnv(env, 1)
-    tasks = encode_goals([goal], Variant.CLASSIC)
-    keys = np.array([[seed, 7]], dtype=np.uint32)
-    host = vector.reset(keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params)
-    agent = ExpertAgent(Variant.CLASSIC)
-    agent.start_episode(0, "ignored", goal=goal)
-    for _ in range(max_steps):
-        if host.done[0]:
-            break
-        obs = observe_batch(host.game, Variant.CLASSIC)[0]
-        name, _ = agent.choose(0, obs)
-        host = vector.step(np.array([action_id(name, Variant.CLASSIC)]))
-    return int(host.termination[0])
 
 
 def _conditional(collect: str, count: int, place: str, place_count: int) -> ConditionalPlacingGoal:
@@ -371,7 +353,7 @@ def _conditional(collect: str, count: int, place: str, place_count: int) -> Cond
 @pytest.mark.slow
 def test_the_expert_spends_wood_through_the_threshold_once_a_table_stands(classic_env: Any) -> None:
     goal = _conditional("wood", 3, "CRAFTING_TABLE", 1)
-    assert _play_checked(classic_env.env, goal, seed=3) == Termination.SUCCESS
+    assert _play(classic_env.env, goal, seed=3).termination[0] == Termination.SUCCESS
 
 
 @pytest.mark.slow
@@ -379,7 +361,7 @@ def test_the_expert_plants_saplings_through_the_threshold_once_a_plant_stands(
     classic_env: Any,
 ) -> None:
     goal = _conditional("sapling", 3, "PLANT", 1)
-    assert _play_checked(classic_env.env, goal, seed=4) == Termination.SUCCESS
+    assert _play(classic_env.env, goal, seed=4).termination[0] == Termination.SUCCESS
 
 
 @pytest.mark.slow
@@ -396,4 +378,4 @@ def test_the_expert_places_the_missing_reference_block_too(classic_env: Any) -> 
         side="right",
         distance=2,
     )
-    assert _play_checked(classic_env.env, goal, seed=5) == Termination.SUCCESS
+    assert _play(classic_env.env, goal, seed=5).termination[0] == Termination.SUCCESS

@@ -23,18 +23,7 @@ from pydantic import (
 )
 
 from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS
-from env.goals import (
-    AnyGoal,
-    BuildLineGoal,
-    BuildSquareGoal,
-    BuildStarGoal,
-    ConditionalPlacingGoal,
-    CrossType,
-    Goal,
-    GoalKind,
-    LocalizationGoal,
-    Side,
-)
+from env.goals import AnyGoal, CrossType, GoalKind, Side, kind_of
 
 __all__ = [
     "AchievementsReading",
@@ -174,13 +163,6 @@ READING_CLASSES: dict[GoalKind, type[_Reading]] = {
 }
 
 
-def _reading_kind(value: object) -> str:
-    # Readings saved before other kinds existed carry no `kind`: they are achievements goals.
-    if isinstance(value, dict):
-        return str(value.get("kind", "achievements"))
-    return str(getattr(value, "kind", "achievements"))
-
-
 GoalReading = Annotated[
     Annotated[AchievementsReading, Tag("achievements")]
     | Annotated[ConditionalPlacingReading, Tag("conditional_placing")]
@@ -188,33 +170,16 @@ GoalReading = Annotated[
     | Annotated[BuildLineReading, Tag("build_line")]
     | Annotated[BuildSquareReading, Tag("build_square")]
     | Annotated[BuildStarReading, Tag("build_star")],
-    Discriminator(_reading_kind),
+    Discriminator(kind_of),
 ]
 """Any goal as read, told apart by its `kind`."""
 
 
 def reading_of(goal: AnyGoal) -> GoalReading:
     """The dataset record's goal as a reading: the ground truth a model's reading is scored by."""
-    if isinstance(goal, Goal):
-        return AchievementsReading(required=goal.required, forbidden=goal.forbidden)
-    if isinstance(goal, ConditionalPlacingGoal):
-        return ConditionalPlacingReading(
-            collect=goal.collect,
-            collect_count=goal.collect_count,
-            place=goal.place,
-            place_count=goal.place_count,
-        )
-    if isinstance(goal, LocalizationGoal):
-        return LocalizationReading(
-            place=goal.place, target=goal.target, side=goal.side, distance=goal.distance
-        )
-    if isinstance(goal, BuildLineGoal):
-        return BuildLineReading(block=goal.block, size=goal.size, diagonal=goal.diagonal)
-    if isinstance(goal, BuildSquareGoal):
-        return BuildSquareReading(block=goal.block, size=goal.size)
-    if isinstance(goal, BuildStarGoal):
-        return BuildStarReading(block=goal.block, size=goal.size, cross=goal.cross)
-    raise TypeError(f"goal {goal.id!r} of kind {goal.kind} has no reading")
+    reading = READING_CLASSES[goal.kind]
+    fields = {name: getattr(goal, name) for name in reading.model_fields if name != "kind"}
+    return reading(**fields)  # type: ignore[return-value]
 
 
 class Grounding(BaseModel):
