@@ -4,13 +4,16 @@
    invalid answers, seconds per instruction text.
 2. The same episodes (Classic, `--max-steps`, one world per instruction text) played by the
    `expert` (oracle goals), the `guided` agent (the model's reading, played by the expert) and the
-   `zero-shot` agent (`--choice loglik`), with the model that read best; guided success is also split by whether the
-   model read the goal right.
+   `zero-shot` agent (`--choice loglik`), with the model (and number of worked examples) that
+   read best; guided success is also split by whether the model read the goal right.
+
+`--grounding-shots` grounds each model with each number of worked examples (training goals'
+instructions answered, never the goal being read), so their effect is printed side by side.
 
     python benchmarks/bench_ground.py [--models hf:smollm2-135m hf:/path/to/qwen2.5-coder-0.5b]
         [--categories one combo paraphrased new_objects] [--no-paraphrases]
         [--play-categories one combo new_objects] [--play-limit 30] [--max-steps 250]
-        [--agents expert guided zero-shot]
+        [--agents expert guided zero-shot] [--grounding-shots 0 4]
         [--max-tokens 64] [--no-play]
         [--dataset PATH] [--out runs/bench-ground]
 
@@ -26,6 +29,7 @@ import subprocess
 import sys
 import time
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,6 +66,26 @@ def _label(model: str) -> str:
     return model.rsplit("/", 1)[-1]
 
 
+@dataclass(frozen=True)
+class Reader:
+    """A model grounding with a number of worked examples."""
+
+    model: str
+    shots: int
+
+    @property
+    def label(self) -> str:
+        return _label(self.model) + (f" {self.shots}-shot" if self.shots else "")
+
+    @property
+    def slug(self) -> str:
+        return _label(self.model) + (f"-{self.shots}shot" if self.shots else "")
+
+    @property
+    def flags(self) -> list[str]:
+        return ["--grounding-shots", str(self.shots)] if self.shots else []
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", nargs="+", default=["hf:smollm2-135m"])
@@ -85,6 +109,9 @@ def main() -> None:
     parser.add_argument(
         "--max-tokens", type=int, default=64, help="per grounding answer (a goal is ~30 tokens)"
     )
+    parser.add_argument(
+        "--grounding-shots", nargs="+", type=int, default=[0], help="worked examples, per model"
+    )
     parser.add_argument("--dataset")
     parser.add_argument("--out", default=str(REPO / "runs" / "bench-ground"))
     args = parser.parse_args()
@@ -94,36 +121,41 @@ def main() -> None:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    dataset = _dataset(args, out)
+    common = _dataset(args, out)
     paraphrases = ["--no-paraphrases"] if args.no_paraphrases else []
+    # Guided asks for the same groundings as `ground` (same prompt and generation settings):
+    # answered once, from the shared response cache the second time.
+    common += ["--cache", str(out / "answers.sqlite")]
 
     grounded = {}
     for model in args.models:
-        run_dir = out / f"ground-{_label(model)}"
-        _cli(
-            "ground", "--model", model, "--categories", *args.categories, *paraphrases,
-            "--variant", "classic", "--output-dir", str(run_dir), "--no-progress",
-            "--max-tokens", str(args.max_tokens), *dataset,
-        )  # fmt: skip
-        grounded[model] = read_ground_results(run_dir / "results.json")
+        for shots in args.grounding_shots:
+            reader = Reader(model, shots)
+            run_dir = out / f"ground-{reader.slug}"
+            _cli(
+                "ground", "--model", model, "--categories", *args.categories, *paraphrases,
+                "--variant", "classic", "--output-dir", str(run_dir), "--no-progress",
+                "--max-tokens", str(args.max_tokens), *reader.flags, *common,
+            )  # fmt: skip
+            grounded[reader] = read_ground_results(run_dir / "results.json")
 
     print(f"\nGrounding (EASY, {'originals only' if paraphrases else 'every text'}, CPU):")
     header = f"{'model':<28} {'set':<12} {'texts':>5} {'exact':>6} {'req R':>6} {'forb R':>6} {'invalid':>7}"
     print(header)
     for model, results in grounded.items():
-        assert results.summary is not None, f"{model}: no answers"
+        assert results.summary is not None, f"{model.label}: no answers"
         rows = {"all": results.summary.overall, **results.summary.by_category}
         for name, score in rows.items():
             recall = {f: s.recall.rate if s.recall else None for f, s in score.fields.items()}
             req, forb = recall.get("required"), recall.get("forbidden")
             print(
-                f"{_label(model):<28} {name:<12} {score.texts:>5} {score.exact.rate:>6.2f} "
+                f"{model.label:<28} {name:<12} {score.texts:>5} {score.exact.rate:>6.2f} "
                 f"{'-' if req is None else f'{req:.2f}':>6} "
                 f"{'-' if forb is None else f'{forb:.2f}':>6} {score.invalid:>7}"
             )
         pace = results.seconds_per_instruction
         print(
-            f"{_label(model):<28} seconds per instruction: "
+            f"{model.label:<28} seconds per instruction: "
             + ("- (nothing left to answer: resumed)" if pace is None else f"{pace:.2f}")
         )
 
@@ -134,12 +166,16 @@ def main() -> None:
     print(
         f"\nPlaying the first {args.play_limit} episodes of each of "
         f"{' '.join(args.play_categories)} (Classic, {args.max_steps} steps, one world per text; "
-        f"model {_label(player)}):"
+        f"model {player.label}):"
     )
     for agent in args.agents:
         model = (
-            [] if agent == "expert" else ["--model", player, "--max-tokens", str(args.max_tokens)]
+            []
+            if agent == "expert"
+            else ["--model", player.model, "--max-tokens", str(args.max_tokens)]
         )
+        if agent == "guided":
+            model += player.flags
         if agent == "zero-shot":
             # Scored action names (as `make demo`): a small model's free text is mostly unparsable.
             model += ["--choice", "loglik"]
@@ -147,11 +183,14 @@ def main() -> None:
         seconds = 0.0
         # One run per category, so `--play-limit` takes the same number from each.
         for category in args.play_categories:
-            run_dir = out / f"play-{agent}-{_label(player)}-{category}"
+            run_dir = (
+                out
+                / f"play-{agent}-{player.slug if agent == 'guided' else _label(player.model)}-{category}"
+            )
             seconds += _cli(
                 "eval", "--agent", agent, *model, "--variant", "classic", "--categories",
                 category, "--max-steps", str(args.max_steps), "--limit", str(args.play_limit),
-                "--output-dir", str(run_dir), "--no-progress", "--batch-size", "8", *dataset,
+                "--output-dir", str(run_dir), "--no-progress", "--batch-size", "8", *common,
             )  # fmt: skip
             episodes += read_episodes(run_dir / "episodes.jsonl")
         by_category = {

@@ -280,6 +280,7 @@ def test_cli_ground_garbage_gives_invalid_rows_and_report_prints_them(
     [
         ["--categories", "paraphrased"],  # no goals there
         ["--model", "mock:other"],  # another run is in the directory
+        ["--grounding-shots", "17"],  # more than a prompt is given
     ],
 )
 def test_cli_ground_bad_input_is_one_line_exit_2_nothing_written(
@@ -296,6 +297,85 @@ def test_cli_ground_bad_input_is_one_line_exit_2_nothing_written(
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and error.startswith("craftext-llm: error:")
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+# ----------------------------------------------------------------------------- worked examples
+
+
+def shown_examples(conversation: Sequence[ChatMessage]) -> list[tuple[str, str]]:
+    """(instruction, answer) of the worked examples before a conversation's last request."""
+    turns = conversation[1:-1]
+    assert [m.role for m in turns] == ["user", "assistant"] * (len(turns) // 2)
+    return [
+        (instruction_of([asked]), answer.content)
+        for asked, answer in zip(turns[::2], turns[1::2], strict=True)
+    ]
+
+
+def test_worked_examples_are_training_goals_answered_never_the_goal_being_read(
+    tmp_path: Path, dataset_file: Path
+) -> None:
+    cfg = ground_config(tmp_path / "run", dataset_file, grounding_shots=2)
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    results = execute_grounding(prepare_grounding(cfg), model)
+    shown = {instruction_of(c): shown_examples(c) for c, _ in model.requests}
+    assert set(shown) == {text for g in GOALS for text in g.texts}
+
+    wood, table = GOALS[0], GOALS[1]
+    # A test text sees both training goals, each answered with its own goal's JSON.
+    assert sorted(shown["Drink some water."]) == sorted(
+        (g.instruction, right_answer(g.instruction)) for g in (wood, table)
+    )
+    assert shown["Drink some water. (again)"] == shown["Drink some water."]
+    # A training text is never shown its own goal, in any of its wordings.
+    for text in wood.texts:
+        assert shown[text] == [(table.instruction, right_answer(table.instruction))]
+    for text in table.texts:
+        assert shown[text] == [(wood.instruction, right_answer(wood.instruction))]
+    # The examples replace the prompt's own; without them it is there.
+    first = model.requests[0][0]
+    assert "Example" not in first[0].content
+    assert results.summary is not None and results.summary.overall.exact.rate == 1.0
+
+    plain = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    execute_grounding(prepare_grounding(ground_config(tmp_path / "plain", dataset_file)), plain)
+    assert all(len(c) == 2 and "Example" in c[0].content for c, _ in plain.requests)
+
+
+def test_worked_examples_take_goal_kinds_and_categories_in_turn() -> None:
+    from env.goals import BuildLineGoal
+    from llm_agents.agents.grounding import grounding_examples
+
+    lines = [
+        BuildLineGoal(id=f"LINE_{n}", scenario="medium", split="medium_train",
+                      instruction=f"Line {n}.",
+                      paraphrases=(), block="STONE", size=n, diagonal=False)
+        for n in (2, 3, 4)
+    ]  # fmt: skip
+    combos = [goal("easy_train", f"C{n}", f"Combo {n}.", ("COLLECT_WOOD", "PLACE_TABLE"))
+              for n in range(3)]  # fmt: skip
+    ones = [goal("easy_train", f"O{n}", f"One {n}.", ("COLLECT_WOOD",)) for n in range(3)]
+    examples = grounding_examples([*lines, *combos, *ones])
+    first = {example.instruction.split()[0] for example in examples[:3]}
+    assert first == {"Line", "Combo", "One"}
+    assert len(examples) == 9 and len({e.instruction for e in examples}) == 9
+    # The order is the goals' own, whatever order they come in.
+    assert grounding_examples([*ones, *lines[::-1], *combos]) == examples
+
+
+def test_worked_examples_need_a_training_split(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = DatasetSource(kind="json", path="test goals")
+    only_test = Dataset(source=source, goals=GOALS[2:]).save_json(tmp_path / "goals.json")
+    out = tmp_path / "run"
+    args = ["ground", "--model", "mock:", "--dataset", str(only_test), "--variant", "classic",
+            "--categories", "new_objects", "--grounding-shots", "2",
+            "--output-dir", str(out), "--no-progress"]  # fmt: skip
+    assert main(args) == EXIT_USER_ERROR
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "no easy_train goals" in error
+    assert not out.exists()
 
 
 # ----------------------------------------------------------------------------- the guided agent
@@ -368,11 +448,33 @@ def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understa
     assert "goal read exactly right in 0.50" in report and "(could not start: 2)" in report
 
 
+def test_guided_is_shown_the_worked_examples_ground_shows(
+    tmp_path: Path, dataset_file: Path, short_env: CrafTextEnv
+) -> None:
+    settings = {
+        "agent": "guided", "model": "mock:", "dataset": str(dataset_file), "variant": "classic",
+        "categories": ["new_objects"], "max_steps": MAX_STEPS, "grounding_shots": 1,
+        "batch_size": 2, "output_dir": str(tmp_path / "run"),
+    }  # fmt: skip
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    outcome = run_eval(build_config(settings), model, env=short_env)
+    assert outcome.summary is not None and outcome.summary.understanding is not None
+    assert outcome.summary.understanding.grounded.successes == 2
+
+    grounder = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    cfg = ground_config(tmp_path / "ground", dataset_file, categories=["new_objects"])
+    execute_grounding(prepare_grounding(cfg.model_copy(update={"grounding_shots": 1})), grounder)
+    guided = {instruction_of(c): c for c, _ in model.requests}
+    grounded = {instruction_of(c): c for c, _ in grounder.requests}
+    assert guided == grounded and all(len(shown_examples(c)) == 1 for c in guided.values())
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
         (["--choice", "loglik"], "free text"),
         (["--model", "hf:"], "names no model"),
+        (["--agent", "zero-shot", "--grounding-shots", "2"], "asks for none"),
     ],
 )
 def test_cli_guided_bad_input_is_one_line_exit_2_nothing_written(

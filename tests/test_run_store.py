@@ -228,6 +228,7 @@ OTHER_VALUES: dict[str, object] = {
     "cot_max_tokens": 100,
     "few_shot_steps": 2,
     "demos": "expert-run",
+    "grounding_shots": 4,
 }
 OTHER_GENERATION: dict[str, object] = {
     "max_tokens": 9,
@@ -257,12 +258,14 @@ def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_change
     from llm_agents.backends.base import result_fields
     from llm_agents.evaluation.config import EvalConfig
 
-    # Categories belong to a difficulty: a split both difficulties have keeps them valid.
-    base = (
-        EvalConfig(difficulty="medium", categories=("train",))
-        if name == "difficulty"
-        else EvalConfig()
-    )
+    # Categories belong to a difficulty: a split both difficulties have keeps them valid; only
+    # the guided agent is shown grounding examples.
+    if name == "difficulty":
+        base = EvalConfig(difficulty="medium", categories=("train",))
+    elif name == "grounding_shots":
+        base = EvalConfig(agent="guided")
+    else:
+        base = EvalConfig()
     changed = EvalConfig.model_validate(base.model_dump() | {name: OTHER_VALUES[name]})
     assert getattr(changed, name) != getattr(base, name)
     moved = changed.result_settings() != base.result_settings()

@@ -10,20 +10,37 @@ names are matched case-insensitively with spaces or underscores; an answer with 
 achievements goal. Anything that is not exactly a well-formed goal of an offered kind over known
 names is `invalid`, with the reason: an answer is never guessed at. `--choice` answers pick one
 of the goals' canonical JSON (`reading_options`) instead, read by the same parser.
+
+With `--grounding-shots N`, the request first shows N worked examples: instructions of the
+difficulty's training goals, each answered with its goal's canonical JSON, as earlier turns of the
+conversation (`grounding_examples`). Which examples are shown depends only on the text being read,
+never on its answer: the same fixed list for every text, less the goal that text phrases (a train
+instruction is never shown its own goal, in any wording).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Literal
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 from env.achievements import ACHIEVEMENT_IDS
-from env.goals import CROSS_TYPES, DIFFICULTY_KINDS, SIDES, Difficulty, GoalKind
+from env.goals import (
+    CROSS_TYPES,
+    DIFFICULTY_KINDS,
+    SIDES,
+    AnyGoal,
+    Dataset,
+    Difficulty,
+    GoalKind,
+    category_split,
+    run_category,
+)
 from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS
 from env.variant import Variant
 from llm_agents.backends.base import ChatMessage
@@ -32,6 +49,7 @@ from llm_agents.run_data.readings import (
     AchievementsReading,
     GoalReading,
     Grounding,
+    reading_of,
 )
 from prompts import render_blocks
 
@@ -46,12 +64,16 @@ _WORDS: dict[str, tuple[str, ...]] = {"side": SIDES, "cross": CROSS_TYPES}
 
 __all__ = [
     "GROUND_TEMPLATE",
+    "GroundingExample",
+    "examples_for",
     "goal_vocabulary",
+    "grounding_examples",
     "grounding_messages",
     "inventory_items",
     "parse_grounding",
     "reading_json",
     "reading_options",
+    "training_examples",
 ]
 
 
@@ -65,16 +87,64 @@ def inventory_items(variant: Variant) -> tuple[str, ...]:
     return CLASSIC_INVENTORY_SLOTS if variant is Variant.CLASSIC else INVENTORY_SLOTS
 
 
+class GroundingExample(BaseModel):
+    """A worked example shown before the instruction: a training goal's instruction and answer."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    instruction: str
+    """The goal's original instruction."""
+    answer: str
+    """The goal's canonical JSON (`reading_json`), as a right answer would give it."""
+    texts: frozenset[str]
+    """Every phrasing of the goal: a text among them is not shown this example."""
+
+
+def grounding_examples(goals: Sequence[AnyGoal]) -> tuple[GroundingExample, ...]:
+    """Worked examples from `goals` (a difficulty's training goals), in the order they are
+    offered: goal kinds and categories taken in turn, so a few shots show several kinds, and
+    within each an order fixed by a digest of the instruction."""
+    groups: dict[tuple[str, str], list[AnyGoal]] = {}
+    for goal in sorted(goals, key=lambda g: hashlib.sha256(g.instruction.encode()).hexdigest()):
+        groups.setdefault((goal.kind, run_category(goal)), []).append(goal)
+    queues = [groups[key] for key in sorted(groups)]
+    ordered = [
+        queue[depth] for depth in range(len(goals)) for queue in queues if depth < len(queue)
+    ]
+    return tuple(
+        GroundingExample(
+            instruction=goal.instruction,
+            answer=reading_json(reading_of(goal)),
+            texts=frozenset(goal.texts),
+        )
+        for goal in ordered
+    )
+
+
+def training_examples(dataset: Dataset, difficulty: Difficulty) -> tuple[GroundingExample, ...]:
+    """The worked examples of `difficulty`: its train split's goals (a `UserError` when the
+    dataset has none)."""
+    return grounding_examples(dataset.split(category_split("train", difficulty)))
+
+
+def examples_for(
+    text: str, examples: Sequence[GroundingExample], shots: int
+) -> tuple[GroundingExample, ...]:
+    """The first `shots` examples whose goal `text` does not phrase."""
+    return tuple(example for example in examples if text not in example.texts)[:shots]
+
+
 def grounding_messages(
     instruction: str,
     variant: Variant,
     templates_dir: str | Path | None = None,
     difficulty: Difficulty = "easy",
+    examples: Sequence[GroundingExample] = (),
 ) -> list[ChatMessage]:
-    """The conversation asking for `instruction`'s goal as JSON, offering `difficulty`'s kinds."""
+    """The conversation asking for `instruction`'s goal as JSON, offering `difficulty`'s kinds,
+    after `examples` as earlier turns (each instruction asked as the template asks, answered)."""
     kinds = DIFFICULTY_KINDS[difficulty]
     context = {
-        "instruction": instruction,
         "achievements": [
             {"name": name, "words": name.lower().replace("_", " ")}
             for name in goal_vocabulary(variant)
@@ -85,11 +155,23 @@ def grounding_messages(
         "items": list(inventory_items(variant)),
         "sides": list(SIDES),
         "crosses": list(CROSS_TYPES),
+        "worked_examples": bool(examples),
     }
-    return [
+    messages = [
         ChatMessage(role=role, content=text)
-        for role, text in render_blocks(GROUND_TEMPLATE, context, templates_dir)
+        for role, text in render_blocks(
+            GROUND_TEMPLATE, context | {"instruction": instruction}, templates_dir
+        )
     ]
+    turns: list[ChatMessage] = []
+    for example in examples:
+        asked = render_blocks(
+            GROUND_TEMPLATE, context | {"instruction": example.instruction}, templates_dir
+        )
+        turns += [ChatMessage(role=role, content=text) for role, text in asked if role == "user"]
+        turns.append(ChatMessage(role="assistant", content=example.answer))
+    split = next((i for i, m in enumerate(messages) if m.role == "user"), len(messages))
+    return [*messages[:split], *turns, *messages[split:]]
 
 
 def reading_json(reading: GoalReading) -> str:

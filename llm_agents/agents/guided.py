@@ -4,8 +4,10 @@ At the start of each episode the model grounds the instruction once (`ground.j2`
 run's difficulty's goal kinds, parsed by `parse_grounding`, cached per text, so the paraphrase
 played again in another world costs no request); then the expert (`expert.py`) plays the goal as
 the model read it, never the dataset record's: the achievements it read, or on Medium and Hard
-the placing goal with the block, side, distance, size and counts it read. This separates understanding from acting: its success is what a model that plays
-perfectly-scripted moves would reach with its own reading of the goals. An invalid grounding is
+the placing goal with the block, side, distance, size and counts it read. This separates
+understanding from acting: its success is what a model that plays perfectly-scripted moves
+would reach with its own reading of the goals. `grounding_shots` shows the request worked
+examples from the training goals first, as `craftext-llm ground` does. An invalid grounding is
 an episode the agent could not start: its first decision carries the invalid grounding and the
 runner ends it there, unscored as play but counted as a failure.
 """
@@ -16,13 +18,20 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from env.dataset import load_dataset
 from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.agents.expert import ExpertAgent
-from llm_agents.agents.grounding import grounding_messages, parse_grounding
+from llm_agents.agents.grounding import (
+    GroundingExample,
+    examples_for,
+    grounding_messages,
+    parse_grounding,
+    training_examples,
+)
 from llm_agents.agents.parser import ParseResult
-from llm_agents.agents.zero_shot import Decision, StepPrompt, messages_hash
-from llm_agents.backends.base import ModelAPI, ModelOutput
+from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
 from llm_agents.run_data.readings import Grounding
 
 if TYPE_CHECKING:
@@ -44,10 +53,14 @@ class GuidedAgent:
         fallback_action: str = "NOOP",
         templates_dir: str | Path | None = None,
         difficulty: Difficulty = "easy",
+        examples: Sequence[GroundingExample] = (),
+        shots: int = 0,
     ):
         self.variant = as_variant(variant)
         self.templates_dir = templates_dir
         self.difficulty = difficulty
+        self.examples = tuple(examples)
+        self.shots = shots
         self.expert = ExpertAgent(self.variant, renderer=renderer, fallback_action=fallback_action)
         self.fallback_id = self.expert.fallback_id
         self._groundings: dict[str, Grounding] = {}
@@ -61,12 +74,17 @@ class GuidedAgent:
                 "the guided agent reads goals in free text: --choice picks action names, "
                 "which it never asks for (leave --choice out)"
             )
+        shots = config.grounding_shots
         return cls(
             config.variant,
             renderer=config.renderer,
             fallback_action=config.fallback_action,
             templates_dir=config.templates_dir,
             difficulty=config.difficulty,
+            examples=training_examples(load_dataset(config.dataset), config.difficulty)
+            if shots
+            else (),
+            shots=shots,
         )
 
     @property
@@ -97,7 +115,16 @@ class GuidedAgent:
         self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Render the grounding request the run will send (the expert renders nothing)."""
-        grounding_messages(instruction, self.variant, self.templates_dir, self.difficulty)
+        self._request(instruction)
+
+    def _request(self, text: str) -> list[ChatMessage]:
+        return grounding_messages(
+            text,
+            self.variant,
+            self.templates_dir,
+            self.difficulty,
+            examples_for(text, self.examples, self.shots),
+        )
 
     def _text(self, slot: int) -> str:
         if slot not in self._texts:
@@ -111,7 +138,7 @@ class GuidedAgent:
         step = self.expert.prepare(slot, observation)
         if text in self._groundings:
             return step
-        messages = grounding_messages(text, self.variant, self.templates_dir, self.difficulty)
+        messages = self._request(text)
         return StepPrompt(slot=slot, observation=observation, messages=messages, text=step.text)
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:

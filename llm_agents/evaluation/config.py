@@ -102,7 +102,20 @@ class ModelSettings(BaseModel):
         return value
 
 
-class EvalConfig(ModelSettings):
+class GroundingSettings(BaseModel):
+    """How a model is asked for an instruction's goal: `ground`, and the `guided` agent."""
+
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, use_attribute_docstrings=True
+    )
+
+    grounding_shots: Annotated[int, CHANGES_RESULTS] = Field(0, ge=0, le=16)
+    """Worked examples shown before each instruction is read (ground, guided): instructions of
+    the difficulty's training goals answered with their goals' JSON, never the goal being read;
+    0: none, only the prompt's own example."""
+
+
+class EvalConfig(ModelSettings, GroundingSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
@@ -206,6 +219,11 @@ class EvalConfig(ModelSettings):
     def _few_shot_has_demos(self) -> EvalConfig:
         if self.agent == "few-shot" and self.demos is None:
             raise ValueError("the few-shot agent needs demos: the run directory of an expert run")
+        if self.grounding_shots and self.agent != "guided":
+            raise ValueError(
+                f"grounding_shots are shown to the guided agent's grounding request; the "
+                f"{self.agent} agent asks for none (leave --grounding-shots out)"
+            )
         return self
 
     @field_validator("categories", mode="before")

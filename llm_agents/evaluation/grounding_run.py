@@ -32,18 +32,26 @@ from env.goals import DIFFICULTY_KINDS, Difficulty, check_categories, run_catego
 from env.scenario_tasks import encode_goals
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
+    GroundingExample,
+    examples_for,
     grounding_messages,
     parse_grounding,
     reading_options,
+    training_examples,
 )
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
+    ChatMessage,
     ChoiceRule,
     ChoiceSet,
     ModelAPI,
     result_values,
 )
-from llm_agents.evaluation.config import TRANSPORT_BACKEND_OPTIONS, ModelSettings
+from llm_agents.evaluation.config import (
+    TRANSPORT_BACKEND_OPTIONS,
+    GroundingSettings,
+    ModelSettings,
+)
 from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
@@ -66,7 +74,7 @@ from prompts import template_source
 GROUNDINGS_FILE = "groundings.jsonl"
 
 
-class GroundConfig(ModelSettings):
+class GroundConfig(ModelSettings, GroundingSettings):
     """What `craftext-llm ground` does."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
@@ -200,6 +208,19 @@ class PreparedGrounding:
     identity: RunIdentity
     dataset_source: dict[str, Any]
     previous: GroundResults | None
+    examples: tuple[GroundingExample, ...] = ()
+    """The difficulty's worked examples, when the config shows any."""
+
+    def messages(self, text: str) -> list[ChatMessage]:
+        """The grounding request for `text`, after its worked examples."""
+        config = self.config
+        return grounding_messages(
+            text,
+            config.variant,
+            config.templates_dir,
+            config.difficulty,
+            examples_for(text, self.examples, config.grounding_shots),
+        )
 
 
 ProgressFactory = Callable[[int, int], Any]
@@ -239,14 +260,14 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
     truths = [reading_of(goal) for goal in goals]
     if config.limit is not None:
         instructions = instructions[: config.limit]
-    grounding_messages(instructions[0].text, config.variant, config.templates_dir, difficulty)
+    examples = training_examples(dataset, difficulty) if config.grounding_shots else ()
     source = template_source(GROUND_TEMPLATE, config.templates_dir)
     identity = RunIdentity(
         settings=config.result_settings(),
         templates={f"{GROUND_TEMPLATE}.j2": sha256_bytes(source.encode("utf-8"))},
         dataset=dataset.source.sha256,
     )
-    return PreparedGrounding(
+    prepared = PreparedGrounding(
         config=config,
         output_dir=out,
         instructions=instructions,
@@ -259,7 +280,10 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
         dataset_source=dataset.source.model_dump(mode="json")
         | {"split_sha256": dataset.split_sha256()},
         previous=_previous(out, identity),
+        examples=examples,
     )
+    prepared.messages(instructions[0].text)
+    return prepared
 
 
 def _previous(out: Path, identity: RunIdentity) -> GroundResults | None:
@@ -377,11 +401,7 @@ def execute_grounding(
         for start in range(0, len(pending), config.requests_per_call):
             group = pending[start : start + config.requests_per_call]
             outputs = model.generate(
-                [
-                    grounding_messages(i.text, config.variant, config.templates_dir, difficulty)
-                    for i in group
-                ],
-                choices=prepared.choices,
+                [prepared.messages(i.text) for i in group], choices=prepared.choices
             )
             fresh = []
             for instruction, output in zip(group, outputs, strict=True):
