@@ -181,7 +181,8 @@ def main() -> None:
             model += ["--choice", "loglik"]
         episodes = []
         seconds = 0.0
-        # One run per category, so `--play-limit` takes the same number from each.
+        # One run per category, so `--play-limit` takes the same number from each; with
+        # --no-paraphrases they are the category's first goals, one text each, as grounded.
         for category in args.play_categories:
             run_dir = (
                 out
@@ -190,7 +191,8 @@ def main() -> None:
             seconds += _cli(
                 "eval", "--agent", agent, *model, "--variant", "classic", "--categories",
                 category, "--max-steps", str(args.max_steps), "--limit", str(args.play_limit),
-                "--output-dir", str(run_dir), "--no-progress", "--batch-size", "8", *common,
+                *paraphrases, "--output-dir", str(run_dir), "--no-progress", "--batch-size", "8",
+                *common,
             )  # fmt: skip
             episodes += read_episodes(run_dir / "episodes.jsonl")
         by_category = {
