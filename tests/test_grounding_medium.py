@@ -12,7 +12,7 @@ import pytest
 
 from env import CrafTextEnv, EnvConfig, Variant
 from env.dataset import Dataset, DatasetSource
-from env.goals import SPLITS, AnyGoal
+from env.goals import DIFFICULTY_KINDS, SPLITS, AnyGoal
 from env.official_source import parse_directory
 from llm_agents.agents.grounding import grounding_messages, parse_grounding, reading_json
 from llm_agents.backends.base import ChatMessage
@@ -168,6 +168,23 @@ def test_every_official_medium_and_hard_goal_survives_its_own_json(official: Dat
         variant = CLASSIC if goal.difficulty == "medium" else Variant.FULL
         truth = reading_of(goal)
         assert parse_grounding(reading_json(truth), variant, goal.difficulty).reading == truth
+
+
+def test_medium_worked_examples_show_every_kind_answered_as_the_prompt_asks(
+    official: Dataset,
+) -> None:
+    from llm_agents.agents.grounding import training_examples
+
+    examples = training_examples(official, "medium")
+    assert len(examples) == len(official.split("medium_train"))
+    truths = {goal.instruction: reading_of(goal) for goal in official.split("medium_train")}
+    first = examples[:6]
+    assert {truths[e.instruction].kind for e in first} == set(DIFFICULTY_KINDS["medium"])
+    for example in examples:
+        # Every answer names its kind, achievements goals too, as Medium's prompt shows them.
+        assert json.loads(example.answer)["kind"] == truths[example.instruction].kind
+        read = parse_grounding(example.answer, CLASSIC, "medium").reading
+        assert read == truths[example.instruction]
 
 
 def pick(official: Dataset, split: str, kind: str) -> AnyGoal:

@@ -102,11 +102,13 @@ class GroundingExample(BaseModel):
 
 def grounding_examples(goals: Sequence[AnyGoal]) -> tuple[GroundingExample, ...]:
     """Worked examples from `goals` (a difficulty's training goals), in the order they are
-    offered: goal kinds and categories taken in turn, so a few shots show several kinds, and
-    within each an order fixed by a digest of the instruction."""
-    groups: dict[tuple[str, str], list[AnyGoal]] = {}
+    offered: goal kinds and categories, and goals with and without forbidden achievements, taken
+    in turn, so a few shots show every field in use; within each, an order fixed by a digest of
+    the instruction."""
+    groups: dict[tuple[str, str, bool], list[AnyGoal]] = {}
     for goal in sorted(goals, key=lambda g: hashlib.sha256(g.instruction.encode()).hexdigest()):
-        groups.setdefault((goal.kind, run_category(goal)), []).append(goal)
+        forbids = bool(getattr(goal, "forbidden", ()))
+        groups.setdefault((goal.kind, run_category(goal), forbids), []).append(goal)
     queues = [groups[key] for key in sorted(groups)]
     ordered = [
         queue[depth] for depth in range(len(goals)) for queue in queues if depth < len(queue)
@@ -114,7 +116,10 @@ def grounding_examples(goals: Sequence[AnyGoal]) -> tuple[GroundingExample, ...]
     return tuple(
         GroundingExample(
             instruction=goal.instruction,
-            answer=reading_json(reading_of(goal)),
+            # As the difficulty's prompt asks: only EASY's leaves an achievements goal's kind out.
+            answer=reading_json(reading_of(goal))
+            if goal.difficulty == "easy"
+            else json.dumps(reading_of(goal).model_dump(mode="json")),
             texts=frozenset(goal.texts),
         )
         for goal in ordered
