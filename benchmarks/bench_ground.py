@@ -63,7 +63,8 @@ def _cli(*argv: str) -> float:
 
 
 def _label(model: str) -> str:
-    return model.rsplit("/", 1)[-1]
+    """The model's name without its backend or folders (`hf:smollm2-135m` -> `smollm2-135m`)."""
+    return model.split(":", 1)[-1].rsplit("/", 1)[-1]
 
 
 @dataclass(frozen=True)

@@ -102,13 +102,11 @@ class GroundingExample(BaseModel):
 
 def grounding_examples(goals: Sequence[AnyGoal]) -> tuple[GroundingExample, ...]:
     """Worked examples from `goals` (a difficulty's training goals), in the order they are
-    offered: goal kinds and categories, and goals with and without forbidden achievements, taken
-    in turn, so a few shots show every field in use; within each, an order fixed by a digest of
-    the instruction."""
-    groups: dict[tuple[str, str, bool], list[AnyGoal]] = {}
+    offered: goal kinds and categories taken in turn, so a few shots show several kinds, and
+    within each an order fixed by a digest of the instruction."""
+    groups: dict[tuple[str, str], list[AnyGoal]] = {}
     for goal in sorted(goals, key=lambda g: hashlib.sha256(g.instruction.encode()).hexdigest()):
-        forbids = bool(getattr(goal, "forbidden", ()))
-        groups.setdefault((goal.kind, run_category(goal), forbids), []).append(goal)
+        groups.setdefault((goal.kind, run_category(goal)), []).append(goal)
     queues = [groups[key] for key in sorted(groups)]
     ordered = [
         queue[depth] for depth in range(len(goals)) for queue in queues if depth < len(queue)
