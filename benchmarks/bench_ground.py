@@ -117,7 +117,7 @@ def main() -> None:
     parser.add_argument("--out", default=str(REPO / "runs" / "bench-ground"))
     args = parser.parse_args()
 
-    from llm_agents.evaluation.grounding_run import read_ground_results
+    from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
     from llm_agents.run_data.store import read_episodes
 
     out = Path(args.out)
@@ -129,6 +129,7 @@ def main() -> None:
     common += ["--cache", str(out / "answers.sqlite")]
 
     grounded = {}
+    cached = {}
     for model in args.models:
         for shots in args.grounding_shots:
             reader = Reader(model, shots)
@@ -139,6 +140,7 @@ def main() -> None:
                 "--max-tokens", str(args.max_tokens), *reader.flags, *common,
             )  # fmt: skip
             grounded[reader] = read_ground_results(run_dir / "results.json")
+            cached[reader] = sum(record.cached for record in read_groundings(run_dir))
 
     print(f"\nGrounding (EASY, {'originals only' if paraphrases else 'every text'}, CPU):")
     header = f"{'model':<28} {'set':<12} {'texts':>5} {'exact':>6} {'req R':>6} {'forb R':>6} {'invalid':>7}"
@@ -155,10 +157,13 @@ def main() -> None:
                 f"{'-' if forb is None else f'{forb:.2f}':>6} {score.invalid:>7}"
             )
         pace = results.seconds_per_instruction
-        print(
-            f"{model.label:<28} seconds per instruction: "
-            + ("- (nothing left to answer: resumed)" if pace is None else f"{pace:.2f}")
-        )
+        if cached[model]:
+            measured = f"- ({cached[model]} answers came from the response cache)"
+        elif pace is None:
+            measured = "- (nothing left to answer: resumed)"
+        else:
+            measured = f"{pace:.2f}"
+        print(f"{model.label:<28} seconds per instruction: {measured}")
 
     if args.no_play:
         return
