@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from env import CrafTextEnv, EnvConfig, Variant
 from env.dataset import Dataset, DatasetSource, Goal, load_dataset
+from env.errors import UserError
 from llm_agents.agents.grounding import parse_grounding, reading_json
 from llm_agents.backends.base import ChatMessage
 from llm_agents.backends.mock import MockModel
@@ -244,6 +245,25 @@ def test_ground_resumes_asking_only_for_unanswered_texts(
     }
     assert len(read_groundings(out)) == 6
     assert done.summary is not None and done.summary.overall.exact.successes == 5
+
+
+def test_ground_resumes_a_run_written_before_worked_examples_existed(
+    tmp_path: Path, dataset_file: Path
+) -> None:
+    import json
+
+    out = tmp_path / "run"
+    first = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    execute_grounding(prepare_grounding(ground_config(out, dataset_file, limit=2)), first)
+    results = json.loads((out / "results.json").read_text())
+    del results["identity"]["settings"]["grounding_shots"]
+    (out / "results.json").write_text(json.dumps(results))
+
+    again = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    done = execute_grounding(prepare_grounding(ground_config(out, dataset_file)), again)
+    assert done.status == "complete" and len(again.requests) == 4
+    with pytest.raises(UserError, match=r"grounding_shots \(0 before, 1 now\)"):
+        prepare_grounding(ground_config(out, dataset_file, grounding_shots=1))
 
 
 def test_ground_answers_picked_from_the_goals_are_read_by_the_same_parser(

@@ -294,3 +294,21 @@ def test_backend_options_about_speed_are_left_out_of_a_runs_identity() -> None:
     other = EvalConfig(backend_options={"dtype": "float16"})
     assert faster.result_settings() == base.result_settings()
     assert other.result_settings() != base.result_settings()
+
+
+def test_a_setting_added_after_a_run_was_written_counts_at_its_default() -> None:
+    from llm_agents.evaluation.config import EvalConfig
+
+    added = EvalConfig.model_construct().result_settings()
+    now = RunIdentity(settings=EvalConfig(agent="guided").result_settings(), templates={})
+    newer = {"grounding_shots", "difficulty"}
+    older = RunIdentity(
+        settings={k: v for k, v in now.settings.items() if k not in newer}, templates={}
+    )
+    assert now.differences(older, added=added) == []
+    # Without the defaults, the older run reads as having had none of them.
+    assert len(now.differences(older)) == 2
+    shown = EvalConfig(agent="guided", grounding_shots=2).result_settings()
+    assert RunIdentity(settings=shown, templates={}).differences(older, added=added) == [
+        "grounding_shots (0 before, 2 now)"
+    ]

@@ -300,7 +300,9 @@ def _previous(out: Path, identity: RunIdentity) -> GroundResults | None:
             f"{out} holds an evaluation run, not a grounding run; use another --output-dir"
         )
     previous = read_ground_results(path)
-    changed = identity.differences(previous.identity)
+    changed = identity.differences(
+        previous.identity, added=GroundConfig.model_construct().result_settings()
+    )
     if changed:
         raise UserError(
             f"{out} holds a grounding run with other settings: {'; '.join(changed)}; "

@@ -191,7 +191,9 @@ def _previous_run(out: Path, identity: RunIdentity) -> RunResults | None:
             )
         return None
     previous = read_results(results_path)
-    changed = identity.differences(previous.identity)
+    changed = identity.differences(
+        previous.identity, added=EvalConfig.model_construct().result_settings()
+    )
     if changed:
         raise UserError(
             f"{out} holds a run with other settings: {'; '.join(changed)}; "

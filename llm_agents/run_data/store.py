@@ -18,7 +18,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Collection, Iterable, Iterator, Sequence
+from collections.abc import Collection, Iterable, Iterator, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -207,11 +207,15 @@ class RunIdentity(BaseModel):
     dataset: str | None = None
     """SHA-256 the dataset source reports for its content."""
 
-    def differences(self, other: RunIdentity) -> list[str]:
-        """Human-readable differences from `other` (the identity on disk), empty when equal."""
+    def differences(self, other: RunIdentity, added: Mapping[str, Any] | None = None) -> list[str]:
+        """Human-readable differences from `other` (the identity on disk), empty when equal.
+        A setting `other` predates counts as its value in `added` (its default: how that run
+        played before the setting existed), so adding a setting does not strand older runs."""
         found = []
+        predated = added or {}
         for key in sorted(self.settings.keys() | other.settings.keys()):
-            ours, theirs = self.settings.get(key), other.settings.get(key)
+            ours = self.settings.get(key)
+            theirs = other.settings[key] if key in other.settings else predated.get(key)
             if ours != theirs:
                 found.append(f"{key} ({_short(theirs)} before, {_short(ours)} now)")
         for name in sorted(self.templates.keys() | other.templates.keys()):
