@@ -143,9 +143,12 @@ def grounding_messages(
     templates_dir: str | Path | None = None,
     difficulty: Difficulty = "easy",
     examples: Sequence[GroundingExample] = (),
+    shots: int = 0,
 ) -> list[ChatMessage]:
     """The conversation asking for `instruction`'s goal as JSON, offering `difficulty`'s kinds,
-    after `examples` as earlier turns (each instruction asked as the template asks, answered)."""
+    after the first `shots` of `examples` that do not phrase its own goal, as earlier turns
+    (each instruction asked as the template asks, answered)."""
+    examples = examples_for(instruction, examples, shots)
     kinds = DIFFICULTY_KINDS[difficulty]
     context = {
         "achievements": [

@@ -24,7 +24,6 @@ from env.variant import Variant, as_variant
 from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.grounding import (
     GroundingExample,
-    examples_for,
     grounding_messages,
     parse_grounding,
     training_examples,
@@ -119,11 +118,7 @@ class GuidedAgent:
 
     def _request(self, text: str) -> list[ChatMessage]:
         return grounding_messages(
-            text,
-            self.variant,
-            self.templates_dir,
-            self.difficulty,
-            examples_for(text, self.examples, self.shots),
+            text, self.variant, self.templates_dir, self.difficulty, self.examples, self.shots
         )
 
     def _text(self, slot: int) -> str:

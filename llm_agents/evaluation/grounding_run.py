@@ -33,7 +33,6 @@ from env.scenario_tasks import encode_goals
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
     GroundingExample,
-    examples_for,
     grounding_messages,
     parse_grounding,
     reading_options,
@@ -219,7 +218,8 @@ class PreparedGrounding:
             config.variant,
             config.templates_dir,
             config.difficulty,
-            examples_for(text, self.examples, config.grounding_shots),
+            self.examples,
+            config.grounding_shots,
         )
 
 
