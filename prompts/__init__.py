@@ -13,7 +13,8 @@ this package knows templates, not backends.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import hashlib
+from collections.abc import Iterable, Mapping
 from functools import cache
 from pathlib import Path
 from typing import Any, Literal
@@ -28,6 +29,7 @@ __all__ = [
     "load_template",
     "render_blocks",
     "render_template",
+    "template_digests",
     "template_path",
     "template_source",
 ]
@@ -83,6 +85,19 @@ def template_path(name: str, templates_dir: str | Path | None = None) -> Path:
 def template_source(name: str, templates_dir: str | Path | None = None) -> str:
     """The raw text of the template a name resolves to (for hashing into run records)."""
     return template_path(name, templates_dir).read_text(encoding="utf-8")
+
+
+def template_digests(
+    names: Iterable[str], templates_dir: str | Path | None = None
+) -> dict[str, str]:
+    """File name -> SHA-256 of the source each name resolves to: what a run's identity holds, so
+    a run resumes only with the templates it rendered."""
+    return {
+        _file_name(name): hashlib.sha256(
+            template_source(name, templates_dir).encode("utf-8")
+        ).hexdigest()
+        for name in names
+    }
 
 
 def load_template(name: str, templates_dir: str | Path | None = None) -> jinja2.Template:

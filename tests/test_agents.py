@@ -24,6 +24,7 @@ from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.report import compare_runs
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results
+from prompts import PACKAGE_TEMPLATES_DIR
 
 SNAPSHOTS = Path(__file__).resolve().parent / "snapshots"
 
@@ -316,6 +317,51 @@ def test_a_broken_template_of_any_strategy_stops_the_run_before_anything_is_writ
     err = capsys.readouterr().err
     assert f"{template}.j2" in err and "no_such_variable" in err
     assert not out.exists()
+
+
+def _broken_templates(folder: Path, names: set[str]) -> Path:
+    folder.mkdir()
+    for name in names:
+        (folder / f"{name.removesuffix('.j2')}.j2").write_text("{{ no_such_variable }}\n")
+    return folder
+
+
+def _render_every_prompt(name: str, templates: Path, demos: Path) -> None:
+    """Everything an agent renders over two steps, through the paths a run renders it with."""
+    settings = {"agent": name, "variant": "classic", "templates_dir": str(templates)}
+    agent = build_agent(
+        build_config(settings | ({"demos": str(demos)} if name == "few-shot" else {}))
+    )
+    wood = goal("COLLECT_WOOD", ("COLLECT_WOOD",))
+    agent.check_templates("Collect wood.", None, wood)
+    if isinstance(agent, ZeroShotAgent):
+        agent.render_observation = text_of
+        agent.start_episode(0, "Collect wood.", goal=wood)
+        model = MockModel(outputs=["thinking\nACTION: DO"])
+        for text in ("grass", "a tree east"):
+            play_step(agent, model, [0], [Seen(text=text)])
+
+
+PACKAGED = {path.stem for path in PACKAGE_TEMPLATES_DIR.glob("*.j2")}
+
+
+@pytest.mark.parametrize("name", list(AGENTS))
+def test_an_agent_renders_no_template_but_those_it_declares(name: str, tmp_path: Path) -> None:
+    """The run identity hashes only the declared templates: any other may break unnoticed."""
+    declared = {t.removesuffix(".j2") for t in agent_class(name).templates}
+    assert declared <= PACKAGED
+    broken = _broken_templates(tmp_path / "templates", PACKAGED - declared)
+    _render_every_prompt(name, broken, make_expert_run(tmp_path / "expert"))
+
+
+@pytest.mark.parametrize(
+    ("name", "template"),
+    [(name, template) for name in AGENTS for template in agent_class(name).templates],
+)
+def test_every_declared_template_is_rendered(name: str, template: str, tmp_path: Path) -> None:
+    broken = _broken_templates(tmp_path / "templates", {template})
+    with pytest.raises(UserError, match=rf"/{template.removesuffix('.j2')}\.j2 "):
+        _render_every_prompt(name, broken, make_expert_run(tmp_path / "expert"))
 
 
 # ------------------------------------------------------------------------------------ report

@@ -159,6 +159,12 @@ def test_a_changed_template_is_refused_on_resume_and_nothing_changes(
     assert "max_steps (6 before, 3 now)" in capsys.readouterr().err
     assert snapshot(out) == before
 
+    # A template this agent never renders may change: the run resumes and finishes.
+    (templates / "step.j2").write_text(template_source("step"))
+    (templates / "ground.j2").write_text(template_source("ground") + "\nAnswer in French.\n")
+    assert main(argv(MAX_STEPS)) == 0
+    assert read_results(out / "results.json").status == "complete"
+
 
 def test_a_smaller_limit_on_a_finished_run_summarises_only_its_schedule(
     tmp_path: Path, short_env: CrafTextEnv

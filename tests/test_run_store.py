@@ -175,6 +175,16 @@ def test_identity_differences_name_each_change() -> None:
     assert before.differences(before) == []
 
 
+def test_identity_compares_only_the_templates_the_run_renders() -> None:
+    # Runs once hashed every packaged template; a template the agent does not render is none
+    # of its business, one it renders that the older run did not hash is a change.
+    older = RunIdentity(settings={}, templates={"step.j2": "a", "few_shot.j2": "b"})
+    assert RunIdentity(settings={}, templates={"step.j2": "a"}).differences(older) == []
+    assert RunIdentity(settings={}, templates={"ground.j2": "g"}).differences(older) == [
+        "template ground.j2 (its content changed)"
+    ]
+
+
 def test_output_dir_checks(tmp_path: Path) -> None:
     file = tmp_path / "file"
     file.write_text("x")

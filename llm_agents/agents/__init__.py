@@ -32,6 +32,9 @@ class Agent(Protocol):
 
     needs_model: ClassVar[bool]
     """False for agents that never call the model (the runner then opens none)."""
+    templates: ClassVar[tuple[str, ...]]
+    """The prompt templates the agent renders: a run's identity hashes these, so editing one
+    another agent renders never strands this agent's partial runs."""
     fallback_id: int
     """The action id a slot without a decision gets."""
     choices: ChoiceSet | None

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError
 from llm_agents.agents.types import Decision, StepPrompt
-from llm_agents.agents.zero_shot import ZeroShotAgent
+from llm_agents.agents.zero_shot import SYSTEM_TEMPLATE, ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from prompts import render_template
 
@@ -35,6 +35,7 @@ class ChainOfThoughtAgent(ZeroShotAgent):
     """Zero-shot with step-by-step reasoning that stays in the conversation for k steps."""
 
     step_template: ClassVar[str] = "step_cot"
+    templates: ClassVar[tuple[str, ...]] = (SYSTEM_TEMPLATE, step_template, TURN_TEMPLATE)
 
     def __init__(self, *args: Any, steps: int = 3, max_tokens: int = 384, **kwargs: Any):
         if steps < 1 or max_tokens < 1:

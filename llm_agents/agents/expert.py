@@ -131,6 +131,7 @@ class ExpertAgent:
     """A rule-based player: the planner's task, walked to by shortest paths, nothing forbidden."""
 
     needs_model: ClassVar[bool] = False
+    templates: ClassVar[tuple[str, ...]] = ()
     choices: ClassVar[None] = None
 
     def __init__(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
@@ -132,6 +132,8 @@ def pick_demonstrations(
 
 class FewShotAgent(ZeroShotAgent):
     """Zero-shot with k expert demonstration steps (other training goals) before each step."""
+
+    templates: ClassVar[tuple[str, ...]] = (*ZeroShotAgent.templates, TEMPLATE)
 
     def __init__(
         self,

@@ -23,6 +23,7 @@ from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.grounding import (
+    GROUND_TEMPLATE,
     GroundingExample,
     grounding_messages,
     parse_grounding,
@@ -42,6 +43,7 @@ class GuidedAgent:
     """Grounds each episode's instruction with the model, then plays the expert on that goal."""
 
     needs_model: ClassVar[bool] = True
+    templates: ClassVar[tuple[str, ...]] = (GROUND_TEMPLATE,)
     # Grounding answers are free JSON: action-name choices do not apply to them.
     choices: ClassVar[None] = None
 

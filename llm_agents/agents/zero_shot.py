@@ -139,6 +139,7 @@ class ZeroShotAgent:
 
     needs_model: ClassVar[bool] = True
     step_template: ClassVar[str] = STEP_TEMPLATE
+    templates: ClassVar[tuple[str, ...]] = (SYSTEM_TEMPLATE, STEP_TEMPLATE)
     """The template of the per-step user message (strategies built on this one swap it)."""
 
     def __init__(

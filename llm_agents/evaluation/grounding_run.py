@@ -66,9 +66,8 @@ from llm_agents.run_data.store import (
     read_records,
     results_kind,
     rewrite_lines,
-    sha256_bytes,
 )
-from prompts import template_source
+from prompts import template_digests
 
 GROUNDINGS_FILE = "groundings.jsonl"
 
@@ -261,10 +260,9 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
     if config.limit is not None:
         instructions = instructions[: config.limit]
     examples = training_examples(dataset, difficulty) if config.grounding_shots else ()
-    source = template_source(GROUND_TEMPLATE, config.templates_dir)
     identity = RunIdentity(
         settings=config.result_settings(),
-        templates={f"{GROUND_TEMPLATE}.j2": sha256_bytes(source.encode("utf-8"))},
+        templates=template_digests([GROUND_TEMPLATE], config.templates_dir),
         dataset=dataset.source.sha256,
     )
     prepared = PreparedGrounding(

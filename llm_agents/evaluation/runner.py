@@ -22,7 +22,6 @@ resumed run ends with exactly the results of an uninterrupted one.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import importlib.metadata
 import logging
 import signal
@@ -40,6 +39,7 @@ from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
+from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
 from llm_agents.evaluation.play import play_episodes
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode, build_schedule
@@ -106,16 +106,15 @@ def versions(model: ModelAPI) -> dict[str, str]:
     return found
 
 
-def _template_hashes(templates_dir: str | None) -> dict[str, str]:
-    """Every template a run may render (packaged names, resolved through the override dir)."""
-    from prompts import PACKAGE_TEMPLATES_DIR, template_source
+def _template_hashes(agent: Agent, templates_dir: str | None) -> dict[str, str]:
+    """The templates whose text reaches the model: the agent's own (through the override
+    folder) and, for an agent calling a model, the backends' answer-only follow-up (packaged)."""
+    from prompts import template_digests
 
-    return {
-        path.name: hashlib.sha256(
-            template_source(path.stem, templates_dir).encode("utf-8")
-        ).hexdigest()
-        for path in sorted(PACKAGE_TEMPLATES_DIR.glob("*.j2"))
-    }
+    rendered = template_digests(agent.templates, templates_dir)
+    if agent.needs_model:
+        rendered |= template_digests([ANSWER_ONLY_TEMPLATE])
+    return rendered
 
 
 def prepare_run(config: EvalConfig) -> PreparedRun:
@@ -158,7 +157,7 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     agent.check_templates(first.instruction.text, first.plan, first.instruction.goal)
     identity = RunIdentity(
         settings=config.result_settings(),
-        templates=_template_hashes(config.templates_dir),
+        templates=_template_hashes(agent, config.templates_dir),
         plans=file_sha256(Path(config.plans), "plans file") if config.plans else None,
         dataset=dataset.source.sha256,
     )

@@ -9,7 +9,6 @@ interrupted run loses nothing and a rerun skips what is already planned.
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from llm_agents.run_data.store import (
     atomic_write_json,
     check_output_dir,
 )
-from prompts import BlockRole, render_blocks, template_source
+from prompts import BlockRole, render_blocks, template_digests
 
 PLANNER_TEMPLATE = "planner.j2"
 REPAIR_TEMPLATE = "plan_repair.j2"
@@ -111,13 +110,6 @@ class PlanSummary(BaseModel):
 # ---------------------------------------------------------------- prompts
 
 
-def _template_hashes(templates_dir: str | Path | None) -> dict[str, str]:
-    return {
-        name: hashlib.sha256(template_source(name, templates_dir).encode("utf-8")).hexdigest()
-        for name in (PLANNER_TEMPLATE, REPAIR_TEMPLATE)
-    }
-
-
 def _messages(blocks: Sequence[tuple[BlockRole, str]]) -> list[ChatMessage]:
     return [ChatMessage(role=role, content=text) for role, text in blocks]
 
@@ -160,7 +152,7 @@ def _settings(model: ModelAPI, config: PlannerConfig) -> PlanSettings:
         backend=model.backend_name,
         model=model.model_name,
         generation=model.config.model_dump(mode="json", exclude=transport),
-        templates=_template_hashes(config.templates_dir),
+        templates=template_digests((PLANNER_TEMPLATE, REPAIR_TEMPLATE), config.templates_dir),
         limits=config.limits,
         variant=config.variant,
         repair=config.repair,

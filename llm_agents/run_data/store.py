@@ -210,7 +210,8 @@ class RunIdentity(BaseModel):
     def differences(self, other: RunIdentity, added: Mapping[str, Any] | None = None) -> list[str]:
         """Human-readable differences from `other` (the identity on disk), empty when equal.
         A setting `other` predates counts as its value in `added` (its default: how that run
-        played before the setting existed), so adding a setting does not strand older runs."""
+        played before the setting existed), so adding a setting does not strand older runs. A
+        template `other` hashed that this run does not render is no difference."""
         found = []
         predated = added or {}
         for key in sorted(self.settings.keys() | other.settings.keys()):
@@ -218,8 +219,10 @@ class RunIdentity(BaseModel):
             theirs = other.settings[key] if key in other.settings else predated.get(key)
             if ours != theirs:
                 found.append(f"{key} ({_short(theirs)} before, {_short(ours)} now)")
-        for name in sorted(self.templates.keys() | other.templates.keys()):
-            if self.templates.get(name) != other.templates.get(name):
+        # Only the templates this run renders: runs once hashed every packaged template, and
+        # an edit to one this agent never renders must not strand them.
+        for name in sorted(self.templates):
+            if self.templates[name] != other.templates.get(name):
                 found.append(f"template {name} (its content changed)")
         if self.plans != other.plans:
             found.append("plans file content")
