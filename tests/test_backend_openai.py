@@ -21,7 +21,7 @@ from env.errors import UserError
 from llm_agents.backends import CachedModel, get_model
 from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
 from llm_agents.backends.openai import LOOP_THREAD_NAME, OpenAIModel
-from llm_agents.backends.retry import RetryPolicy, backoff_wait, parse_retry_after
+from llm_agents.backends.retry import RetryPolicy, RetryWaits, backoff_wait, parse_retry_after
 
 #: Retries fast enough for tests; the timeout is short so "slow" faults stay cheap.
 FAST = {"backoff_initial_s": 0.01, "backoff_max_s": 0.05, "jitter_s": 0.0}
@@ -299,8 +299,9 @@ def test_parse_retry_after_reads_seconds_and_dates() -> None:
 
 
 def test_backoff_grows_exponentially_with_bounded_jitter_and_caps() -> None:
-    policy = RetryPolicy(
-        backoff_initial_s=1.0, backoff_max_s=10.0, jitter_s=0.5, retry_after_max_s=60
+    policy = RetryPolicy.for_generation(
+        GenerateConfig(),
+        RetryWaits(backoff_initial_s=1.0, backoff_max_s=10.0, jitter_s=0.5, retry_after_max_s=60),
     )
     for attempt, base in [(1, 1.0), (2, 2.0), (3, 4.0), (5, 10.0), (9, 10.0)]:
         waits = [backoff_wait(policy, attempt) for _ in range(50)]

@@ -298,12 +298,20 @@ def test_only_generation_settings_that_shape_answers_are_in_a_runs_identity(name
 
 def test_backend_options_about_speed_are_left_out_of_a_runs_identity() -> None:
     from llm_agents.evaluation.config import EvalConfig
+    from llm_agents.evaluation.grounding_run import GroundConfig
 
-    base = EvalConfig(backend_options={"dtype": "float32"})
-    faster = EvalConfig(backend_options={"dtype": "float32", "threads": 4})
-    other = EvalConfig(backend_options={"dtype": "float16"})
-    assert faster.result_settings() == base.result_settings()
-    assert other.result_settings() != base.result_settings()
+    for config in (EvalConfig, GroundConfig):
+        base = config(backend_options={"dtype": "float32"})
+        other = config(backend_options={"dtype": "float16"})
+        assert other.result_settings() != base.result_settings()
+        for speed in (
+            {"threads": 4},
+            {"api_key_env": "OTHER_KEY"},
+            {"health_interval_s": 1.0},
+            {"backoff_initial_s": 5.0, "jitter_s": 0.0},
+        ):
+            faster = config(backend_options={"dtype": "float32", **speed})
+            assert faster.result_settings() == base.result_settings(), speed
 
 
 def test_a_setting_added_after_a_run_was_written_counts_at_its_default() -> None:

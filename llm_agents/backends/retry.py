@@ -48,13 +48,14 @@ class RetryWaits(BaseModel):
 
 
 class RetryPolicy(RetryWaits):
-    """How often and how patiently a transient failure is retried."""
+    """How often and how patiently a transient failure is retried (the limits have no defaults
+    here: `GenerateConfig` declares them)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    max_retries: int = Field(6, ge=0)
+    max_retries: int = Field(ge=0)
     """Retries after the first attempt; 0 tries once."""
-    attempt_timeout_s: float = Field(120.0, gt=0.0)
+    attempt_timeout_s: float = Field(gt=0.0)
     """Longest one attempt may take, start to last byte."""
 
     @classmethod

@@ -34,6 +34,7 @@ from llm_agents.agents.actions import action_names
 from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import CHANGES_RESULTS, ChoiceRule, GenerateConfig, result_values
+from llm_agents.backends.retry import RetryWaits
 from llm_agents.evaluation.protocol import ProtocolName, apply_protocol
 from llm_agents.run_data.store import RENAMED_SETTINGS, with_current_names
 from textualizer import RENDERERS
@@ -41,8 +42,11 @@ from textualizer import RENDERERS
 if TYPE_CHECKING:
     from env import EnvConfig
 
-#: Backend options that change how fast or where a model runs, never what it answers.
-TRANSPORT_BACKEND_OPTIONS = frozenset({"threads", "api_key_env", "health_interval_s"})
+#: Backend options that change how fast, where or how patiently a model runs, never what it
+#: answers (the waits between retries included).
+TRANSPORT_BACKEND_OPTIONS = frozenset(
+    {"threads", "api_key_env", "health_interval_s", *RetryWaits.model_fields}
+)
 
 
 class ModelSettings(BaseModel):
@@ -81,6 +85,18 @@ class ModelSettings(BaseModel):
     @classmethod
     def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
         """The merged file and flag settings with any preset filled in under them."""
+        return settings
+
+    def result_settings(self) -> dict[str, Any]:
+        """The settings that change results (marked `CHANGES_RESULTS`): what a resumed run must
+        match. Of the backend options, those that only change how fast or where a model runs
+        are left out."""
+        settings = result_values(self)
+        settings["backend_options"] = {
+            key: value
+            for key, value in settings["backend_options"].items()
+            if key not in TRANSPORT_BACKEND_OPTIONS
+        }
         return settings
 
     @field_validator("model")
@@ -273,18 +289,6 @@ class EvalConfig(ModelSettings, GroundingSettings):
             world_key=OFFICIAL_WORLD_KEY if self.world_seeding == "official" else None,
             device=self.env_device,
         )
-
-    def result_settings(self) -> dict[str, Any]:
-        """The settings that change results (marked `CHANGES_RESULTS`): what a resumed run must
-        match. Of the backend options, those that only change how fast or where a model runs
-        are left out."""
-        settings = result_values(self)
-        settings["backend_options"] = {
-            key: value
-            for key, value in settings["backend_options"].items()
-            if key not in TRANSPORT_BACKEND_OPTIONS
-        }
-        return settings
 
 
 Settings = TypeVar("Settings", bound=ModelSettings)

@@ -44,10 +44,8 @@ from llm_agents.backends.base import (
     ChoiceRule,
     ChoiceSet,
     ModelAPI,
-    result_values,
 )
 from llm_agents.evaluation.config import (
-    TRANSPORT_BACKEND_OPTIONS,
     GroundingSettings,
     ModelSettings,
 )
@@ -116,17 +114,6 @@ class GroundConfig(ModelSettings, GroundingSettings):
     def _categories_of_the_difficulty(self) -> GroundConfig:
         check_categories(self.categories, self.difficulty)
         return self
-
-    def result_settings(self) -> dict[str, Any]:
-        """The settings that change answers (marked `CHANGES_RESULTS`): what a resumed run
-        must match."""
-        settings = result_values(self)
-        settings["backend_options"] = {
-            key: value
-            for key, value in self.backend_options.items()
-            if key not in TRANSPORT_BACKEND_OPTIONS
-        }
-        return settings
 
 
 class GroundingRecord(BaseModel):
