@@ -67,6 +67,14 @@ def _label(model: str) -> str:
     return model.split(":", 1)[-1].rsplit("/", 1)[-1]
 
 
+def _rate(outcomes: list[bool]) -> str:
+    """Success rate with its 95% Wilson interval: the play samples are small."""
+    from llm_agents.run_data.metrics import wilson_interval
+
+    low, high = wilson_interval(sum(outcomes), len(outcomes))
+    return f"{sum(outcomes) / len(outcomes):.2f} [{low:.2f}, {high:.2f}] (n={len(outcomes)})"
+
+
 @dataclass(frozen=True)
 class Reader:
     """A model grounding with a number of worked examples."""
@@ -204,12 +212,8 @@ def main() -> None:
         by_category = {
             c: [e.success for e in episodes if e.category == c] for c in args.play_categories
         }
-        cells = "  ".join(
-            f"{c} {sum(v) / len(v):.2f} (n={len(v)})" for c, v in by_category.items() if v
-        )
-        line = (
-            f"  {agent:<10} success {sum(e.success for e in episodes) / len(episodes):.2f}  {cells}"
-        )
+        cells = "  ".join(f"{c} {_rate(v)}" for c, v in by_category.items() if v)
+        line = f"  {agent:<10} success {_rate([e.success for e in episodes])}  {cells}"
         read = [e for e in episodes if e.grounding_correct is not None]
         if read:
             right = [e.success for e in read if e.grounding_correct]
