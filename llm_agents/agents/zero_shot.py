@@ -139,8 +139,8 @@ class ZeroShotAgent:
 
     needs_model: ClassVar[bool] = True
     step_template: ClassVar[str] = STEP_TEMPLATE
-    templates: ClassVar[tuple[str, ...]] = (SYSTEM_TEMPLATE, STEP_TEMPLATE)
     """The template of the per-step user message (strategies built on this one swap it)."""
+    templates: ClassVar[tuple[str, ...]] = (SYSTEM_TEMPLATE, STEP_TEMPLATE)
 
     def __init__(
         self,
