@@ -111,7 +111,7 @@ def bench_variant(
     @jax.jit
     def our_rollout(state: Any, actions: jax.Array) -> Any:
         def body(state: Any, step_actions: jax.Array) -> tuple[Any, jax.Array]:
-            state, info = jax.vmap(env.step_from_episode_key)(state, step_actions)
+            state, info = env.step_batch(state, step_actions)
             return state, info.reward.sum()
 
         return jax.lax.scan(body, state, actions)

@@ -22,15 +22,17 @@ def goal_reached(unlocked: jax.Array, required: jax.Array, forbidden: jax.Array)
 
 
 def scored_success(
-    reached: jax.Array, game_ended: jax.Array, rule: SuccessRule
-) -> tuple[jax.Array, jax.Array]:
-    """Whether a step succeeds under `rule`, and whether its goal was reached as the game ended.
+    reached: jax.Array, in_new_world: jax.Array, game_ended: jax.Array, rule: SuccessRule
+) -> jax.Array:
+    """Whether a step succeeds under `rule`.
 
     `reached` is the goal's checker verdict after the step; `game_ended` is True where the step
-    ended the game (the player died, or Craftax's own time limit). The official wrapper checks
-    the goal on the state after the automatic reset, so under `official` such a step never
-    succeeds.
+    ended the game (the player died, or Craftax's own time limit); `in_new_world` is the verdict
+    on the world Craftax's automatic reset starts there. The official wrapper checks the goal on
+    the state its auto-reset env returns, which on the game-over step is that new world, so
+    under `official` such a step succeeds exactly when the goal is met there; under
+    `game_over_counts` it succeeds when the goal was met as the game ended.
     """
-    at_game_over = reached & game_ended
-    success = reached & ~game_ended if rule == "official" else reached
-    return success, at_game_over
+    if rule == "official":
+        return jnp.where(game_ended, in_new_world, reached)
+    return reached

@@ -8,6 +8,10 @@ slots refilled in place, and everything the caller needs pulled to numpy once pe
 Determinism: an episode's randomness comes only from its episode key (see `episode_key`); step t
 uses `fold_in(episode_key, t)`, so a trajectory does not depend on the batch size or on which slot
 the episode runs in.
+
+The step the game ends on is also checked in the world Craftax's auto-reset env would start next
+(the official wrapper's verdict there, see `env.checker.scored_success`): that world is generated
+only on such a step, and only for goals other than achievements.
 """
 
 from __future__ import annotations
@@ -23,12 +27,12 @@ from flax import struct
 from pydantic import BaseModel, ConfigDict, Field
 
 from env.achievements import NUM_ACHIEVEMENTS
-from env.checker import scored_success
+from env.checker import goal_reached, scored_success
 from env.jax_cache import enable_compilation_cache
 from env.placement import EnvDevice, place_env
 from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP, SuccessRule
 from env.scenario_checker import goal_met
-from env.scenario_tasks import NUM_PARAMS
+from env.scenario_tasks import KIND_INDEX, NUM_PARAMS
 from env.termination import Termination
 from env.variant import DEFAULT_VARIANT, Variant
 
@@ -94,6 +98,9 @@ class StepInfo:
     new_achievements: jax.Array
     goal_at_game_over: jax.Array
     """True when the goal was completed on the step the game ended, whichever rule scored it."""
+    goal_in_new_world: jax.Array
+    """True when, on the step the game ended, the goal was met in the auto-reset world (what the
+    official wrapper checks there, and `official` scores), whichever rule scored it."""
 
 
 def make_task(required: Any, forbidden: Any, kind: Any = 0, params: Any = None) -> Task:
@@ -173,60 +180,26 @@ class CrafTextEnv:
     def step(
         self, key: jax.Array, state: EpisodeState, action: jax.Array
     ) -> tuple[EpisodeState, StepInfo]:
-        """One step. A finished episode keeps its step count and termination and earns nothing."""
-        _, game, craftax_reward, game_over, _ = self.craftax.step_env(
-            key, state.game, action, self.params
+        """One step of one episode with `key`. A finished episode keeps its step count and
+        termination and earns nothing."""
+        keys, states, actions = jax.tree.map(
+            lambda leaf: jnp.expand_dims(leaf, 0), (key, state, action)
         )
-        steps = state.steps + 1
-        previous = state.game.achievements[:NUM_ACHIEVEMENTS]
-        unlocked = game.achievements[:NUM_ACHIEVEMENTS]
-        dead = game.player_health <= 0
-        task = state.task
-        reached = goal_met(
-            state.game,
-            game,
-            task.kind,
-            task.required,
-            task.forbidden,
-            task.params,
-            self.variant,
-        )
-        # The step cap is ours, not a game end: a goal reached on the last capped step counts.
-        success, at_game_over = scored_success(reached, game_over | dead, self.config.success_rule)
-        termination = jnp.select(
-            [success, dead, game_over | (steps >= self.config.max_steps)],
-            [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
-            Termination.RUNNING,
-        ).astype(jnp.int32)
-        was_done = state.done
-        # A finished episode is masked, not frozen: its game keeps stepping (nobody reads it
-        # until the slot is refilled), which spares copying the whole Craftax state every step.
-        next_state = EpisodeState(
-            game=game,
-            task=state.task,
-            episode_key=state.episode_key,
-            steps=jnp.where(was_done, state.steps, steps),
-            termination=jnp.where(was_done, state.termination, termination),
-        )
-        craftax_reward = jnp.where(was_done, 0.0, craftax_reward).astype(jnp.float32)
-        reward = jnp.where(was_done, 0.0, success.astype(jnp.float32)) + (
-            craftax_reward / CRAFTAX_REWARD_SCALE
-        )
-        info = StepInfo(
-            reward=reward,
-            done=next_state.done,
-            termination=next_state.termination,
-            craftax_reward=craftax_reward,
-            new_achievements=jnp.where(was_done, False, unlocked & ~previous),
-            goal_at_game_over=~was_done & at_game_over,
-        )
-        return next_state, info
+        stepped = self._step_rows(keys, states, actions, jnp.ones(1, jnp.bool_))
+        result: tuple[EpisodeState, StepInfo] = jax.tree.map(lambda leaf: leaf[0], stepped)
+        return result
 
     def step_from_episode_key(
         self, state: EpisodeState, action: jax.Array
     ) -> tuple[EpisodeState, StepInfo]:
         """`step` with the key derived from the episode key and step index (deterministic replay)."""
         return self.step(jax.random.fold_in(state.episode_key, state.steps), state, action)
+
+    def step_batch(self, state: EpisodeState, actions: jax.Array) -> tuple[EpisodeState, StepInfo]:
+        """Step every episode of a batch (a leading axis), each with the key of its episode and
+        step index: what vmapping `step_from_episode_key` would give, at the cost of one
+        episode's step per row (a vmapped step would generate a new world in every row)."""
+        return self._step_rows(_step_keys(state), state, actions, jnp.ones_like(state.done))
 
     def masked_batch_step(
         self, state: EpisodeState, actions: jax.Array, active: jax.Array
@@ -236,7 +209,7 @@ class CrafTextEnv:
         Frozen slots also keep their step index, so their next step draws the same key it would
         have drawn now: a trajectory does not depend on when its slot was stepped.
         """
-        return _step_where(self, state, actions, active)
+        return self._step_rows(_step_keys(state), state, actions, active)
 
     def step_slots(
         self, state: EpisodeState, slots: jax.Array, actions: jax.Array, valid: jax.Array
@@ -248,32 +221,132 @@ class CrafTextEnv:
         a slot: scattered rows would race.
         """
         current = jax.tree.map(lambda leaf: leaf[slots], state)
-        stepped, info = _step_where(self, current, actions, valid)
+        stepped, info = self._step_rows(_step_keys(current), current, actions, valid)
         next_state: EpisodeState = jax.tree.map(
             lambda batch, rows: batch.at[slots].set(rows), state, stepped
         )
         return next_state, info
 
+    def new_world(self, key: jax.Array) -> Any:
+        """The Craftax state the auto-reset env starts when a step with `key` ends the game:
+        craftax's `EnvironmentAutoReset.step` splits its key into (step, reset) and resets from
+        the second."""
+        _, world = self.craftax.reset_env(jax.random.split(key)[1], self.params)
+        return world
 
-def _step_where(
-    env: CrafTextEnv, state: EpisodeState, actions: jax.Array, mask: jax.Array
-) -> tuple[EpisodeState, StepInfo]:
-    """Step the rows of a batch where `mask` is true; the others keep their state bit for bit
-    and their info says nothing happened."""
-    stepped, info = jax.vmap(env.step_from_episode_key)(state, actions)
+    def _step_rows(
+        self, keys: jax.Array, state: EpisodeState, actions: jax.Array, active: jax.Array
+    ) -> tuple[EpisodeState, StepInfo]:
+        """Step the rows of a batch where `active` is true, with their `keys`; the others keep
+        their state bit for bit and their info says nothing happened."""
+        game, craftax_reward, ended, reached = jax.vmap(self._advance)(keys, state, actions)
+        was_done = state.done
+        # Rows that end their game now: a finished episode's game keeps stepping (see below),
+        # and a dead player would end it again at every step.
+        ending = active & ~was_done & ended
+        in_new_world = self._met_in_new_world(keys, state, ending)
+        steps = state.steps + 1
+        success = scored_success(reached, in_new_world, ended, self.config.success_rule)
+        # The step cap is ours, not a game end: a goal reached on the last capped step counts.
+        termination = jnp.select(
+            [success, game.player_health <= 0, ended | (steps >= self.config.max_steps)],
+            [Termination.SUCCESS, Termination.DEATH, Termination.TIMEOUT],
+            Termination.RUNNING,
+        ).astype(jnp.int32)
+        # A finished episode is masked, not frozen: its game keeps stepping (nobody reads it
+        # until the slot is refilled), which spares copying the whole Craftax state every step.
+        stepped = EpisodeState(
+            game=game,
+            task=state.task,
+            episode_key=state.episode_key,
+            steps=jnp.where(was_done, state.steps, steps),
+            termination=jnp.where(was_done, state.termination, termination),
+        )
 
-    def keep_unmasked(new: jax.Array, old: jax.Array) -> jax.Array:
-        return jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
+        def keep_inactive(new: jax.Array, old: jax.Array) -> jax.Array:
+            return jnp.where(active.reshape(active.shape + (1,) * (new.ndim - 1)), new, old)
 
-    next_state: EpisodeState = jax.tree.map(keep_unmasked, stepped, state)
-    return next_state, StepInfo(
-        reward=jnp.where(mask, info.reward, 0.0),
-        done=next_state.done,
-        termination=next_state.termination,
-        craftax_reward=jnp.where(mask, info.craftax_reward, 0.0),
-        new_achievements=mask[:, None] & info.new_achievements,
-        goal_at_game_over=mask & info.goal_at_game_over,
-    )
+        next_state: EpisodeState = jax.tree.map(keep_inactive, stepped, state)
+        earning = active & ~was_done
+        craftax_reward = jnp.where(earning, craftax_reward, 0.0).astype(jnp.float32)
+        reward = jnp.where(earning, success.astype(jnp.float32), 0.0) + (
+            craftax_reward / CRAFTAX_REWARD_SCALE
+        )
+        previous = state.game.achievements[:, :NUM_ACHIEVEMENTS]
+        unlocked = game.achievements[:, :NUM_ACHIEVEMENTS]
+        return next_state, StepInfo(
+            reward=reward,
+            done=next_state.done,
+            termination=next_state.termination,
+            craftax_reward=craftax_reward,
+            new_achievements=earning[:, None] & unlocked & ~previous,
+            goal_at_game_over=ending & reached,
+            goal_in_new_world=ending & in_new_world,
+        )
+
+    def _advance(
+        self, key: jax.Array, state: EpisodeState, action: jax.Array
+    ) -> tuple[Any, jax.Array, jax.Array, jax.Array]:
+        """One episode's Craftax step and its goal's verdict on the state after it: (game,
+        Craftax's reward, whether the game ended, whether the goal is met)."""
+        _, game, craftax_reward, game_over, _ = self.craftax.step_env(
+            key, state.game, action, self.params
+        )
+        task = state.task
+        reached = goal_met(
+            state.game,
+            game,
+            task.kind,
+            task.required,
+            task.forbidden,
+            task.params,
+            self.variant,
+        )
+        return game, craftax_reward, game_over | (game.player_health <= 0), reached
+
+    def _met_in_new_world(
+        self, keys: jax.Array, state: EpisodeState, ending: jax.Array
+    ) -> jax.Array:
+        """Per row where `ending`: whether the goal is met checking, as the official wrapper
+        does, the step from the state before it to the new world (`new_world`); False elsewhere."""
+        task = state.task
+        achievements = task.kind == KIND_INDEX["achievements"]
+        # A new world has nothing unlocked, so achievements goals need none generated.
+        met_unlocking_none = goal_reached(
+            jnp.zeros_like(task.required), task.required, task.forbidden
+        )
+        generate = ending & ~achievements
+
+        def one_row(row: tuple[jax.Array, Any, Task, jax.Array]) -> jax.Array:
+            key, previous, row_task, wanted = row
+
+            def check() -> jax.Array:
+                return goal_met(
+                    previous,
+                    self.new_world(key),
+                    row_task.kind,
+                    row_task.required,
+                    row_task.forbidden,
+                    row_task.params,
+                    self.variant,
+                )
+
+            return jax.lax.cond(wanted, check, lambda: jnp.bool_(False))
+
+        # Row by row (`lax.map`), each behind its own `cond`: vmapped, a cond runs both branches
+        # in every row, and Craftax's world generation, vectorised, makes other worlds in some
+        # lanes (see `VectorEnv.reset`). The outer cond skips the loop on the usual step.
+        in_world = jax.lax.cond(
+            jnp.any(generate),
+            lambda: jax.lax.map(one_row, (keys, state.game, task, generate)),
+            lambda: jnp.zeros_like(generate),
+        )
+        return ending & jnp.where(achievements, met_unlocking_none, in_world)
+
+
+def _step_keys(state: EpisodeState) -> jax.Array:
+    """Each row's step key: its episode key folded with its step index."""
+    return jax.vmap(jax.random.fold_in)(state.episode_key, state.steps)
 
 
 def episode_key(seed: int, goal_id: str, instruction_index: int, episode_index: int) -> np.ndarray:
@@ -299,6 +372,7 @@ class HostBatch(struct.PyTreeNode):
     achievements: np.ndarray
     new_achievements: np.ndarray
     goal_at_game_over: np.ndarray
+    goal_in_new_world: np.ndarray
 
 
 #: Slots stepped per call when only a few of a large batch are ready (see `VectorEnv.step`).
@@ -386,9 +460,7 @@ class VectorEnv:
         ready = np.flatnonzero(active)
         if self._group == self.batch_size or 2 * len(ready) > self.batch_size:
             self._state, info = self._step(state, jnp.asarray(actions), jnp.asarray(active))
-            return self._to_host(
-                self._state, info.reward, info.new_achievements, info.goal_at_game_over
-            )
+            return self._to_host(self._state, _row_outputs(info))
         idle = np.flatnonzero(~active)
         groups, infos = [], []
         for start in range(0, len(ready), self._group):
@@ -400,30 +472,21 @@ class VectorEnv:
                 state, jnp.asarray(slots), jnp.asarray(actions[slots]), jnp.asarray(valid)
             )
             groups.append(group)
-            infos.append((info.reward, info.new_achievements, info.goal_at_game_over))
+            infos.append(_row_outputs(info))
         self._state = state
-        reward = np.zeros(self.batch_size, np.float32)
-        new = np.zeros((self.batch_size, NUM_ACHIEVEMENTS), bool)
-        at_game_over = np.zeros(self.batch_size, bool)
+        outputs = _no_outputs(self.batch_size)
         # One transfer for the round's groups, with the state's: each sync stalls the host.
         game, termination, steps, fetched = jax.device_get(
             (state.game, state.termination, state.steps, infos)
         )
-        for group, (rows_reward, rows_new, rows_over) in zip(groups, fetched, strict=True):
-            count = len(group)
-            reward[group] = rows_reward[:count]
-            new[group] = rows_new[:count]
-            at_game_over[group] = rows_over[:count]
-        return _host_batch(game, termination, steps, reward, new, at_game_over)
+        for group, rows in zip(groups, fetched, strict=True):
+            for output, row_values in zip(outputs, rows, strict=True):
+                output[group] = row_values[: len(group)]
+        return _host_batch(game, termination, steps, outputs)
 
     def _fresh_host(self) -> HostBatch:
         # numpy zeros: an eager jnp.zeros would be one more compile on an accelerator.
-        return self._to_host(
-            self._require_state(),
-            np.zeros(self.batch_size, np.float32),
-            np.zeros((self.batch_size, NUM_ACHIEVEMENTS), bool),
-            np.zeros(self.batch_size, bool),
-        )
+        return self._to_host(self._require_state(), _no_outputs(self.batch_size))
 
     def _require_state(self) -> EpisodeState:
         if self._state is None:
@@ -431,16 +494,26 @@ class VectorEnv:
         return self._state
 
     @staticmethod
-    def _to_host(
-        state: EpisodeState,
-        reward: jax.Array | np.ndarray,
-        new: jax.Array | np.ndarray,
-        goal_at_game_over: jax.Array | np.ndarray,
-    ) -> HostBatch:
-        game, reward_np, termination, steps, new_np, at_game_over = jax.device_get(
-            (state.game, reward, state.termination, state.steps, new, goal_at_game_over)
+    def _to_host(state: EpisodeState, outputs: tuple[Any, ...]) -> HostBatch:
+        game, termination, steps, fetched = jax.device_get(
+            (state.game, state.termination, state.steps, outputs)
         )
-        return _host_batch(game, termination, steps, reward_np, new_np, at_game_over)
+        return _host_batch(game, termination, steps, fetched)
+
+
+def _row_outputs(info: StepInfo) -> tuple[jax.Array, ...]:
+    """What the host reads of a step's info, one row per stepped slot (`_host_batch`'s order)."""
+    return (info.reward, info.new_achievements, info.goal_at_game_over, info.goal_in_new_world)
+
+
+def _no_outputs(rows: int) -> tuple[np.ndarray, ...]:
+    """`_row_outputs` of rows that did nothing."""
+    return (
+        np.zeros(rows, np.float32),
+        np.zeros((rows, NUM_ACHIEVEMENTS), bool),
+        np.zeros(rows, bool),
+        np.zeros(rows, bool),
+    )
 
 
 def _episode_tasks(
@@ -469,13 +542,9 @@ def _episode_tasks(
 
 
 def _host_batch(
-    game: Any,
-    termination: np.ndarray,
-    steps: np.ndarray,
-    reward: np.ndarray,
-    new: np.ndarray,
-    goal_at_game_over: np.ndarray,
+    game: Any, termination: np.ndarray, steps: np.ndarray, outputs: tuple[np.ndarray, ...]
 ) -> HostBatch:
+    reward, new, goal_at_game_over, goal_in_new_world = outputs
     return HostBatch(
         game=game,
         reward=reward,
@@ -485,6 +554,7 @@ def _host_batch(
         achievements=np.asarray(game.achievements)[:, :NUM_ACHIEVEMENTS],
         new_achievements=new,
         goal_at_game_over=goal_at_game_over,
+        goal_in_new_world=goal_in_new_world,
     )
 
 

@@ -92,7 +92,7 @@ class Replayer:
 
         def advance(state: EpisodeState, actions: jax.Array) -> tuple[EpisodeState, Any]:
             def one_step(state: EpisodeState, action: jax.Array) -> tuple[EpisodeState, Any]:
-                state, info = jax.vmap(env.step_from_episode_key)(state, action)
+                state, info = env.step_batch(state, action)
                 return state, (
                     jax.vmap(draw)(state.game),
                     info.reward,

@@ -4,9 +4,12 @@ no JAX, so configs can name them cheaply."""
 from typing import Literal, get_args
 
 SuccessRule = Literal["game_over_counts", "official"]
-"""Whether a goal completed on the step the game ends (the player dies, or Craftax's own time
-limit) is a success: `game_over_counts` says yes; `official` says no, as the official CrafText
-wrapper scores it (it checks the goal on the state after the automatic reset)."""
+"""How the step the game ends on (the player dies, or Craftax's own time limit) is scored:
+`game_over_counts` checks the goal on the state the game ended in; `official` checks it, as the
+official CrafText wrapper does, on the step from the state before to the world Craftax's
+automatic reset starts (`GameData.from_state(previous, new world)`). There nothing is unlocked,
+so an achievements goal never succeeds; a placing or building goal sometimes does (the new
+world's inventory is empty, its blocks lie around the new spawn)."""
 SUCCESS_RULES: tuple[SuccessRule, ...] = get_args(SuccessRule)
 #: The rule the env, the settings and the `default` protocol start from.
 DEFAULT_SUCCESS_RULE: SuccessRule = "game_over_counts"

@@ -92,14 +92,18 @@ def our_checker_outcome(
     for step, new in enumerate(new_per_step, start=1):
         unlocked = unlocked | _mask(new)
         ended = step == game_over_step
-        reached = goal_reached(
-            jnp.asarray(unlocked), jnp.asarray(_mask(required)), jnp.asarray(_mask(forbidden))
+        reached, in_new_world = (
+            goal_reached(
+                jnp.asarray(checked), jnp.asarray(_mask(required)), jnp.asarray(_mask(forbidden))
+            )
+            for checked in (unlocked, np.zeros(NUM_ACHIEVEMENTS, bool))
         )
-        success, at_game_over = scored_success(reached, jnp.asarray(ended), rule)
+        success = scored_success(reached, in_new_world, jnp.asarray(ended), rule)
+        at_game_over = bool(reached) and ended
         if bool(success):
-            return "success", step, bool(at_game_over)
+            return "success", step, at_game_over
         if ended:
-            return "death", step, bool(at_game_over)
+            return "death", step, at_game_over
         if step == MAX_STEPS:
             return "timeout", step, False
     raise AssertionError("unreachable")

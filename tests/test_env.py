@@ -331,6 +331,101 @@ def test_a_goal_completed_as_the_game_ends_is_scored_by_the_rule(
         }
 
 
+@pytest.mark.parametrize("dies", [True, False])
+def test_on_the_game_over_step_official_scores_the_goal_in_the_new_world(
+    classic_env: Any, official_env: Any, dies: bool
+) -> None:
+    from env.goals import ConditionalPlacingGoal
+    from env.scenario_tasks import encode_goals
+
+    # "Collect a wood, then place stone": the wood held is never spent, but the official wrapper
+    # checks the step from this state to the auto-reset world, whose inventory is empty: the
+    # wood looks spent, and the map before the step has stone.
+    goal = ConditionalPlacingGoal(
+        id="C",
+        split="medium_train",
+        scenario="medium",
+        instruction="t",
+        paraphrases=(),
+        collect="wood",
+        collect_count=1,
+        place="STONE",
+        place_count=1,
+    )
+    encoded = encode_goals([goal], Variant.CLASSIC)
+    task = make_task(encoded.required[0], encoded.forbidden[0], encoded.kind[0], encoded.params[0])
+    official, official_step = official_env
+    outcomes = {}
+    for rule, reset, step in (
+        ("game_over_counts", classic_env.reset, classic_env.step),
+        ("official", official.jitted_reset, official_step),
+    ):
+        state = reset(key(), task)
+        game = state.game.replace(inventory=state.game.inventory.replace(wood=jnp.int32(3)))
+        if dies:
+            game = game.replace(player_health=game.player_health * 0, player_recover=0.0)
+        _, info = step(state.replace(game=game), jnp.int32(NOOP))
+        outcomes[rule] = (
+            Termination(int(info.termination)),
+            bool(info.goal_at_game_over),
+            bool(info.goal_in_new_world),
+        )
+        assert (float(info.reward) >= 1.0) == (outcomes[rule][0] == Termination.SUCCESS)
+    if dies:
+        # Either rule reports the new world's verdict; only `official` scores it.
+        assert outcomes == {
+            "game_over_counts": (Termination.DEATH, False, True),
+            "official": (Termination.SUCCESS, False, True),
+        }
+    else:
+        assert outcomes == {rule: (Termination.RUNNING, False, False) for rule in outcomes}
+
+
+def test_a_batch_checks_the_new_world_only_in_its_stepped_rows_that_end_their_game(
+    classic_env: Any,
+) -> None:
+    from env.goals import ConditionalPlacingGoal
+    from env.scenario_tasks import encode_goals
+
+    goal = ConditionalPlacingGoal(
+        id="C",
+        split="medium_train",
+        scenario="medium",
+        instruction="t",
+        paraphrases=(),
+        collect="wood",
+        collect_count=1,
+        place="STONE",
+        place_count=1,
+    )
+    encoded = encode_goals([goal], Variant.CLASSIC)
+    placing = make_task(
+        encoded.required[0], encoded.forbidden[0], encoded.kind[0], encoded.params[0]
+    )
+    wood = make_task(*masks(["COLLECT_WOOD"]))
+
+    def row(task: Any, dies: bool) -> Any:
+        state = with_achievements(classic_env.reset(key(), task), ["COLLECT_WOOD"])
+        game = state.game.replace(inventory=state.game.inventory.replace(wood=jnp.int32(3)))
+        if dies:
+            game = game.replace(player_health=game.player_health * 0, player_recover=0.0)
+        return state.replace(game=game)
+
+    # Dying placing goal, living one, dying one not stepped, dying achievements goal.
+    rows = [row(placing, True), row(placing, False), row(placing, True), row(wood, True)]
+    batch = jax.tree.map(lambda *leaves: jnp.stack(leaves), *rows)
+    active = jnp.asarray([True, True, False, True])
+    _, info = classic_env.env.batched_step(batch, jnp.zeros(4, jnp.int32), active)
+    assert np.asarray(info.goal_in_new_world).tolist() == [True, False, False, False]
+    assert np.asarray(info.goal_at_game_over).tolist() == [False, False, False, True]
+    assert [Termination(int(t)) for t in np.asarray(info.termination)] == [
+        Termination.DEATH,
+        Termination.RUNNING,
+        Termination.RUNNING,
+        Termination.SUCCESS,
+    ]
+
+
 def test_official_world_seeding_gives_every_episode_the_world_of_prng_key_1(
     official_env: Any,
 ) -> None:

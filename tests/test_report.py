@@ -348,6 +348,61 @@ def test_a_run_is_rescored_under_either_rule_from_its_records(tmp_path: Path, pl
     assert (rescored in official) == counted and (rescored in lenient) != counted
 
 
+def game_ended_with_goal(
+    index: int, played: str, *, at_game_over: bool, in_new_world: bool, ended: str = "timeout"
+) -> EpisodeRecord:
+    """An episode whose game ended (`ended`) with its goal met on the final state, in the
+    auto-reset world, or both, scored as the rule it was `played` under scores it."""
+    counted = at_game_over if played == "game_over_counts" else in_new_world
+    return episode(index, "one", success=counted).model_copy(
+        update={
+            "goal_at_game_over": ended if at_game_over else None,
+            "goal_in_new_world": ended if in_new_world else None,
+            "termination": "success" if counted else ended,
+            "episode_return": 1.0 if counted else 0.0,
+        }
+    )
+
+
+@pytest.mark.parametrize("played", ["game_over_counts", "official"])
+def test_successes_in_the_new_world_count_under_official_and_apart(
+    tmp_path: Path, played: str
+) -> None:
+    # The official wrapper checks the auto-reset world on the game-over step (Medium and Hard
+    # goals can be met there): those successes are the official rule's, counted apart.
+    episodes = [
+        *episodes_with({"one": (1, 3)}),
+        game_ended_with_goal(10, played, at_game_over=False, in_new_world=True, ended="death"),
+        game_ended_with_goal(11, played, at_game_over=False, in_new_world=True),
+        game_ended_with_goal(12, played, at_game_over=True, in_new_world=True),
+        game_ended_with_goal(13, played, at_game_over=True, in_new_world=False, ended="death"),
+    ]
+    run_dir = make_run(tmp_path / "run", episodes, paper_results(success_rule=played))
+    official = report_run(run_dir, success_rule="official")
+    lenient = report_run(run_dir, success_rule="game_over_counts")
+
+    assert table_rows(official)["m (this run)"]["one"] == expected_cell(4, 7)
+    assert table_rows(lenient)["m (this run)"]["one"] == expected_cell(3, 7)
+    assert "Episodes: 7 (success 4, death 3, timeout 0)." in official
+    assert "Episodes: 7 (success 3, death 3, timeout 1)." in lenient
+    for report in (official, lenient):
+        assert "Goals completed on the step the game ended: 2." in report
+        assert "Succeeded on the game-over step, in the new world: 3" in report
+    assert "(a success under this rule)" in official
+    assert "(not counted under this rule)" in lenient
+    assert report_run(run_dir) == (official if played == "official" else lenient)
+
+
+def test_a_new_world_success_must_agree_with_the_termination_and_the_game_end() -> None:
+    record = game_ended_with_goal(0, "official", at_game_over=False, in_new_world=True)
+    with pytest.raises(ValidationError, match="goal_in_new_world"):
+        EpisodeRecord.model_validate(
+            {**record.model_dump(), "termination": "death", "success": False}
+        )
+    with pytest.raises(ValidationError, match="one game end"):
+        EpisodeRecord.model_validate({**record.model_dump(), "goal_at_game_over": "death"})
+
+
 def test_rescoring_keeps_other_episodes_and_fixes_the_return() -> None:
     plain = episode(0, "combo", success=False)
     lucky = at_game_over(1, "combo", counted=True)

@@ -6,12 +6,19 @@ and plants really end up near each other and resources are spent; the same steps
 squares stamped near the player, which random play never completes) by both: the official
 per-scenario checker on the official `GameData.from_state(previous, new, action)` with the target
 the official dataset module builds, and `env.scenario_checker.goal_met` with our encoding of the
-goal we parsed. The game-over step is left out: there the official wrapper checks the auto-reset
-world, which our `official` success rule scores as no success (see `env.rules`).
+goal we parsed.
+
+Game-over steps are scored too, where the official wrapper checks the world its auto-reset env
+starts (`GameData.from_state(previous, new world)`): states of the same trajectories, the
+player killed, and the world craftax's auto-reset step draws from our step's key. Our checker
+must score (previous, new world) as the official one does, and our env's own step on that state
+(which makes the world itself) must report the official verdict (`goal_in_new_world`) for a
+goal of every kind and split met there and one not met.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
 import sys
 from collections.abc import Iterator
@@ -23,16 +30,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from env.craftext_env import EpisodeState, make_task
 from env.dataset import load_dataset
 from env.goals import GOAL_KINDS
 from env.scenario_checker import goal_met
 from env.scenario_tasks import encode_goals
+from env.termination import Termination
 from env.variant import Variant
 
 pytestmark = pytest.mark.slow
 
 STEPS = 120
 TRAJECTORIES = 3
+#: Game-over steps taken from each trajectory's states (each generates two worlds).
+DEATHS = 4
 # Official `Scenarios` index -> the official checker function's module and name.
 _OFFICIAL_CHECKERS = {
     0: ("achivments", "checker_acvievments", "achievements"),
@@ -122,6 +133,56 @@ def _trajectory(variant: Variant, seed: int) -> tuple[Any, Any, np.ndarray]:
     return stack(previous), stack(new), np.asarray(actions, np.int32)
 
 
+class _GameEnds:
+    """A Craftax env whose step always ends the game, for craftax's own auto-reset step
+    (`EnvironmentAutoReset.step`) to run over: what that returns is the new world the official
+    wrapper checks, drawn from the step's key as craftax draws it, without compiling the game's
+    step once more."""
+
+    def __init__(self, variant: Variant):
+        from craftax.craftax_env import make_craftax_env_from_name
+
+        self.craftax = make_craftax_env_from_name(variant.craftax_name, auto_reset=False)
+
+    def step_env(self, key: Any, state: Any, action: Any, params: Any) -> Any:
+        return self.craftax.get_obs(state), state, jnp.float32(0), jnp.bool_(True), {}
+
+    def reset_env(self, key: Any, params: Any) -> Any:
+        return self.craftax.reset_env(key, params)
+
+
+@functools.cache
+def _new_world(variant: Variant) -> Any:
+    from craftax.environment_base.environment_bases import EnvironmentAutoReset
+
+    ends = _GameEnds(variant)
+    params = ends.craftax.default_params
+    return lambda key, state: EnvironmentAutoReset.step(ends, key, state, 0, params)[1]
+
+
+def _deaths(
+    variant: Variant, previous: Any, actions: np.ndarray, seed: int
+) -> tuple[Any, Any, np.ndarray, list[tuple[jax.Array, int]]]:
+    """`DEATHS` game-over steps from the trajectory's states: the player killed (health and
+    recovery at 0, so the step cannot heal them), and the world Craftax's auto-reset env starts
+    when a step with the key our env would draw there, `fold_in(episode key, step)`, ends the
+    game. Returns the states before the step, the new worlds, the actions, and each death's
+    (episode key, step)."""
+    dying, worlds, taken, keys = [], [], [], []
+    for index in np.linspace(0, len(actions) - 1, DEATHS).astype(int):
+        state = jax.tree.map(lambda leaf, index=index: leaf[index], previous)
+        state = state.replace(
+            player_health=state.player_health * 0, player_recover=state.player_recover * 0
+        )
+        episode = jnp.asarray(np.array([seed, 0xDEAD], np.uint32))
+        dying.append(state)
+        worlds.append(_new_world(variant)(jax.random.fold_in(episode, index), state))
+        taken.append(int(actions[index]))
+        keys.append((episode, int(index)))
+    stack = lambda states: jax.tree.map(lambda *leaves: jnp.stack(leaves), *states)  # noqa: E731
+    return stack(dying), stack(worlds), np.asarray(taken, np.int32), keys
+
+
 _SQUARE_BLOCKS = ("CRAFTING_TABLE", "FURNACE", "STONE", "PLANT")
 
 
@@ -158,11 +219,15 @@ def _with_squares(previous: Any, new: Any, variant: Variant, seed: int) -> tuple
 
 
 def test_every_medium_and_hard_goal_scores_like_the_official_checker(
-    official: Any, official_repository: Path
+    official: Any, official_repository: Path, classic_env: Any, full_env: Any
 ) -> None:
     dataset = load_dataset(official_repository)
-    report: dict[str, list[int]] = {}  # split/kind -> [pairs, official successes, disagreements]
+    # split/kind (and "game over") -> [pairs, official successes, disagreements]
+    report: dict[str, list[int]] = {}
     disagreements: list[str] = []
+    deaths: dict[Variant, list[Any]] = {}
+    # (split, kind, official verdict) -> a goal's task, the state it died in, (episode key, step)
+    env_checks: dict[tuple[str, str, bool], tuple[Any, Any, tuple[jax.Array, int]]] = {}
     for split, (module_name, variable) in _SPLIT_MODULES.items():
         variant = Variant.FULL if split.startswith("hard") else Variant.CLASSIC
         states_module = official.import_module(
@@ -183,6 +248,11 @@ def test_every_medium_and_hard_goal_scores_like_the_official_checker(
             (*_with_squares(previous, new, variant, seed), actions)
             for seed, (previous, new, actions) in enumerate(trajectories)
         ]
+        if variant not in deaths:
+            deaths[variant] = [
+                _deaths(variant, previous, actions, seed)
+                for seed, (previous, _, actions) in enumerate(trajectories)
+            ]
         ours = jax.jit(
             jax.vmap(
                 lambda p, n, kind, req, forb, par, variant=variant: goal_met(
@@ -219,11 +289,52 @@ def test_every_medium_and_hard_goal_scores_like_the_official_checker(
                 counts[2] += differ
                 if differ:
                     disagreements.append(f"{split} {goal.id}: {differ} steps")
+            game_over = report.setdefault(f"{split}/{goal.kind} game over", [0, 0, 0])
+            task = make_task(
+                tasks.required[row], tasks.forbidden[row], tasks.kind[row], tasks.params[row]
+            )
+            for dying, worlds, actions, keys in deaths[variant]:
+                expected = np.asarray(theirs(dying, worlds, jnp.asarray(actions), target))
+                got = np.asarray(
+                    ours(dying, worlds, task.kind, task.required, task.forbidden, task.params)
+                )
+                game_over[0] += len(expected)
+                game_over[1] += int(np.sum(expected))
+                differ = int(np.sum(expected != got))
+                game_over[2] += differ
+                if differ:
+                    disagreements.append(f"{split} {goal.id}: {differ} game-over steps")
+                for death, verdict in enumerate(expected):
+                    if (split, goal.kind, bool(verdict)) not in env_checks:
+                        state = jax.tree.map(lambda leaf, d=death: leaf[d], dying)
+                        env_checks[split, goal.kind, bool(verdict)] = (task, state, keys[death])
     print("\nsteps scored by both, official successes among them, disagreements:")
     for name, (pairs, successes, differ) in report.items():
         print(f"  {name}: {pairs} pairs, {successes} successes, {differ} disagreements")
+    totals = [sum(counts[i] for counts in report.values()) for i in range(3)]
+    print(f"  all: {totals[0]} pairs, {totals[1]} successes, {totals[2]} disagreements")
     assert not disagreements, disagreements
     # The trajectories reach success for every kind of every split: agreeing only on "no" would
-    # prove little.
-    assert {name.split("/")[1] for name in report} == set(GOAL_KINDS), report
-    assert all(successes for _, successes, _ in report.values()), report
+    # prove little. In the new world too, for every kind a new world can meet (nothing is
+    # unlocked there, so no achievements goal).
+    assert {name.split("/")[1] for name in report} == set(GOAL_KINDS) | {
+        f"{kind} game over" for kind in GOAL_KINDS
+    }, report
+    assert all(
+        successes
+        for name, (_, successes, _) in report.items()
+        if name != f"{name.split('/')[0]}/achievements game over"
+    ), report
+    # The env's own step on those game-over steps says what the official wrapper says.
+    for (split, kind, verdict), (task, dying, (episode, step)) in env_checks.items():
+        compiled = full_env if split.startswith("hard") else classic_env
+        state = EpisodeState(
+            game=dying,
+            task=task,
+            episode_key=episode,
+            steps=jnp.int32(step),
+            termination=jnp.int32(Termination.RUNNING),
+        )
+        _, info = compiled.step(state, jnp.int32(0))
+        assert bool(info.done), (split, kind)
+        assert bool(info.goal_in_new_world) == verdict, (split, kind, verdict)

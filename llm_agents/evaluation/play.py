@@ -191,11 +191,14 @@ class _Slots:
 
     def _episode_record(self, tally: _Tally, slot: int) -> EpisodeRecord:
         host = self.host
-        game_over: GameOver = None
-        if host.goal_at_game_over[slot]:
-            game_over = "death" if host.game.player_health[slot] <= 0 else "timeout"
+        ending: GameOver = "death" if host.game.player_health[slot] <= 0 else "timeout"
         return _episode_record(
-            tally, int(host.steps[slot]), int(host.termination[slot]), self.config.seed, game_over
+            tally,
+            int(host.steps[slot]),
+            int(host.termination[slot]),
+            self.config.seed,
+            ending if host.goal_at_game_over[slot] else None,
+            ending if host.goal_in_new_world[slot] else None,
         )
 
     def free(self) -> list[int]:
@@ -255,6 +258,7 @@ def _episode_record(
     termination: int | None,
     seed: int,
     goal_at_game_over: GameOver = None,
+    goal_in_new_world: GameOver = None,
 ) -> EpisodeRecord:
     """The record of a finished episode; `termination` None: it could not start."""
     from env import Termination, episode_key
@@ -279,6 +283,7 @@ def _episode_record(
         achievements=tally.achievements,
         plan_given=spec.plan is not None,
         goal_at_game_over=goal_at_game_over,
+        goal_in_new_world=goal_in_new_world,
         grounding=grounding,
         grounding_correct=None
         if grounding is None

@@ -269,20 +269,24 @@ def understanding_lines(summary: Summary) -> list[str]:
 
 
 def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:
-    """The episodes scored under `rule`: those whose goal was completed on the step the game
-    ended succeed under `game_over_counts` and fail (ending as the game did) under `official`."""
+    """The episodes scored under `rule`. An episode whose game ended with its goal met, as the
+    game ended or in the new world, succeeds under `game_over_counts` when it was met as the
+    game ended and under `official` when it was met in the new world; otherwise it ends as the
+    game did."""
     scored = []
     for episode in episodes:
-        if episode.goal_at_game_over is None:
+        ending = episode.goal_at_game_over or episode.goal_in_new_world
+        if ending is None:
             scored.append(episode)
             continue
-        success = rule == "game_over_counts"
+        met = episode.goal_at_game_over if rule == "game_over_counts" else episode.goal_in_new_world
+        success = met is not None
         bonus = float(success) - float(episode.success)
         scored.append(
             episode.model_copy(
                 update={
                     "success": success,
-                    "termination": "success" if success else episode.goal_at_game_over,
+                    "termination": "success" if success else ending,
                     "episode_return": episode.episode_return + bonus,
                 }
             )
@@ -477,6 +481,23 @@ def scheduled_episodes(run_dir: Path, results: RunResults) -> list[EpisodeRecord
     return [episode for episode in read_episodes(path) if episode.episode_id in wanted]
 
 
+def success_rule_note(
+    episodes: Sequence[EpisodeRecord], rule: SuccessRule, played: SuccessRule
+) -> str:
+    """The report's line on the success rule: which one scores, and the episodes whose game
+    ended with the goal met (where the two rules can disagree), counted apart."""
+    at_game_over = sum(episode.goal_at_game_over is not None for episode in episodes)
+    in_new_world = sum(episode.goal_in_new_world is not None for episode in episodes)
+    counted = "a success" if rule == "official" else "not counted"
+    return (
+        f"Success rule: {rule}"
+        + (f" (re-scored; the run was played under {played})" if rule != played else "")
+        + f". Goals completed on the step the game ended: {at_game_over}. "
+        f"Succeeded on the game-over step, in the new world: {in_new_world} ({counted} "
+        "under this rule)."
+    )
+
+
 def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) -> str:
     """Rebuild the table (returned) and `success.png` of a run directory, finished or not,
     scored under `success_rule` (None: the rule the run was played under)."""
@@ -494,12 +515,7 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         raise UserError(f"no episode of the run in {run_dir} has finished yet")
     played = recorded_rule(results)
     rule = success_rule or played
-    at_game_over = sum(episode.goal_at_game_over is not None for episode in episodes)
-    notes = [
-        f"Success rule: {rule}"
-        + (f" (re-scored; the run was played under {played})" if rule != played else "")
-        + f". Goals completed on the step the game ended: {at_game_over}."
-    ]
+    notes = [success_rule_note(episodes, rule, played)]
     summary = run_summary(results, episodes, rule)
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)

@@ -124,6 +124,11 @@ class EpisodeRecord(BaseModel):
     """Set when the goal was completed on the step the game ended (the episode's last step): how
     the game ended (`timeout`: Craftax's own time limit). Recorded under either success rule, so
     `report --success-rule` can re-score the episode both ways without replaying it."""
+    goal_in_new_world: Literal["death", "timeout"] | None = None
+    """Set when, on the step the game ended, the goal was met in the world Craftax's automatic
+    reset starts (what the official wrapper checks there, a success under `official`): how the
+    game ended. Recorded under either rule, like `goal_at_game_over`; records written before it
+    existed leave it unset (their runs scored that step as no success under `official`)."""
     grounding: Grounding | None = None
     """The goal the agent read from the instruction before playing (`guided`); None for agents
     that read none."""
@@ -145,14 +150,18 @@ class EpisodeRecord(BaseModel):
     def _consistent(self) -> EpisodeRecord:
         if self.success != (self.termination == "success"):
             raise ValueError(f"success={self.success} contradicts termination={self.termination!r}")
-        if self.goal_at_game_over is not None and self.termination not in (
-            "success",
-            self.goal_at_game_over,
+        for name, ending in (
+            ("goal_at_game_over", self.goal_at_game_over),
+            ("goal_in_new_world", self.goal_in_new_world),
         ):
-            raise ValueError(
-                f"goal_at_game_over={self.goal_at_game_over!r} contradicts "
-                f"termination={self.termination!r}"
-            )
+            if ending is not None and self.termination not in ("success", ending):
+                raise ValueError(
+                    f"{name}={ending!r} contradicts termination={self.termination!r}"
+                )
+        if None not in (self.goal_at_game_over, self.goal_in_new_world) and (
+            self.goal_at_game_over != self.goal_in_new_world
+        ):
+            raise ValueError("goal_at_game_over and goal_in_new_world name one game end")
         if (self.grounding is None) != (self.grounding_correct is None):
             raise ValueError("grounding_correct is set exactly when there is a grounding")
         if self.termination == NOT_STARTED and (
