@@ -155,9 +155,7 @@ class EpisodeRecord(BaseModel):
             ("goal_in_new_world", self.goal_in_new_world),
         ):
             if ending is not None and self.termination not in ("success", ending):
-                raise ValueError(
-                    f"{name}={ending!r} contradicts termination={self.termination!r}"
-                )
+                raise ValueError(f"{name}={ending!r} contradicts termination={self.termination!r}")
         if None not in (self.goal_at_game_over, self.goal_in_new_world) and (
             self.goal_at_game_over != self.goal_in_new_world
         ):
