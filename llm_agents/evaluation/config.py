@@ -182,8 +182,9 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Settings given explicitly that depart from the protocol's (filled in from the protocol,
     never set by hand)."""
     success_rule: Annotated[SuccessRule, CHANGES_RESULTS] = DEFAULT_SUCCESS_RULE
-    """Whether a goal completed on the step the game ends is a success: `game_over_counts` (yes)
-    or `official` (no, as the official CrafText wrapper scores it)."""
+    """How the step the game ends on is scored: `game_over_counts` (a goal completed then is a
+    success) or `official` (as the official CrafText wrapper: the goal is checked on the
+    auto-reset world, where no achievements goal is met but a placing or building goal can be)."""
     world_seeding: Annotated[WorldSeeding, CHANGES_RESULTS] = "per_episode"
     """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
     episode in the one world of reset key PRNGKey(1), as the official loop plays."""

@@ -147,8 +147,9 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
             ProtocolChoice(
                 setting="success_rule",
                 value="official",
-                source=f"{_OFFICIAL}: the wrapper checks the goal on the auto-reset state, so a "
-                "goal completed on the step the game ends fails",
+                source=f"{_OFFICIAL}: on the step the game ends the wrapper checks the goal "
+                "on the auto-reset world, so a goal completed on that step fails (and a Medium "
+                "or Hard goal met in the new world succeeds)",
             ),
             ProtocolChoice(
                 setting="world_seeding",
