@@ -125,10 +125,25 @@ def test_summary_counts_per_category_goal_and_termination() -> None:
     assert (summary.overall.low, summary.overall.high) == pytest.approx(scipy_wilson(4, 19))
 
     goals = {goal: (r.successes, r.episodes) for goal, r in summary.by_goal.items()}
-    assert goals == {"wood": (3, 3), "table": (0, 7), "wood+table": (1, 4), "lava": (0, 5)}
+    assert goals == {
+        "one/wood": (3, 3),
+        "one/table": (0, 7),
+        "combo/wood+table": (1, 4),
+        "new_objects/lava": (0, 5),
+    }
     assert summary.terminations == {"success": 4, "death": 7, "timeout": 8}
     assert summary.steps_to_success_mean == pytest.approx(32.5)
     assert summary.steps_to_success_median == pytest.approx(30.0)
+
+
+def test_one_id_in_two_splits_is_two_goals() -> None:
+    # Medium's INSTRUCTION_STONE_4 is a square in train and a line in the paraphrased split.
+    episodes = [
+        episode(0, category="train", goal="INSTRUCTION_STONE_4", success=True),
+        episode(1, category="paraphrased", goal="INSTRUCTION_STONE_4"),
+    ]
+    rates = {goal: (r.successes, r.episodes) for goal, r in summarize(episodes).by_goal.items()}
+    assert rates == {"paraphrased/INSTRUCTION_STONE_4": (0, 1), "train/INSTRUCTION_STONE_4": (1, 1)}
 
 
 def test_summary_rates_are_per_step_over_the_whole_run() -> None:

@@ -10,6 +10,7 @@ unchanged-files check catches.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -62,6 +63,29 @@ EASY_ONLY_DATASET = Dataset(
         ),
     ),
 ).model_dump_json()
+
+#: An EASY split holding a line goal (only Medium and Hard have building goals).
+EASY_LINE_DATASET = json.dumps(
+    {
+        "source": {"kind": "json", "path": "line.json"},
+        "goals": [
+            {
+                "kind": "build_line",
+                "id": "LINE",
+                "split": "easy_train",
+                "instruction": "Build a line of 2 stones.",
+                "paraphrases": [],
+                "block": "STONE",
+                "size": 2,
+                "diagonal": False,
+            }
+        ],
+    }
+)
+#: One goal twice in a split.
+REPEATED_GOAL_DATASET = json.dumps(
+    {**json.loads(EASY_ONLY_DATASET), "goals": json.loads(EASY_ONLY_DATASET)["goals"] * 2}
+)
 BROKEN_STEP = "{{ instruction }\n"
 UNDEFINED_STEP = "{{ no_such_variable }}\n"
 
@@ -158,6 +182,16 @@ MISTAKES: dict[str, Mistake] = {
     "dataset JSON that is not one": Mistake(
         [*EVAL, "--dataset", "{tmp}/data.json"], "data.json", files={"data.json": "{"}
     ),
+    "dataset with a goal kind its difficulty has not": Mistake(
+        [*EVAL, "--dataset", "{tmp}/line.json"],
+        "goal 'LINE' in easy_train is a build_line goal; easy goals are achievements",
+        files={"line.json": EASY_LINE_DATASET},
+    ),
+    "dataset with a goal twice in a split": Mistake(
+        [*EVAL, "--dataset", "{tmp}/twice.json"],
+        "goal 'PLACE_TABLE' appears twice in easy_train",
+        files={"twice.json": REPEATED_GOAL_DATASET},
+    ),
     # output directories
     "output dir is a file": Mistake(
         [*EVAL, "--output-dir", "{tmp}/taken"], "is a file", files={"taken": "x"}
@@ -199,7 +233,13 @@ MISTAKES: dict[str, Mistake] = {
     "plan output under a file": Mistake(
         [*PLAN, "--output", "{tmp}/taken/plans.json"], "taken is a file", files={"taken": "x"}
     ),
-    "plan of an unknown split": Mistake([*PLAN, "--splits", "easy_hard"], "easy_hard"),
+    "plan of an unknown category": Mistake([*PLAN, "--categories", "easy_hard"], "easy_hard"),
+    "plan of another difficulty's category": Mistake(
+        [*PLAN, "--difficulty", "hard", "--categories", "one"], "not one of hard's"
+    ),
+    "plan of splits of two difficulties": Mistake(
+        [*PLAN, "--categories", "easy_train", "medium_train"], "one difficulty at a time"
+    ),
     "plan requests per call 0": Mistake([*PLAN, "--requests-per-call", "0"], "requests_per_call"),
     "plan limit 0": Mistake([*PLAN, "--limit", "0"], "limit"),
     "plan config with generation a string": Mistake(

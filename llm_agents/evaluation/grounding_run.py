@@ -22,13 +22,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError
 
-from env.dataset import CATEGORIES, Instruction, load_dataset, parse_categories
+from env.dataset import Instruction, load_dataset
 from env.errors import UserError
-from env.goals import DIFFICULTY_KINDS, Difficulty, check_categories, run_category
+from env.goals import DIFFICULTY_KINDS, run_category
 from env.scenario_tasks import encode_goals
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
@@ -45,15 +45,10 @@ from llm_agents.backends.base import (
     ChoiceSet,
     ModelAPI,
 )
-from llm_agents.evaluation.config import (
-    GroundingSettings,
-    ModelSettings,
-)
-from llm_agents.evaluation.protocol import protocol_for
+from llm_agents.evaluation.config import GroundingSettings, TextSelection
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
 from llm_agents.run_data.store import (
-    RENAMED_SETTINGS,
     RESULTS_FILE,
     RunIdentity,
     RunStatus,
@@ -70,18 +65,10 @@ from prompts import template_digests
 GROUNDINGS_FILE = "groundings.jsonl"
 
 
-class GroundConfig(ModelSettings, GroundingSettings):
-    """What `craftext-llm ground` does."""
+class GroundConfig(TextSelection, GroundingSettings):
+    """What `craftext-llm ground` does (its `--difficulty` also picks the goal kinds the prompt
+    offers)."""
 
-    renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
-
-    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
-    """CrafText difficulty: easy, medium or hard; --categories then picks its splits, and the
-    prompt offers its goal kinds."""
-    categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
-    """Instruction categories whose texts are grounded: easy's one, combo, paraphrased,
-    new_objects; medium's and hard's train, paraphrased, new_objects (unset: every one of the
-    difficulty's that eval's default protocol plays, all four for easy)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Ground every paraphrase of each goal as well as its original instruction."""
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
@@ -91,29 +78,6 @@ class GroundConfig(ModelSettings, GroundingSettings):
     """Where groundings and results are written; rerunning on it resumes the run."""
     requests_per_call: int = Field(16, ge=1)
     """Conversations sent to the backend in one call (a server gets them concurrently)."""
-
-    @classmethod
-    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
-        """Categories, when unset, from the difficulty (an unknown one is left to validation)."""
-        difficulty = settings.get("difficulty", "easy")
-        if "categories" in settings or difficulty == "easy" or difficulty not in DIFFICULTY_KINDS:
-            return settings
-        default = next(
-            choice.value
-            for choice in protocol_for("default", difficulty).choices
-            if choice.setting == "categories"
-        )
-        return settings | {"categories": default}
-
-    @field_validator("categories", mode="before")
-    @classmethod
-    def _known_categories(cls, value: Any) -> tuple[str, ...]:
-        return tuple(parse_categories(value))
-
-    @model_validator(mode="after")
-    def _categories_of_the_difficulty(self) -> GroundConfig:
-        check_categories(self.categories, self.difficulty)
-        return self
 
 
 class GroundingRecord(BaseModel):

@@ -105,7 +105,9 @@ class Summary(BaseModel):
     """Success per scenario class present, then per category present (the paper's Table 2:
     `Build` -> `train` -> rate)."""
     by_goal: dict[str, SuccessRate]
-    """Success per goal id."""
+    """Success per goal, keyed `category/goal_id` as episode ids begin: an id alone may name
+    different goals in different splits (Medium's `INSTRUCTION_STONE_4` is a square in train, a
+    line in the paraphrased split)."""
     terminations: dict[str, int]
     """Episodes per termination reason (`success`, `death`, `timeout`), zeros included, and
     `not_started` when some episode could not start."""
@@ -137,7 +139,7 @@ def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
     for episode in episodes:
         by_category[episode.category].append(episode.success)
         by_scenario[episode.scenario_class][episode.category].append(episode.success)
-        by_goal[episode.goal_id].append(episode.success)
+        by_goal[f"{episode.category}/{episode.goal_id}"].append(episode.success)
     terminations = Counter(episode.termination for episode in episodes)
     success_steps = [episode.steps for episode in episodes if episode.success]
     total_steps = sum(episode.steps for episode in episodes)
