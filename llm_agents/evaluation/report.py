@@ -15,7 +15,7 @@ success_rule=...)`).
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,14 +35,22 @@ from env.goals import (
 )
 from env.rules import SUCCESS_RULES, SuccessRule
 from llm_agents.evaluation.protocol import protocol_for
-from llm_agents.run_data.metrics import SuccessRate, Summary, summarize
+from llm_agents.run_data.metrics import (
+    DOMINANT_SHARE,
+    SuccessRate,
+    Summary,
+    action_counts,
+    summarize,
+)
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
+    STEPS_FILE,
     RunResults,
     read_episodes,
     read_results,
+    read_steps,
 )
 
 __all__ = [
@@ -168,7 +176,31 @@ def our_rate(summary: Summary, column: str) -> SuccessRate | None:
 def our_cell(rate: SuccessRate | None, absent: bool = False) -> str:
     if rate is None:
         return NOT_IN_DATASET if absent else "-"
-    return f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}] n={rate.episodes}"
+    return rate.cell()
+
+
+def rates_legend(summary: Summary) -> str:
+    """What the table's cells are: rate [interval] n=episodes (g=goals when clustered)."""
+    return f"Success rate [{summary.overall.label}] n=episodes."
+
+
+def action_lines(summary: Summary, top: int = 5) -> list[str]:
+    """The run's commonest actions, and a warning when one takes most of its steps."""
+    actions = summary.actions
+    if actions is None:
+        return ["Actions: not recorded (no step log)."]
+    if not actions.steps:
+        return ["Actions: no steps."]
+    shares = ", ".join(
+        f"{name} {count / actions.steps:.2f}" for name, count in list(actions.counts.items())[:top]
+    )
+    lines = [f"Actions ({actions.steps} steps, share of each, commonest first): {shares}."]
+    if actions.dominated:
+        lines.append(
+            f"WARNING: one action ({actions.commonest}) takes {actions.commonest_share:.0%} of "
+            f"this run's steps (more than {DOMINANT_SHARE:.0%}): the agent barely chooses."
+        )
+    return lines
 
 
 def published_cell(result: PublishedResult, column: str) -> str:
@@ -198,7 +230,8 @@ def format_table(
     notes: Sequence[str] = (),
     difficulty: Difficulty = "easy",
 ) -> str:
-    """Our success rates (95% Wilson interval, episodes) beside the published ones, as text;
+    """Our success rates (95% interval, clustered by goal, episodes) beside the published ones,
+    as text;
     for Medium and Hard, then per scenario class and goal set.
 
     With `differences` (how the run departs from the paper's protocol) the published numbers
@@ -240,13 +273,14 @@ def format_table(
     )
     unstarted = f", not started {ends['not_started']}" if "not_started" in ends else ""
     footer = [
-        f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
+        f"{rates_legend(summary)} Published: {PUBLISHED_KIND[difficulty]}.",
         f"Episodes: {summary.overall.episodes} (success {ends['success']}, "
         f"death {ends['death']}, timeout {ends['timeout']}{unstarted}).",
         *understanding_lines(summary),
         f"Invalid-action rate: {summary.invalid_action_rate:.3f}. Steps to success: {steps}.",
         f"Tokens per step: {summary.prompt_tokens_per_step:.0f} prompt, "
         f"{summary.completion_tokens_per_step:.0f} completion.",
+        *action_lines(summary),
         *notes,
     ]
     return "\n".join([*table, "", *footer])
@@ -263,7 +297,8 @@ def understanding_lines(summary: Summary) -> list[str]:
 
     return [
         f"Understanding: goal read exactly right in {our_cell(read.grounded)} "
-        f"(could not start: {read.not_started}). Success when read right: "
+        f"{'texts' if read.grounded.clusters is not None else 'episodes'} "
+        f"(could not start: {read.not_started} episodes). Success when read right: "
         f"{rate(read.success_when_right)}; read wrong: {rate(read.success_when_wrong)}.",
     ]
 
@@ -297,15 +332,40 @@ def recorded_rule(results: RunResults) -> SuccessRule:
 
 
 def run_summary(
-    results: RunResults, episodes: Sequence[EpisodeRecord], rule: SuccessRule
+    results: RunResults,
+    episodes: Sequence[EpisodeRecord],
+    rule: SuccessRule,
+    actions: Mapping[str, Mapping[str, int]] | None = None,
 ) -> Summary:
     """The metrics of a run's finished `episodes` under `rule`: the summary the runner stored
     with them when it covers exactly these under the rule they were played by, else (a re-score,
-    or episodes written after the runner's last save) computed from the episodes."""
+    episodes written after the runner's last save, or a summary written before clustered
+    intervals and action histograms) computed from the episodes and `actions` (episode id ->
+    action -> steps)."""
     stored = results.summary
-    if stored is not None and rule == recorded_rule(results) and results.finished == len(episodes):
+    if (
+        stored is not None
+        and rule == recorded_rule(results)
+        and results.finished == len(episodes)
+        and stored.overall.clusters is not None
+        and (stored.actions is not None or actions is None)
+    ):
         return stored
-    return summarize(rescore(episodes, rule))
+    return summarize(rescore(episodes, rule), actions)
+
+
+def run_actions(
+    run_dir: Path, results: RunResults, episodes: Sequence[EpisodeRecord]
+) -> dict[str, dict[str, int]] | None:
+    """Episode id -> action -> steps of `episodes`: from `results.json` when it holds every
+    one, else from the step log; None without one."""
+    if all(e.episode_id in results.actions for e in episodes):
+        return {e.episode_id: results.actions[e.episode_id].counts for e in episodes}
+    path = run_dir / STEPS_FILE
+    if not path.is_file():
+        return None
+    counts = action_counts(read_steps(path, {e.episode_id for e in episodes}))
+    return {episode_id: dict(actions) for episode_id, actions in counts.items()}
 
 
 def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
@@ -426,10 +486,11 @@ def plot_success(
     # Bars with no height (nothing published) do not count for autoscaling.
     axes.set_xlim(-0.5, len(categories) - 0.5)
     axes.set_ylabel("success rate")
+    interval = "interval clustered by goal" if summary.overall.clusters else "Wilson interval"
     axes.set_title(
-        f"CrafText {difficulty} success (ours: 95% Wilson interval)"
+        f"CrafText {difficulty} success (ours: 95% {interval})"
         if with_published or not published_rows
-        else f"CrafText {difficulty} success (ours: 95% Wilson interval; published: not comparable)"
+        else f"CrafText {difficulty} success (ours: 95% {interval}; published: not comparable)"
     )
     tallest = max(
         [rate.high for rate in ours if rate is not None]
@@ -500,7 +561,7 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         + (f" (re-scored; the run was played under {played})" if rule != played else "")
         + f". Goals completed on the step the game ended: {at_game_over}."
     ]
-    summary = run_summary(results, episodes, rule)
+    summary = run_summary(results, episodes, rule, run_actions(run_dir, results, episodes))
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)
     difficulty = difficulty_of_run(results)
@@ -549,7 +610,9 @@ def compared_run(run_dir: str | Path) -> ComparedRun:
     name = model_name_of(results)
     label = name if agent == "expert" else f"{name} ({agent})"
     partial = results.status != "complete"
-    summary = run_summary(results, episodes, recorded_rule(results))
+    summary = run_summary(
+        results, episodes, recorded_rule(results), run_actions(run_dir, results, episodes)
+    )
     return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results)
 
 
@@ -591,6 +654,12 @@ def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
     ]
     notes = [
         "",
-        f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
+        f"{rates_legend(runs[0].summary)} Published: {PUBLISHED_KIND[difficulty]}.",
+        *(
+            f"{run.label}: {line}"
+            for run in runs
+            for line in action_lines(run.summary)
+            if line.startswith("WARNING")
+        ),
     ]
     return "\n".join(_render(rows) + notes + comparison_notes(runs))

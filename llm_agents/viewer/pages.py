@@ -38,11 +38,13 @@ from llm_agents.evaluation.report import (
     paper_differences,
     published_cell,
     published_for,
+    rates_legend,
     recorded_rule,
     run_summary,
     scenario_rows,
     table_columns,
 )
+from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
@@ -313,7 +315,15 @@ def _run_context(
 ) -> dict[str, Any]:
     records = [view.record for view in run.episodes]
     results = run.results
-    summary = run_summary(results, records, recorded_rule(results))
+    actions = (
+        {
+            view.record.episode_id: Counter(s.action_name for s in view.steps)
+            for view in run.episodes
+        }
+        if run.has_steps
+        else None
+    )
+    summary = run_summary(results, records, recorded_rule(results), actions)
     model = model_name_of(results)
     partial = results.status != "complete"
     differences = paper_differences(results, recorded_rule(results))
@@ -393,6 +403,9 @@ def _run_context(
         "category_names": sorted({record.category for record in records}),
         "goal_names": sorted({record.goal_id for record in records}),
         "episodes_dir": EPISODES_DIR,
+        # Issue 31: the legend of the rates (clustered by goal) and the actions taken.
+        "rates_legend": rates_legend(summary),
+        "dominant_share": DOMINANT_SHARE,
     }
 
 
@@ -472,4 +485,7 @@ def _episode_context(
         "steps": steps,
         "previous": previous,
         "next": following,
+        "actions": action_histogram(Counter(step.action_name for step in view.steps))
+        if view.steps
+        else None,
     }
