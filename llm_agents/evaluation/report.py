@@ -34,6 +34,12 @@ from env.goals import (
     category_split,
 )
 from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.evaluation.goal_flags import (
+    DEFAULT_WORLDS,
+    EXPERT_PLAYED,
+    GoalStatus,
+    run_goal_status,
+)
 from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.run_data.metrics import (
     DOMINANT_SHARE,
@@ -56,12 +62,15 @@ from llm_agents.run_data.store import (
 __all__ = [
     "PUBLISHED",
     "ComparedRun",
+    "GoalStatusTables",
     "PublishedResult",
     "compare_runs",
     "compared_run",
     "comparison_columns",
     "comparison_notes",
     "format_table",
+    "goal_status_tables",
+    "goal_status_text",
     "paper_differences",
     "plot_success",
     "report_run",
@@ -303,6 +312,98 @@ def understanding_lines(summary: Summary) -> list[str]:
     ]
 
 
+@dataclass(frozen=True)
+class GoalStatusTables:
+    """A run's tables with and without the goals a do-nothing agent meets or no agent (or not
+    the expert its moves are) can meet, the do-nothing agent's row, and the goals left out."""
+
+    heading: str
+    tables: list[tuple[str, list[list[str]]]]
+    """(title, rows: a header, then rows of cells), in order."""
+    left_out: list[str]
+    """One line per goal left out, with why."""
+
+
+def goal_status_tables(
+    summary: Summary,
+    episodes: Sequence[EpisodeRecord],
+    status: GoalStatus,
+    *,
+    agent: str,
+    difficulty: Difficulty,
+) -> GoalStatusTables:
+    """The run (`episodes`, scored as `summary`) with and without its flagged goals, beside the
+    do-nothing agent on the same goals."""
+    expert = agent in EXPERT_PLAYED
+    kept = status.kept(episodes, expert)
+    flagged = {
+        key: flags
+        for key, flags in status.goals.items()
+        if flags.left_out(expert) and any(status.flags(e) is flags for e in episodes)
+    }
+    without = summarize(kept) if kept else None
+    columns = table_columns(summary, difficulty)
+    played = [f for f in status.goals.values() if any(status.flags(e) is f for e in episodes)]
+
+    def nothing(column: str, scenario: str | None = None) -> SuccessRate | None:
+        return status.do_nothing_rate(
+            [
+                f
+                for f in played
+                if column in ("overall", f.category)
+                and (scenario is None or f.scenario_class == scenario)
+            ]
+        )
+
+    label_without = f"this run, without the {len(flagged)} goals below"
+    label_nothing = f"do nothing (NOOP only, {status.worlds} worlds per goal)"
+    header = ["Model", *(CATEGORY_LABELS[c] for c in columns)]
+    main = [
+        header,
+        ["this run, every goal", *(our_cell(our_rate(summary, c)) for c in columns)],
+        [
+            label_without,
+            *(our_cell(our_rate(without, c) if without else None) for c in columns),
+        ],
+        [label_nothing, *(our_cell(nothing(c)) for c in columns)],
+    ]
+    tables = [("", main)]
+    if difficulty != "easy":
+        tables.append(("By scenario class, every goal:", scenario_rows(summary, difficulty)))
+        if without is not None:
+            tables.append(
+                (f"By scenario class, {label_without}:", scenario_rows(without, difficulty))
+            )
+        categories = DIFFICULTY_CATEGORIES[difficulty]
+        rows = [["Scenario", *(CATEGORY_LABELS[c] for c in categories)]]
+        for scenario in SCENARIO_ROWS:
+            if any(f.scenario_class == scenario for f in played):
+                rows.append([scenario, *(our_cell(nothing(c, scenario)) for c in categories)])
+        tables.append((f"By scenario class, {label_nothing}:", rows))
+    left_out = [
+        f"{flags.key}: {flags.left_out(expert)}"
+        + (f" ({flags.do_nothing}/{status.worlds} worlds)" if flags.trivial else "")
+        for flags in sorted(flagged.values(), key=lambda f: (f.left_out(expert) or "", f.key))
+    ]
+    heading = (
+        f"Trivial and impossible goals ({len(flagged)} of {len(played)} played; do nothing: "
+        f"NOOP only, {status.worlds} seeded worlds per goal, seed {status.seed}, "
+        f"{status.max_steps} steps, {status.success_rule} rule; impossible: from the goal and "
+        f"{status.variant} Craftax's tables"
+        + ("; the scripted expert's reach too, as this run's moves are its" if expert else "")
+        + "):"
+    )
+    return GoalStatusTables(heading=heading, tables=tables, left_out=left_out)
+
+
+def goal_status_text(tables: GoalStatusTables) -> str:
+    lines = [tables.heading]
+    for title, rows in tables.tables:
+        lines += ["", *([title] if title else []), *_render(rows)]
+    lines += ["", f"Left out ({len(tables.left_out)}):", *(f"  {line}" for line in tables.left_out)]
+    return "\n".join(lines)
+
+
 def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:
     """The episodes scored under `rule`: those whose goal was completed on the step the game
     ended succeed under `game_over_counts` and fail (ending as the game did) under `official`."""
@@ -538,9 +639,17 @@ def scheduled_episodes(run_dir: Path, results: RunResults) -> list[EpisodeRecord
     return [episode for episode in read_episodes(path) if episode.episode_id in wanted]
 
 
-def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) -> str:
+def report_run(
+    run_dir: str | Path,
+    *,
+    success_rule: SuccessRule | None = None,
+    goal_status: bool = False,
+    worlds: int = DEFAULT_WORLDS,
+) -> str:
     """Rebuild the table (returned) and `success.png` of a run directory, finished or not,
-    scored under `success_rule` (None: the rule the run was played under)."""
+    scored under `success_rule` (None: the rule the run was played under); with `goal_status`,
+    then the tables without the goals a do-nothing agent meets (in `worlds` seeded worlds
+    each, played once and cached) or that cannot be met, and the do-nothing row."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise UserError(f"run directory {run_dir} does not exist")
@@ -581,7 +690,17 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         notes=notes,
         difficulty=difficulty,
     )
-    return f"{table}\n{run_status(results)}"
+    if not goal_status:
+        return f"{table}\n{run_status(results)}"
+    status = run_goal_status(results.config, episodes, rule=rule, worlds=worlds)
+    flagged = goal_status_tables(
+        summary,
+        rescore(episodes, rule),
+        status,
+        agent=str(results.config.get("agent", "zero-shot")),
+        difficulty=difficulty,
+    )
+    return f"{table}\n{run_status(results)}\n\n{goal_status_text(flagged)}"
 
 
 @dataclass(frozen=True)
