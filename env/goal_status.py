@@ -65,7 +65,7 @@ def impossible_reason(goal: AnyGoal, variant: Variant) -> str | None:
     try:
         encode_goals([goal], variant)
     except UserError as error:  # it names the block or item the variant lacks
-        return str(error)
+        return str(error).removeprefix(f"goal {goal.id!r} ({goal.split}) ")
     if not isinstance(goal, ConditionalPlacingGoal):
         return None
     item, count = goal.collect, goal.collect_count
@@ -158,10 +158,12 @@ def _play_do_nothing(
         keys = np.stack([episode_key(seed, goals[i].id, 0, world) for i, world in padded]).astype(
             np.uint32
         )
-        host = vector.reset(keys, required[index], forbidden[index], kind[index], params[index])
+        ends = vector.reset(
+            keys, required[index], forbidden[index], kind[index], params[index]
+        ).termination
         actions = np.full(batch, noop, dtype=np.int32)
-        while not np.all(host.termination != Termination.RUNNING):
-            host = vector.step(actions, host.termination == Termination.RUNNING)
+        while np.any(ends == Termination.RUNNING):
+            ends = vector.step_terminations(actions, ends == Termination.RUNNING)
         for row, (i, _) in enumerate(chunk):
-            successes[goal_key(goals[i])] += int(host.termination[row] == Termination.SUCCESS)
+            successes[goal_key(goals[i])] += int(ends[row] == Termination.SUCCESS)
     return successes
