@@ -18,7 +18,7 @@ from llm_agents.cli import main
 from llm_agents.evaluation.config import EvalConfig, build_config
 from llm_agents.evaluation.report import report_run
 from llm_agents.evaluation.runner import prepare_run, run_eval
-from llm_agents.run_data.store import read_episodes
+from llm_agents.run_data.store import read_episodes, read_results
 
 #: A straight line of 2 furnaces: the official checker looks for a window without any furnace
 #: (env.scenario_checker), so a fresh world meets it on the first step.
@@ -113,6 +113,13 @@ def test_the_do_nothing_agent_meets_what_the_do_nothing_worlds_say_and_report_le
     run_eval(config, NoModel())
     played = {e.goal_id: e.success for e in read_episodes(tmp_path / "run" / "episodes.jsonl")}
     assert played == {MET_AT_ONCE: True, OUT_OF_REACH: False}
+    results = read_results(tmp_path / "run" / "results.json")
+    assert {i: a.counts for i, a in results.actions.items()} == {
+        f"train/{MET_AT_ONCE}/0/0": {"NOOP": 1},
+        f"train/{OUT_OF_REACH}/0/0": {"NOOP": 3},
+    }
+    assert results.summary is not None and results.summary.actions is not None
+    assert results.summary.actions.commonest_share == 1.0
 
     cache = tmp_path / "cache"
     goals = list(load_dataset(medium_dataset).goals)

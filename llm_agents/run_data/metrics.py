@@ -29,7 +29,7 @@ from collections import Counter, defaultdict
 from collections.abc import Hashable, Iterable, Mapping, Sequence
 from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, computed_field
 
 from env.errors import UserError
 from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES
@@ -114,6 +114,8 @@ class SuccessRate(BaseModel):
             successes=successes, episodes=episodes, rate=successes / episodes, low=low, high=high
         )
 
+    # Written to results.json (ignored on reading), so a reader of the file sees which it is.
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def label(self) -> str:
         """What kind of interval this is, for the line under a table."""
