@@ -19,6 +19,7 @@ from llm_agents.evaluation.config import EvalConfig, build_config
 from llm_agents.evaluation.report import report_run
 from llm_agents.evaluation.runner import prepare_run, run_eval
 from llm_agents.run_data.store import read_episodes, read_results
+from llm_agents.viewer import build_view
 
 #: A straight line of 2 furnaces: the official checker looks for a window without any furnace
 #: (env.scenario_checker), so a fresh world meets it on the first step.
@@ -157,6 +158,19 @@ def test_the_do_nothing_agent_meets_what_the_do_nothing_worlds_say_and_report_le
     assert f"medium_train/{MET_AT_ONCE}: met by doing nothing (1/1 worlds)" in section
     assert "Actions (4 steps, share of each, commonest first): NOOP 1.00." in text
     assert "WARNING: one action (NOOP) takes 100%" in text
+    assert "one action over 80% of the steps in 2 of 2 episodes" in text
+
+    # The HTML report shows the same tables, in their own block.
+    monkeypatch_cache.setenv("CRAFTEXT_LLM_CACHE", str(tmp_path / "project-cache"))
+    try:
+        outcome = build_view(tmp_path / "run", progress=False, goal_status=True, worlds=1)
+    finally:
+        monkeypatch_cache.undo()
+    page = outcome.index.read_text()
+    block = page[page.index('<div id="goal-status">') :]
+    assert "do nothing (NOOP only, 1 worlds per goal)" in block
+    assert f"medium_train/{MET_AT_ONCE}: met by doing nothing (1/1 worlds)" in block
+    assert 'id="dominant-action"' in page
 
 
 @pytest.mark.parametrize(

@@ -15,6 +15,7 @@ success_rule=...)`).
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +47,7 @@ from llm_agents.run_data.metrics import (
     SuccessRate,
     Summary,
     action_counts,
+    action_histogram,
     summarize,
 )
 from llm_agents.run_data.records import EpisodeRecord
@@ -186,6 +188,21 @@ def our_cell(rate: SuccessRate | None, absent: bool = False) -> str:
     if rate is None:
         return NOT_IN_DATASET if absent else "-"
     return rate.cell()
+
+
+def episode_actions_line(actions: Mapping[str, Mapping[str, int]] | None) -> list[str]:
+    """Per episode: how far the commonest action dominates (median and most), and in how many
+    episodes one action takes more than `DOMINANT_SHARE` of the steps."""
+    histograms = [action_histogram(counts) for counts in (actions or {}).values()]
+    shares = sorted(h.commonest_share for h in histograms if h.steps)
+    if not shares:
+        return []
+    dominated = sum(share > DOMINANT_SHARE for share in shares)
+    return [
+        f"Per episode, the commonest action's share: median {statistics.median(shares):.2f}, "
+        f"highest {shares[-1]:.2f}; one action over {DOMINANT_SHARE:.0%} of the steps in "
+        f"{dominated} of {len(shares)} episodes."
+    ]
 
 
 def rates_legend(summary: Summary) -> str:
@@ -336,14 +353,11 @@ def goal_status_tables(
     do-nothing agent on the same goals."""
     expert = agent in EXPERT_PLAYED
     kept = status.kept(episodes, expert)
-    flagged = {
-        key: flags
-        for key, flags in status.goals.items()
-        if flags.left_out(expert) and any(status.flags(e) is flags for e in episodes)
-    }
+    names = {f"{e.category}/{e.goal_id}" for e in episodes}
+    played = [flags for key, flags in status.goals.items() if key in names]
+    flagged = {flags.key: flags for flags in played if flags.left_out(expert)}
     without = summarize(kept) if kept else None
     columns = table_columns(summary, difficulty)
-    played = [f for f in status.goals.values() if any(status.flags(e) is f for e in episodes)]
 
     def nothing(column: str, scenario: str | None = None) -> SuccessRate | None:
         return status.do_nothing_rate(
@@ -670,7 +684,9 @@ def report_run(
         + (f" (re-scored; the run was played under {played})" if rule != played else "")
         + f". Goals completed on the step the game ended: {at_game_over}."
     ]
-    summary = run_summary(results, episodes, rule, run_actions(run_dir, results, episodes))
+    actions = run_actions(run_dir, results, episodes)
+    summary = run_summary(results, episodes, rule, actions)
+    notes += episode_actions_line(actions)
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)
     difficulty = difficulty_of_run(results)
