@@ -81,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         help="another run (e.g. the expert's) shown beside it; repeat for more",
     )
+    _goal_status_flags(report)
 
     data = commands.add_parser(
         "data",
@@ -116,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
         "more",
     )
     view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    _goal_status_flags(view)
 
     _settings_command(
         commands,
@@ -231,6 +233,31 @@ def cmd_ground(args: argparse.Namespace) -> int:
     return 0 if results.status == "complete" else EXIT_BACKEND_FAILURE
 
 
+def _goal_status_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--goal-status",
+        action="store_true",
+        help="also show the tables without the goals a do-nothing agent meets or no agent can "
+        "meet (with why), and the do-nothing agent's row (its worlds are played once, cached)",
+    )
+    parser.add_argument(
+        "--do-nothing-worlds",
+        type=int,
+        default=8,
+        metavar="N",
+        help="--goal-status: seeded worlds per goal the do-nothing agent plays (default 8)",
+    )
+
+
+def _check_goal_status_flags(args: argparse.Namespace, *, gif: bool = False) -> None:
+    if args.do_nothing_worlds < 1:
+        raise UserError(f"--do-nothing-worlds must be at least 1, not {args.do_nothing_worlds}")
+    if args.goal_status and (args.compare or gif):
+        raise UserError(
+            "--goal-status shows one run's goals: leave out " + ("--gif" if gif else "--compare")
+        )
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from llm_agents.evaluation.report import report_run
     from llm_agents.run_data.store import RESULTS_FILE, results_kind
@@ -239,13 +266,15 @@ def cmd_report(args: argparse.Namespace) -> int:
     if results_path.is_file() and results_kind(results_path) == "ground":
         from llm_agents.evaluation.grounding_report import report_grounding
 
-        if args.success_rule or args.compare:
+        if args.success_rule or args.compare or args.goal_status:
             raise UserError(
-                "a grounding run has no episodes: --success-rule and --compare do not apply"
+                "a grounding run has no episodes: --success-rule, --compare and --goal-status "
+                "do not apply"
             )
         print(report_grounding(args.run_dir))
         return 0
 
+    _check_goal_status_flags(args)
     if args.compare:
         from llm_agents.evaluation.report import compare_runs
 
@@ -257,7 +286,14 @@ def cmd_report(args: argparse.Namespace) -> int:
 
         print(compare_runs(args.run_dir, *args.compare))
         return 0
-    print(report_run(args.run_dir, success_rule=args.success_rule))
+    print(
+        report_run(
+            args.run_dir,
+            success_rule=args.success_rule,
+            goal_status=args.goal_status,
+            worlds=args.do_nothing_worlds,
+        )
+    )
     return 0
 
 
@@ -312,6 +348,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         raise UserError("--episode and --gif go together: give both to export one episode")
     if args.gif is not None and args.compare:
         raise UserError("--compare adds a row to the HTML report: it does not go with --gif")
+    _check_goal_status_flags(args, gif=args.gif is not None)
     if args.gif is not None:
         status = export_episode(args.run_dir, args.episode, args.gif)
         print(f"wrote {args.gif} ({status.frames} frames)")
@@ -321,6 +358,8 @@ def cmd_view(args: argparse.Namespace) -> int:
             args.run_dir,
             progress=not args.no_progress,
             compare=args.compare or [],
+            goal_status=args.goal_status,
+            worlds=args.do_nothing_worlds,
         )
         print(
             f"wrote {outcome.index} ({len(outcome.statuses)} episodes, {outcome.frames} frames, "

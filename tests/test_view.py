@@ -281,7 +281,8 @@ def _open(browser: Any, path: Path) -> tuple[Any, list[str]]:
 
 
 def _cell(rate: dict[str, Any]) -> str:
-    return f"{rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] n={rate['episodes']}"
+    goals = f" g={rate['clusters']}" if rate.get("clusters") else ""
+    return f"{rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] n={rate['episodes']}{goals}"
 
 
 @pytest.mark.slow
@@ -313,6 +314,12 @@ def test_run_page_in_chromium_shows_the_results(
     }
     assert expert["by_category"]  # the row has numbers to check
     assert page.locator("#compare-note").count() == 0  # same dataset
+    # Issue 31: the intervals say they are clustered, and the run's actions are counted.
+    assert "clustered by goal" in page.locator("#rates-legend").inner_text()
+    actions = summary["actions"]
+    cells = page.locator("#actions tr td").all_inner_texts()
+    shown_actions = dict(zip(cells[0::3], (int(c) for c in cells[1::3]), strict=True))
+    assert shown_actions == actions["counts"] and sum(shown_actions.values()) == actions["steps"]
 
     episodes = read_episodes(run_dir / "episodes.jsonl")
     rows = page.locator("#episodes tbody tr")

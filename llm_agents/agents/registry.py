@@ -18,6 +18,7 @@ AGENTS: dict[str, str] = {
     "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
     "expert": "llm_agents.agents.expert:ExpertAgent",
     "guided": "llm_agents.agents.guided:GuidedAgent",
+    "noop": "llm_agents.agents.noop:NoopAgent",
 }
 
 

@@ -246,8 +246,9 @@ class EvalConfig(ModelSettings, GroundingSettings):
 
     agent: Annotated[str, CHANGES_RESULTS] = "zero-shot"
     """Agent strategy: `zero-shot`, `cot` (keeps its recent reasoning), `few-shot` (expert
-    demonstrations first), `expert` (scripted, no model) or `guided` (the model grounds the
-    instruction into a goal once, the expert plays that goal)."""
+    demonstrations first), `expert` (scripted, no model), `guided` (the model grounds the
+    instruction into a goal once, the expert plays that goal) or `noop` (`NOOP` at every step,
+    no model: the do-nothing floor)."""
     cot_steps: Annotated[int, CHANGES_RESULTS] = Field(3, ge=1)
     """cot: how many of the model's last replies stay in the conversation."""
     cot_max_tokens: Annotated[int, CHANGES_RESULTS] = Field(384, ge=1)

@@ -301,7 +301,10 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
 def summarize_records(records: Sequence[GroundingRecord]) -> GroundingSummary | None:
     """The scores of answered texts."""
     return summarize_groundings(
-        [Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class) for r in records]
+        [
+            Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class, r.goal_id)
+            for r in records
+        ]
     )
 
 

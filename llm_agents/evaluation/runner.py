@@ -43,7 +43,12 @@ from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
 from llm_agents.evaluation.play import play_episodes
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode, build_schedule
-from llm_agents.evaluation.sink import RunSink, drop_unfinished_steps, finished_episodes
+from llm_agents.evaluation.sink import (
+    RunSink,
+    drop_unfinished_steps,
+    finished_episodes,
+    recorded_actions,
+)
 from llm_agents.run_data.metrics import Summary
 from llm_agents.run_data.store import (
     EPISODES_FILE,
@@ -339,6 +344,7 @@ def run_schedule(
         EpisodeQueue(pending),
         config.max_consecutive_failures,
         endpoint_stats,
+        actions=recorded_actions(out, done_ids) if config.record_steps else None,
     )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None

@@ -34,7 +34,7 @@ from pydantic import (
 
 from env.errors import UserError
 from llm_agents.backends.endpoints import EndpointStats
-from llm_agents.run_data.metrics import Summary
+from llm_agents.run_data.metrics import ActionHistogram, Summary
 from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 
@@ -312,6 +312,9 @@ class RunResults(BaseModel):
     """Metrics over the scheduled episodes finished so far; None before the first one ends."""
     groundings: dict[str, Grounding] = Field(default_factory=dict)
     """Episode id -> the goal the agent read before playing it (`guided`), per finished episode."""
+    actions: dict[str, ActionHistogram] = Field(default_factory=dict)
+    """Episode id -> the actions it took (from its step records), per finished episode; empty
+    when the run keeps no step log (`summary.actions` pools them)."""
     status: RunStatus = "partial"
     """See `RunStatus`."""
     failure: str | None = None

@@ -24,25 +24,31 @@ import numpy as np
 
 from env.errors import UserError
 from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.goal_flags import DEFAULT_WORLDS, run_goal_status
 from llm_agents.evaluation.report import (
     CATEGORY_LABELS,
     PUBLISHED_KIND,
     ComparedRun,
+    GoalStatusTables,
     chart_categories,
     compared_run,
     comparison_columns,
     comparison_notes,
     difficulty_of_run,
+    goal_status_tables,
     model_name_of,
     our_rate,
     paper_differences,
     published_cell,
     published_for,
+    rates_legend,
     recorded_rule,
+    rescore,
     run_summary,
     scenario_rows,
     table_columns,
 )
+from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
@@ -91,16 +97,20 @@ def build_view(
     progress: bool = True,
     batch_size: int = 16,
     compare: Sequence[str | Path] = (),
+    goal_status: bool = False,
+    worlds: int = DEFAULT_WORLDS,
 ) -> ViewOutcome:
     """Replay every episode of `run_dir` and write its HTML report; returns where and how it went.
 
     A replay that does not reproduce its record is logged as a warning and flagged on its page
     and on the run page. The runs in `compare` (e.g. the expert's) get a row each beside the
-    run's in the results table, as `report --compare` prints them.
+    run's in the results table, as `report --compare` prints them. With `goal_status`, the run
+    page also shows the tables without trivial and impossible goals (`report --goal-status`).
     """
     run = load_run(run_dir)
     # Read before the long rendering, so a wrong path fails at once.
     compared = [compared_run(other) for other in compare]
+    flagged = _goal_status(run, worlds) if goal_status else None
     out = run.path / REPORT_DIR
     pages = out / EPISODES_DIR
     try:
@@ -133,7 +143,9 @@ def build_view(
     index = out / "index.html"
     _write(
         index,
-        templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)),
+        templates.get_template("index.html.j2").render(
+            **_run_context(run, statuses, compared), goal_status=flagged
+        ),
     )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
     return ViewOutcome(
@@ -313,7 +325,15 @@ def _run_context(
 ) -> dict[str, Any]:
     records = [view.record for view in run.episodes]
     results = run.results
-    summary = run_summary(results, records, recorded_rule(results))
+    actions = (
+        {
+            view.record.episode_id: Counter(s.action_name for s in view.steps)
+            for view in run.episodes
+        }
+        if run.has_steps
+        else None
+    )
+    summary = run_summary(results, records, recorded_rule(results), actions)
     model = model_name_of(results)
     partial = results.status != "complete"
     differences = paper_differences(results, recorded_rule(results))
@@ -393,7 +413,25 @@ def _run_context(
         "category_names": sorted({record.category for record in records}),
         "goal_names": sorted({record.goal_id for record in records}),
         "episodes_dir": EPISODES_DIR,
+        # Issue 31: the legend of the rates (clustered by goal) and the actions taken.
+        "rates_legend": rates_legend(summary),
+        "dominant_share": DOMINANT_SHARE,
     }
+
+
+def _goal_status(run: LoadedRun, worlds: int) -> GoalStatusTables:
+    """Issue 31: the run's tables without trivial and impossible goals, and doing nothing."""
+    results = run.results
+    records = [view.record for view in run.episodes]
+    rule = recorded_rule(results)
+    status = run_goal_status(results.config, records, rule=rule, worlds=worlds)
+    return goal_status_tables(
+        run_summary(results, records, rule),
+        rescore(records, rule),
+        status,
+        agent=str(results.config.get("agent", "zero-shot")),
+        difficulty=difficulty_of_run(results),
+    )
 
 
 def _latency(latencies: list[float]) -> dict[str, float] | None:
@@ -472,4 +510,7 @@ def _episode_context(
         "steps": steps,
         "previous": previous,
         "next": following,
+        "actions": action_histogram(Counter(step.action_name for step in view.steps))
+        if view.steps
+        else None,
     }
