@@ -37,6 +37,7 @@ from env.rules import SUCCESS_RULES, SuccessRule
 from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.run_data.metrics import SuccessRate, Summary, summarize
 from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.scores import RunScores, Scores, achievement_list_of, score_run
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -50,14 +51,17 @@ __all__ = [
     "ComparedRun",
     "PublishedResult",
     "compare_runs",
+    "compare_scores",
     "compared_run",
     "comparison_columns",
     "comparison_notes",
+    "format_scores",
     "format_table",
     "paper_differences",
     "plot_success",
     "report_run",
     "rescore",
+    "run_scores",
 ]
 
 CHART_FILE = "success.png"
@@ -520,7 +524,8 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         notes=notes,
         difficulty=difficulty,
     )
-    return f"{table}\n{run_status(results)}"
+    scores = format_scores(run_scores(results, episodes))
+    return f"{table}\n{run_status(results)}\n\n{scores}"
 
 
 @dataclass(frozen=True)
@@ -593,4 +598,88 @@ def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
         "",
         f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
     ]
-    return "\n".join(_render(rows) + notes + comparison_notes(runs))
+    lines = _render(rows) + notes + comparison_notes(runs)
+    scores = compare_scores([run_dir, *others], [run.label for run in runs])
+    return "\n".join([*lines, "", scores])
+
+
+# ------------------------------------------------------------------------------ field scores
+
+#: Runs with at most this many episodes list each episode's scores in the text report (more
+#: would drown the table; results.json and `view` hold every episode's).
+EPISODE_ROWS_MAX = 20
+
+
+def run_scores(results: RunResults, episodes: Sequence[EpisodeRecord]) -> RunScores:
+    """The field's achievement scores of a run's finished episodes, from their records (no
+    replay), over its variant's achievement list; the success rule does not touch them."""
+    return score_run(episodes, achievement_list_of(results.config.get("variant")))
+
+
+def scores_cells(scores: Scores) -> list[str]:
+    """Progression ± standard error, Crafter score, craftaxlm score, episodes."""
+    return [
+        f"{scores.progression:.1f} ± {scores.progression_stderr:.1f}",
+        f"{scores.crafter_score:.2f}",
+        f"{scores.craftaxlm_score:.2f}",
+        str(scores.episodes),
+    ]
+
+
+SCORES_HEADER = ["Progression % ± SE", "Crafter score", "craftaxlm", "n"]
+
+
+def format_scores(scores: RunScores) -> str:
+    """The achievement scores section of the report: overall and per category, the unlock
+    table (achievements some episode unlocked), and each episode's for a short run."""
+    overall = scores.overall
+    groups = (
+        {"overall": overall, **scores.by_category}
+        if len(scores.by_category) > 1
+        else {"overall": overall}
+    )
+    rows = [["Episodes", *SCORES_HEADER]]
+    rows += [[CATEGORY_LABELS.get(k, k), *scores_cells(v)] for k, v in groups.items()]
+    unlocked = [name for name, rate in overall.unlock_percent.items() if rate > 0]
+    unlock_rows = [["Achievement", *(CATEGORY_LABELS.get(k, k) for k in groups)]]
+    unlock_rows += [
+        [name.lower(), *(f"{group.unlock_percent[name]:.0f}%" for group in groups.values())]
+        for name in unlocked
+    ]
+    never = len(overall.unlock_percent) - len(unlocked)
+    lines = [
+        f"Achievement scores, over {overall.label} (BALROG progression, mean ± standard error "
+        "as BALROG computes it; Crafter score; craftaxlm score):",
+        *_render(rows),
+        "",
+        f"Unlocked in % of episodes ({never} achievements never unlocked, not listed):",
+        *(_render(unlock_rows) if unlocked else ["  none"]),
+    ]
+    if len(scores.by_episode) <= EPISODE_ROWS_MAX:
+        episode_rows = [["Episode", "Unlocked", "Progression %", "Crafter score", "craftaxlm"]]
+        episode_rows += [
+            [
+                episode_id,
+                str(e.unlocked),
+                f"{e.progression:.1f}",
+                f"{e.crafter_score:.2f}",
+                f"{e.craftaxlm_score:.2f}",
+            ]
+            for episode_id, e in scores.by_episode.items()
+        ]
+        lines += ["", "Per episode:", *_render(episode_rows)]
+    else:
+        lines.append("Per episode: results.json `scores.by_episode` and `view`.")
+    return "\n".join(lines)
+
+
+def compare_scores(run_dirs: Sequence[str | Path], labels: Sequence[str]) -> str:
+    """The achievement scores of compared runs, a row each (`report --compare`)."""
+    rows = [["Run", "Achievements", *SCORES_HEADER]]
+    for run_dir, label in zip(run_dirs, labels, strict=True):
+        results = read_results(Path(run_dir) / RESULTS_FILE)
+        overall = run_scores(results, scheduled_episodes(Path(run_dir), results)).overall
+        rows.append([label, overall.achievement_list, *scores_cells(overall)])
+    return "\n".join(
+        ["Achievement scores (classic: Crafter's 22; full: Craftax's 67):", *_render(rows)]
+    )

@@ -15,6 +15,7 @@ from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode
 from llm_agents.run_data.metrics import summarize
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.scores import achievement_list_of, score_run
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -126,6 +127,11 @@ class RunSink:
         results.finished = len(counted)
         results.endpoints = self.endpoint_stats()
         results.summary = summarize(counted) if counted else None
+        results.scores = (
+            score_run(counted, achievement_list_of(results.config.get("variant")))
+            if counted
+            else None
+        )
         results.groundings = {e.episode_id: e.grounding for e in counted if e.grounding}
         if failure is not None:
             results.status, results.failure = "failed", failure

@@ -39,10 +39,13 @@ from llm_agents.evaluation.report import (
     published_cell,
     published_for,
     recorded_rule,
+    run_scores,
     run_summary,
     scenario_rows,
+    scheduled_episodes,
     table_columns,
 )
+from llm_agents.run_data.store import RESULTS_FILE, read_results
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
@@ -133,7 +136,9 @@ def build_view(
     index = out / "index.html"
     _write(
         index,
-        templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)),
+        templates.get_template("index.html.j2").render(
+            **_run_context(run, statuses, compared), **_scores_context(run, compare, compared)
+        ),
     )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
     return ViewOutcome(
@@ -394,6 +399,20 @@ def _run_context(
         "goal_names": sorted({record.goal_id for record in records}),
         "episodes_dir": EPISODES_DIR,
     }
+
+
+def _scores_context(
+    run: LoadedRun, compare: Sequence[str | Path], compared: Sequence[ComparedRun]
+) -> dict[str, Any]:
+    """The field's achievement scores of the run (overall, per category, per episode, the
+    unlock table) and of each compared run, from their records, as `report` prints them."""
+    scores = run_scores(run.results, [view.record for view in run.episodes])
+    others = []
+    for path, other in zip(compare, compared, strict=True):
+        results = read_results(Path(path) / RESULTS_FILE)
+        overall = run_scores(results, scheduled_episodes(Path(path), results)).overall
+        others.append((other.label, overall))
+    return {"scores": scores, "compared_scores": others}
 
 
 def _latency(latencies: list[float]) -> dict[str, float] | None:
