@@ -124,3 +124,45 @@ def test_an_overridden_protocol_or_a_used_folder_is_refused(
     assert "not an empty directory" in capsys.readouterr().err
     assert [p.name for p in used.iterdir()] == ["x"]
     assert main(["export", "--format", "balrog", str(good), str(tmp_path / "ok")]) == 0
+
+
+def test_an_open_ended_run_is_reported_beside_balrogs_published_rows(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    from llm_agents.evaluation.report import BALROG_PUBLISHED, report_run
+
+    text = report_run(_balrog_run(tmp_path / "run"))
+    ours = score_run([_episode(i, n) for i, n in enumerate((3, 9, 0, 14, 5, 5, 22, 1, 8, 11))])
+    balrog = text.split("BALROG's Crafter leaderboard")[1]
+    line = next(row for row in balrog.splitlines() if row.startswith("hf:some/model (this run)"))
+    assert f"{ours.overall.progression:.1f} ± {ours.overall.progression_stderr:.1f}" in line
+    cells = {
+        row.split("|")[0].strip(): row.split("|")[1].strip()
+        for row in balrog.splitlines()
+        if "|" in row
+    }
+    assert cells["Llama-3.2-1B-it (BALROG, published)"] == "12.7 ± 1.9"
+    assert "overridden" not in balrog
+    # The rows are BALROG's leaderboard entries, rounded.
+    data = json.loads((shared_data / "balrog_crafter_episodes.json").read_text())
+    board = {
+        (s.get("leaderboard") or s["published"]["leaderboard"])["name"]: (
+            s.get("leaderboard") or s["published"]["leaderboard"]
+        )["crafter"]
+        for s in data["submissions"] + data["summary_only_submissions"]
+        if s["track"] == "LLM"
+    }
+    names = {
+        "Grok-4": "Grok-4",
+        "Gemini-2.5-Pro": "Gemini-2.5-Pro-Exp-03-25",
+        "GPT-4o": "GPT-4o-2024-05-13",
+        "Qwen2.5-7B-it": "Qwen-2.5-7B-it",
+        "Llama-3.2-1B-it": "Llama-3.2-1B-it",
+    }
+    for name, progression, error in BALROG_PUBLISHED:
+        published, published_error, episodes = board[names[name]]
+        assert (round(published, 1), round(published_error, 1), episodes) == (
+            progression,
+            error,
+            10,
+        )

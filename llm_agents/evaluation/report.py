@@ -525,6 +525,8 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         difficulty=difficulty,
     )
     scores = format_scores(run_scores(results, episodes))
+    if results.config.get("task") == "open_ended":
+        scores += "\n\n" + balrog_rows(run_scores(results, episodes).overall, results)
     return f"{table}\n{run_status(results)}\n\n{scores}"
 
 
@@ -682,4 +684,45 @@ def compare_scores(run_dirs: Sequence[str | Path], labels: Sequence[str]) -> str
         rows.append([label, overall.achievement_list, *scores_cells(overall)])
     return "\n".join(
         ["Achievement scores (classic: Crafter's 22; full: Craftax's 67):", *_render(rows)]
+    )
+
+
+#: BALROG's Crafter leaderboard (LLM track; balrog-ai/experiments at 989931c), progression %
+#: and its standard error over 10 episodes of up to 2,000 steps: its best rows and its
+#: smallest models'.
+BALROG_PUBLISHED: tuple[tuple[str, float, float], ...] = (
+    ("Grok-4", 57.3, 3.9),
+    ("Gemini-2.5-Pro", 55.0, 6.0),
+    ("GPT-4o", 33.1, 2.3),
+    ("Qwen2.5-7B-it", 16.4, 3.0),
+    ("Llama-3.2-1B-it", 12.7, 1.9),
+)
+
+
+def balrog_rows(overall: Scores, results: RunResults) -> str:
+    """An open-ended run's progression beside BALROG's published Crafter rows, with what keeps
+    them from being strictly comparable (the game, and any balrog setting overridden)."""
+    rows = [["Model", "Progression % ± SE", "episodes"]]
+    rows.append(
+        [
+            f"{model_name_of(results)} (this run)",
+            f"{overall.progression:.1f} ± {overall.progression_stderr:.1f}",
+            str(overall.episodes),
+        ]
+    )
+    rows += [
+        [f"{name} (BALROG, published)", f"{p:.1f} ± {e:.1f}", "10"]
+        for name, p, e in BALROG_PUBLISHED
+    ]
+    overrides = results.config.get("protocol_overrides") or []
+    caveats = ["Craftax-Classic, not Crafter itself"]
+    if results.config.get("protocol") != "balrog":
+        caveats.append(f"played under --protocol {results.config.get('protocol')}")
+    if overrides:
+        caveats.append(f"balrog settings overridden: {', '.join(overrides)}")
+    return "\n".join(
+        [
+            f"BALROG's Crafter leaderboard (LLM track) beside this run ({'; '.join(caveats)}):",
+            *_render(rows),
+        ]
     )
