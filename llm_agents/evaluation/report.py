@@ -654,7 +654,8 @@ def format_scores(scores: RunScores) -> str:
         "as BALROG computes it; Crafter score; craftaxlm score):",
         *_render(rows),
         "",
-        f"Unlocked in % of episodes ({never} achievements never unlocked, not listed):",
+        f"Unlocked in % of episodes (never unlocked, not listed: {never} of "
+        f"{len(overall.unlock_percent)}):",
         *(_render(unlock_rows) if unlocked else ["  none"]),
     ]
     if len(scores.by_episode) <= EPISODE_ROWS_MAX:

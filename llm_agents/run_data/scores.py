@@ -118,7 +118,7 @@ class RunScores(BaseModel):
     by_category: dict[str, Scores]
     """Per category present, in the project's category order."""
     by_episode: dict[str, EpisodeScores]
-    """Episode id -> its scores."""
+    """Episode id -> its scores, in schedule order."""
 
 
 def _unlocked(achievements: Collection[str], names: tuple[str, ...]) -> set[str]:
@@ -181,5 +181,7 @@ def score_run(
     return RunScores(
         overall=of(episodes),
         by_category={c: of(by_category[c]) for c in ALL_CATEGORIES if c in by_category},
-        by_episode={e.episode_id: alone(e) for e in episodes},
+        by_episode={
+            e.episode_id: alone(e) for e in sorted(episodes, key=lambda e: e.episode_index)
+        },
     )
