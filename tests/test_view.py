@@ -411,3 +411,25 @@ def test_run_page_shows_the_achievement_scores_report_prints(
     episodes = read_episodes(run_dir / "episodes.jsonl")
     table = index.split('id="episode-scores"')[1].split("</table>")[0]
     assert table.count("<tr>") == len(episodes) + 1
+
+
+@pytest.mark.slow
+def test_an_open_ended_run_replays_from_its_own_goal(
+    tmp_path: Path, classic_env: CrafTextEnv
+) -> None:
+    out = tmp_path / "balrog"
+    config = build_config(
+        {
+            "protocol": "balrog",
+            "model": SCRIPT,
+            "max_steps": MAX_STEPS,
+            "episodes_per_instruction": 2,
+            "batch_size": 2,
+            "output_dir": str(out),
+        }
+    )
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model, env=classic_env)
+    viewed = build_view(out, progress=False)
+    assert {s.state for s in viewed.statuses.values()} == {"reproduced"}
+    assert len(viewed.statuses) == 2
