@@ -87,6 +87,9 @@ def test_an_exported_run_reads_back_into_the_same_numbers(tmp_path: Path) -> Non
     assert summary["client"]["model_id"] == "hf:some/model"
     metadata = yaml.safe_load((out / "metadata.yaml").read_text())
     assert (metadata["name"], metadata["date"]) == ("hf:some/model", "2026-01-03")
+    expert = export_balrog(_balrog_run(tmp_path / "expert", agent="expert"), tmp_path / "e")
+    assert yaml.safe_load((expert / "metadata.yaml").read_text())["name"].startswith("expert")
+    assert json.loads((expert / "summary.json").read_text())["client"]["model_id"] is None
 
 
 @pytest.mark.parametrize(

@@ -29,6 +29,7 @@ from pydantic import BaseModel
 
 from env.craftax_names import CLASSIC_ACHIEVEMENTS
 from env.errors import UserError
+from llm_agents.evaluation.report import model_name_of
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.scores import progression, score_episodes
 from llm_agents.run_data.store import RESULTS_FILE, RunResults, read_episodes, read_results
@@ -124,7 +125,8 @@ def _summaries(
         "total_output_tokens": outputs,
         "client": {
             "client_name": "craftext-llm",
-            "model_id": config.get("model"),
+            # The expert calls no model: its config's model is only the unused default.
+            "model_id": None if config.get("agent") == "expert" else config.get("model"),
             "generate_kwargs": {
                 "temperature": generation.get("temperature"),
                 "max_tokens": generation.get("max_tokens"),
@@ -155,7 +157,7 @@ def export_balrog(run_dir: str | Path, out: str | Path) -> Path:
     crafter, summary = _summaries(files, results)
     finished = results.finished_at or results.started_at
     metadata = {
-        "name": str(results.config.get("model")),
+        "name": model_name_of(results),
         "oss": None,
         "site": None,
         "verified": False,
