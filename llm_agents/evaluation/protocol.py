@@ -2,9 +2,11 @@
 
 `default` is this project's protocol; `paper` is what the official CrafText evaluation does
 (AIRI-Institute/CrafText at commit 1c518ae and its LLM baseline loop), so a run under it can be
-set beside the published zero-shot numbers. A preset only fills in the settings a user did not
-set: `apply_protocol` puts it under the file and flag settings and lists the explicit settings
-that depart from it, which the run records as `protocol_overrides`.
+set beside the published zero-shot numbers; `balrog` is BALROG's open-ended Crafter task (EASY
+only: it plays no CrafText difficulty), to set a run beside BALROG's leaderboard. A preset only
+fills in the settings a user did not set: `apply_protocol` puts it under the file and flag
+settings and lists the explicit settings that depart from it, which the run records as
+`protocol_overrides`.
 
 Each protocol has a version per CrafText difficulty (`protocol_for`): `PROTOCOLS` holds EASY's.
 Medium's `paper` protocol follows the official configs (Craftax-Classic, the official success
