@@ -21,7 +21,7 @@ how often, as in all three.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Collection, Sequence
 from typing import Literal
 
@@ -124,8 +124,12 @@ class RunScores(BaseModel):
 def _unlocked(achievements: Collection[str], names: tuple[str, ...]) -> set[str]:
     # Records name achievements as Craftax's enum (COLLECT_WOOD); BALROG's files as Crafter
     # (collect_wood): one spelling for both.
-    wanted = {name.upper() for name in achievements}
-    return {name for name in names if name in wanted}
+    return {name.upper() for name in achievements} & _NAME_SETS[names]
+
+
+_NAME_SETS: dict[tuple[str, ...], frozenset[str]] = {
+    names: frozenset(names) for names in ACHIEVEMENT_LISTS.values()
+}
 
 
 def score_episodes(
@@ -138,7 +142,8 @@ def score_episodes(
         raise ValueError("no episodes to score")
     names = ACHIEVEMENT_LISTS[achievement_list]
     sets = [_unlocked(episode, names) for episode in unlocked]
-    percent = {name: 100 * sum(name in s for s in sets) / len(sets) for name in names}
+    counts = Counter(name for unlocked_set in sets for name in unlocked_set)
+    percent = {name: 100 * counts[name] / len(sets) for name in names}
     mean, error = progression([len(s) / len(names) for s in sets])
     rates = list(percent.values())
     return Scores(
@@ -169,13 +174,18 @@ def score_run(
     def of(group: Sequence[EpisodeRecord]) -> Scores:
         return score_episodes([e.achievements for e in group], achievement_list)
 
+    names = ACHIEVEMENT_LISTS[achievement_list]
+
     def alone(episode: EpisodeRecord) -> EpisodeScores:
-        scores = of([episode])
+        # One episode's s_i are each 0 or 100, so both means reduce to the unlocked share: the
+        # closed forms keep a save of a long run from scoring every episode as a run.
+        unlocked = len(_unlocked(episode.achievements, names))
+        share = unlocked / len(names)
         return EpisodeScores(
-            unlocked=len(_unlocked(episode.achievements, ACHIEVEMENT_LISTS[achievement_list])),
-            progression=scores.progression,
-            crafter_score=scores.crafter_score,
-            craftaxlm_score=scores.craftaxlm_score,
+            unlocked=unlocked,
+            progression=100 * share,
+            crafter_score=math.exp(share * math.log1p(100)) - 1,
+            craftaxlm_score=share * math.log2(101),
         )
 
     return RunScores(
