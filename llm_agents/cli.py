@@ -95,6 +95,17 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--dataset", help="export: official CrafText clone, craftext wheel or JSON")
     data.add_argument("--refresh", action="store_true", help="fetch: download even when cached")
 
+    export = commands.add_parser(
+        "export",
+        help="write a run in another benchmark's submission format",
+        description="--format balrog: a complete --protocol balrog run as a submission folder "
+        "of BALROG's leaderboard repository (per-episode files, crafter_summary.json, "
+        "summary.json, metadata.yaml).",
+    )
+    export.add_argument("run_dir", help="a run's output directory")
+    export.add_argument("out", help="the submission folder to write (absent or empty)")
+    export.add_argument("--format", choices=["balrog"], required=True, help="the target format")
+
     view = commands.add_parser(
         "view",
         help="write a run's HTML report with episode replays (RUN_DIR/report/index.html)",
@@ -341,6 +352,13 @@ def cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from llm_agents.evaluation.balrog_export import export_balrog
+
+    print(export_balrog(args.run_dir, args.out))
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     from llm_agents.viewer import build_view, export_episode
 
@@ -406,6 +424,7 @@ COMMANDS = {
     "plan": cmd_plan,
     "ground": cmd_ground,
     "data": cmd_data,
+    "export": cmd_export,
 }
 
 

@@ -396,3 +396,47 @@ def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) 
             jax.tree.leaves(state.game), jax.tree.leaves(alone.game), strict=True
         ):
             assert np.array_equal(np.asarray(batched)[lane], np.asarray(single))
+
+
+@pytest.mark.slow
+def test_run_page_shows_the_achievement_scores_report_prints(
+    run_dir: Path, expert_dir: Path, viewed: Any
+) -> None:
+    from llm_agents.evaluation.report import run_scores, scheduled_episodes
+    from llm_agents.run_data.store import read_results
+
+    index = (run_dir / "report" / "index.html").read_text()
+    section = index.split('id="scores-table"')[1].split("</table>")[0]
+    for path, row_class in ((run_dir, ""), (expert_dir, ' class="compared"')):
+        results = read_results(path / "results.json")
+        scores = run_scores(results, scheduled_episodes(path, results))
+        overall = scores.overall
+        cell = f"{overall.progression:.1f} ± {overall.progression_stderr:.1f}"
+        row = re.search(rf'<tr{row_class}><td>[^<]*</td><td class="num">([^<]*)</td>', section)
+        assert row is not None and row.group(1) == cell
+    assert "Crafter&#39;s 22 achievements" in index or "Crafter's 22 achievements" in index
+    episodes = read_episodes(run_dir / "episodes.jsonl")
+    table = index.split('id="episode-scores"')[1].split("</table>")[0]
+    assert table.count("<tr>") == len(episodes) + 1
+
+
+@pytest.mark.slow
+def test_an_open_ended_run_replays_from_its_own_goal(
+    tmp_path: Path, classic_env: CrafTextEnv
+) -> None:
+    out = tmp_path / "balrog"
+    config = build_config(
+        {
+            "protocol": "balrog",
+            "model": SCRIPT,
+            "max_steps": MAX_STEPS,
+            "episodes_per_instruction": 2,
+            "batch_size": 2,
+            "output_dir": str(out),
+        }
+    )
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model, env=classic_env)
+    viewed = build_view(out, progress=False)
+    assert {s.state for s in viewed.statuses.values()} == {"reproduced"}
+    assert len(viewed.statuses) == 2

@@ -27,6 +27,7 @@ from pydantic import (
 from env.dataset import CATEGORIES, PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
 from env.goals import DIFFICULTIES, Difficulty, check_categories
+from env.open_ended import Task
 from env.placement import EnvDevice
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
@@ -196,6 +197,13 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Observation text format: objects, grid or table (the official baseline's)."""
     history_length: Annotated[int, CHANGES_RESULTS] = Field(5, ge=0)
     """Recent actions (with outcomes) shown in each prompt."""
+    report_invalid_answers: Annotated[bool, CHANGES_RESULTS] = False
+    """Say in the next prompt's history that an answer named no valid action and the fallback
+    action was played instead (BALROG's harness does; `--protocol balrog` sets it)."""
+    task: Annotated[Task, CHANGES_RESULTS] = "craftext"
+    """`craftext`: the dataset's instructions, judged by their checkers; `open_ended`: BALROG's
+    Crafter task, one goal of our own asking for as many achievements as possible (no dataset),
+    judged by the achievement scores (`--protocol balrog` sets it)."""
     plans: str | None = None
     """JSON file mapping instruction text to plan text, added to the step prompt."""
     output_dir: str = "runs/latest"

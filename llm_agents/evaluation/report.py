@@ -51,6 +51,7 @@ from llm_agents.run_data.metrics import (
     summarize,
 )
 from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.scores import RunScores, Scores, achievement_list_of, score_run
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -67,9 +68,11 @@ __all__ = [
     "GoalStatusTables",
     "PublishedResult",
     "compare_runs",
+    "compare_scores",
     "compared_run",
     "comparison_columns",
     "comparison_notes",
+    "format_scores",
     "format_table",
     "goal_status_tables",
     "goal_status_text",
@@ -77,6 +80,7 @@ __all__ = [
     "plot_success",
     "report_run",
     "rescore",
+    "run_scores",
 ]
 
 CHART_FILE = "success.png"
@@ -706,8 +710,12 @@ def report_run(
         notes=notes,
         difficulty=difficulty,
     )
+    achievement_scores = run_scores(results, episodes)
+    scores = format_scores(achievement_scores)
+    if results.config.get("task") == "open_ended":
+        scores += "\n\n" + balrog_rows(achievement_scores.overall, results)
     if not goal_status:
-        return f"{table}\n{run_status(results)}"
+        return f"{table}\n{run_status(results)}\n\n{scores}"
     status = run_goal_status(results.config, episodes, rule=rule, worlds=worlds)
     flagged = goal_status_tables(
         summary,
@@ -716,7 +724,7 @@ def report_run(
         agent=str(results.config.get("agent", "zero-shot")),
         difficulty=difficulty,
     )
-    return f"{table}\n{run_status(results)}\n\n{goal_status_text(flagged)}"
+    return f"{table}\n{run_status(results)}\n\n{scores}\n\n{goal_status_text(flagged)}"
 
 
 @dataclass(frozen=True)
@@ -797,4 +805,130 @@ def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
             if line.startswith("WARNING")
         ),
     ]
-    return "\n".join(_render(rows) + notes + comparison_notes(runs))
+    lines = _render(rows) + notes + comparison_notes(runs)
+    scores = compare_scores([run_dir, *others], [run.label for run in runs])
+    return "\n".join([*lines, "", scores])
+
+
+# ------------------------------------------------------------------------------ field scores
+
+#: Runs with at most this many episodes list each episode's scores in the text report (more
+#: would drown the table; results.json and `view` hold every episode's).
+EPISODE_ROWS_MAX = 20
+
+
+def run_scores(results: RunResults, episodes: Sequence[EpisodeRecord]) -> RunScores:
+    """The field's achievement scores of a run's finished episodes, from their records (no
+    replay), over its variant's achievement list; the success rule does not touch them."""
+    return score_run(episodes, achievement_list_of(results.config.get("variant")))
+
+
+def scores_cells(scores: Scores) -> list[str]:
+    """Progression ± standard error, Crafter score, craftaxlm score, episodes."""
+    return [
+        f"{scores.progression:.1f} ± {scores.progression_stderr:.1f}",
+        f"{scores.crafter_score:.2f}",
+        f"{scores.craftaxlm_score:.2f}",
+        str(scores.episodes),
+    ]
+
+
+SCORES_HEADER = ["Progression % ± SE", "Crafter score", "craftaxlm", "n"]
+
+
+def format_scores(scores: RunScores) -> str:
+    """The achievement scores section of the report: overall and per category, the unlock
+    table (achievements some episode unlocked), and each episode's for a short run."""
+    overall = scores.overall
+    groups = (
+        {"overall": overall, **scores.by_category}
+        if len(scores.by_category) > 1
+        else {"overall": overall}
+    )
+    rows = [["Episodes", *SCORES_HEADER]]
+    rows += [[CATEGORY_LABELS.get(k, k), *scores_cells(v)] for k, v in groups.items()]
+    unlocked = [name for name, rate in overall.unlock_percent.items() if rate > 0]
+    unlock_rows = [["Achievement", *(CATEGORY_LABELS.get(k, k) for k in groups)]]
+    unlock_rows += [
+        [name.lower(), *(f"{group.unlock_percent[name]:.0f}%" for group in groups.values())]
+        for name in unlocked
+    ]
+    never = len(overall.unlock_percent) - len(unlocked)
+    lines = [
+        f"Achievement scores, over {overall.label} (BALROG progression, mean ± standard error "
+        "as BALROG computes it; Crafter score; craftaxlm score):",
+        *_render(rows),
+        "",
+        f"Unlocked in % of episodes (never unlocked, not listed: {never} of "
+        f"{len(overall.unlock_percent)}):",
+        *(_render(unlock_rows) if unlocked else ["  none"]),
+    ]
+    if len(scores.by_episode) <= EPISODE_ROWS_MAX:
+        episode_rows = [["Episode", "Unlocked", "Progression %", "Crafter score", "craftaxlm"]]
+        episode_rows += [
+            [
+                episode_id,
+                str(e.unlocked),
+                f"{e.progression:.1f}",
+                f"{e.crafter_score:.2f}",
+                f"{e.craftaxlm_score:.2f}",
+            ]
+            for episode_id, e in scores.by_episode.items()
+        ]
+        lines += ["", "Per episode:", *_render(episode_rows)]
+    else:
+        lines.append("Per episode: results.json `scores.by_episode` and `view`.")
+    return "\n".join(lines)
+
+
+def compare_scores(run_dirs: Sequence[str | Path], labels: Sequence[str]) -> str:
+    """The achievement scores of compared runs, a row each (`report --compare`)."""
+    rows = [["Run", "Achievements", *SCORES_HEADER]]
+    for run_dir, label in zip(run_dirs, labels, strict=True):
+        results = read_results(Path(run_dir) / RESULTS_FILE)
+        overall = run_scores(results, scheduled_episodes(Path(run_dir), results)).overall
+        rows.append([label, overall.achievement_list, *scores_cells(overall)])
+    return "\n".join(
+        ["Achievement scores (classic: Crafter's 22; full: Craftax's 67):", *_render(rows)]
+    )
+
+
+#: BALROG's Crafter leaderboard (LLM track; balrog-ai/experiments at 989931c), progression %
+#: and its standard error over 10 episodes of up to 2,000 steps: its best rows and its
+#: smallest models'.
+BALROG_PUBLISHED: tuple[tuple[str, float, float], ...] = (
+    ("Grok-4", 57.3, 3.9),
+    ("Gemini-2.5-Pro", 55.0, 6.0),
+    ("GPT-4o", 33.1, 2.3),
+    ("Qwen2.5-7B-it", 16.4, 3.0),
+    ("Llama-3.2-1B-it", 12.7, 1.9),
+)
+
+
+def balrog_rows(overall: Scores, results: RunResults) -> str:
+    """An open-ended run's progression beside BALROG's published Crafter rows, with what keeps
+    them from being strictly comparable (the game, and any balrog setting overridden)."""
+    rows = [["Model", "Progression % ± SE", "episodes"]]
+    rows.append(
+        [
+            f"{model_name_of(results)} (this run)",
+            f"{overall.progression:.1f} ± {overall.progression_stderr:.1f}",
+            str(overall.episodes),
+        ]
+    )
+    rows += [
+        [f"{name} (BALROG, published)", f"{p:.1f} ± {e:.1f}", "10"]
+        for name, p, e in BALROG_PUBLISHED
+    ]
+    overrides = results.config.get("protocol_overrides") or []
+    caveats = ["Craftax-Classic, not Crafter itself"]
+    if results.config.get("protocol") != "balrog":
+        caveats.append(f"played under --protocol {results.config.get('protocol')}")
+    if overrides:
+        caveats.append(f"balrog settings overridden: {', '.join(overrides)}")
+    return "\n".join(
+        [
+            f"BALROG's Crafter leaderboard (LLM track) beside this run ({'; '.join(caveats)}):",
+            *_render(rows),
+        ]
+    )

@@ -35,6 +35,7 @@ from typing import Any
 from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import run_category
+from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.backends.base import ModelAPI
@@ -131,7 +132,8 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     """
     out = Path(config.output_dir)
     check_output_dir(out)
-    dataset = load_dataset(config.dataset)
+    # The open-ended task reads no dataset: its one goal is our own.
+    dataset = open_ended_dataset() if config.task == "open_ended" else load_dataset(config.dataset)
     instructions = dataset.instructions(
         config.categories, include_paraphrases=config.paraphrases, difficulty=config.difficulty
     )

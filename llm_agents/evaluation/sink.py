@@ -16,6 +16,7 @@ from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode
 from llm_agents.run_data.metrics import action_counts, action_histogram, summarize
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.scores import achievement_list_of, score_run
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -143,6 +144,11 @@ class RunSink:
             else {
                 e.episode_id: action_histogram(self.actions.get(e.episode_id, {})) for e in counted
             }
+        )
+        results.scores = (
+            score_run(counted, achievement_list_of(results.config.get("variant")))
+            if counted
+            else None
         )
         results.groundings = {e.episode_id: e.grounding for e in counted if e.grounding}
         if failure is not None:

@@ -44,11 +44,14 @@ from llm_agents.evaluation.report import (
     rates_legend,
     recorded_rule,
     rescore,
+    run_scores,
     run_summary,
     scenario_rows,
+    scheduled_episodes,
     table_columns,
 )
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram
+from llm_agents.run_data.store import RESULTS_FILE, read_results
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
@@ -144,7 +147,9 @@ def build_view(
     _write(
         index,
         templates.get_template("index.html.j2").render(
-            **_run_context(run, statuses, compared), goal_status=flagged
+            **_run_context(run, statuses, compared),
+            goal_status=flagged,
+            **_scores_context(run, compare, compared),
         ),
     )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
@@ -432,6 +437,20 @@ def _goal_status(run: LoadedRun, worlds: int) -> GoalStatusTables:
         agent=str(results.config.get("agent", "zero-shot")),
         difficulty=difficulty_of_run(results),
     )
+
+
+def _scores_context(
+    run: LoadedRun, compare: Sequence[str | Path], compared: Sequence[ComparedRun]
+) -> dict[str, Any]:
+    """The field's achievement scores of the run (overall, per category, per episode, the
+    unlock table) and of each compared run, from their records, as `report` prints them."""
+    scores = run_scores(run.results, [view.record for view in run.episodes])
+    others = []
+    for path, other in zip(compare, compared, strict=True):
+        results = read_results(Path(path) / RESULTS_FILE)
+        overall = run_scores(results, scheduled_episodes(Path(path), results)).overall
+        others.append((other.label, overall))
+    return {"scores": scores, "compared_scores": others}
 
 
 def _latency(latencies: list[float]) -> dict[str, float] | None:
