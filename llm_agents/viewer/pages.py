@@ -356,12 +356,33 @@ def _checker_data(view: EpisodeView, replay: Any, variant: Any) -> dict[str, Any
             "targets": [list(cell) for cell in marks.targets],
             "notes": list(marks.notes),
         }
-        data["minimap"] = _minimap(marks, replay.end_map.shape, position)
+        data["minimap"] = _minimap(marks, replay.end_map, position, variant.block_names)
     return data
 
 
-def _minimap(marks: Any, shape: tuple[int, ...], position: tuple[int, int]) -> dict[str, Any]:
-    """The checker's region as rows of cell classes, for the page's small map."""
+#: Ground colours of the small map, by a word of the block's name (the goal's blocks are drawn
+#: over them); a block matching none is light grey.
+_GROUND = {
+    "WATER": "#9cc3e6",
+    "GRASS": "#b7dfb0",
+    "TREE": "#6fa86a",
+    "SAND": "#eee3b8",
+    "PATH": "#d9cbb0",
+    "LAVA": "#f2a36b",
+    "STONE": "#b8b8b8",
+    "DARKNESS": "#57606a",
+}
+
+
+def _ground(name: str) -> str:
+    return next((colour for word, colour in _GROUND.items() if word in name), "#d8dee4")
+
+
+def _minimap(
+    marks: Any, board: np.ndarray, position: tuple[int, int], block_names: Sequence[str]
+) -> dict[str, Any]:
+    """The checker's region as cells with their ground colour and classes, for the small map."""
+    shape = board.shape
     row0, column0, rows, columns = marks.region
     classes = {
         **{tuple(cell): "block" for cell in marks.blocks},
@@ -380,7 +401,17 @@ def _minimap(marks: Any, shape: tuple[int, ...], position: tuple[int, int]) -> d
                 names.append("completed")
             if (r, c) == position:
                 names.append("player")
-            cells.append({"x": c - column0, "y": r - row0, "cls": " ".join(names), "at": [r, c]})
+            name = block_names[int(board[r, c])] if inside else "outside the map"
+            cells.append(
+                {
+                    "x": c - column0,
+                    "y": r - row0,
+                    "cls": " ".join(names),
+                    "fill": _ground(name) if inside else "#ffffff",
+                    "name": name.lower().replace("_", " "),
+                    "at": [r, c],
+                }
+            )
     return {"rows": rows, "columns": columns, "cells": cells, "origin": [row0, column0]}
 
 
