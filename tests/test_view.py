@@ -389,6 +389,11 @@ def test_run_page_in_chromium_shows_the_results(
     page.click("#episodes th:has-text('steps')")
     steps = [int(t) for t in page.locator("#episodes tbody td:nth-child(8)").all_inner_texts()]
     assert steps == sorted(steps)
+    # Every goal label of the per-goal chart is drawn whole, however long the goal's id.
+    lefts = page.eval_on_selector_all(
+        "#chart-goals text", "texts => texts.map((text) => text.getBBox().x)"
+    )
+    assert lefts and min(lefts) >= 0
     assert problems == []
     page.close()
 

@@ -544,9 +544,10 @@ def _run_context(
     states = Counter(status.state for status in statuses.values())
     listed = ReplayStatus("listed only", ["not in this report's sample (see `view --sample`)"])
     everyone = [(view, statuses.get(view.record.episode_id, listed)) for view in run.episodes]
-    # Goal ids are long (INSTRUCTION_PLACE_SAPPHIRE_FURNACE_3_5): the chart's label column is as
-    # wide as the longest, at about 7 px a character of its 11 px font.
-    label_width = 12 + 7 * max((len(name) for name in summary.by_goal), default=10)
+    # Goal ids are long (MAKE_STONE_SWORD_AND_COLLECT_SAPLING_NO_MAKE_IRON_SWORD): the chart's
+    # label column is as wide as the longest, at 8 px a character of its 11 px font (upper-case
+    # letters measure about 7.5 in Chromium's sans-serif).
+    label_width = 16 + 8 * max((len(name) for name in summary.by_goal), default=10)
     return {
         "title": f"{model} on CrafText",
         "model": model,
