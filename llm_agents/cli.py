@@ -114,7 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
         "With --episode and --gif, export one episode as an animation instead.",
     )
     view.add_argument("run_dir", help="a run's output directory")
-    view.add_argument("--episode", help="an episode id (or index) to export with --gif")
+    view.add_argument(
+        "--episode",
+        help="an episode id (or index): render its page alone, or export it with --gif",
+    )
     view.add_argument(
         "--gif",
         metavar="OUT",
@@ -126,6 +129,32 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         help="another run (e.g. the expert's) whose row is shown beside this run's; repeat for "
         "more",
+    )
+    view.add_argument(
+        "--sample",
+        type=int,
+        metavar="N",
+        help="render N episodes drawn at random (--seed) from those the filters keep; the run "
+        "page lists the rest without a replay",
+    )
+    view.add_argument("--seed", type=int, default=0, help="the --sample draw's seed (0)")
+    view.add_argument(
+        "--categories",
+        action="append",
+        help="render only episodes of these goal sets (comma-separated or repeated)",
+    )
+    view.add_argument(
+        "--class",
+        dest="classes",
+        action="append",
+        help="render only episodes of these scenario classes (Achievements, Conditional, "
+        "Localization, Build; comma-separated or repeated)",
+    )
+    view.add_argument(
+        "--outcome",
+        action="append",
+        help="render only episodes that ended so (success, timeout, death, not_started; "
+        "comma-separated or repeated)",
     )
     view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     _goal_status_flags(view)
@@ -362,11 +391,12 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_view(args: argparse.Namespace) -> int:
     from llm_agents.viewer import build_view, export_episode
 
-    if (args.episode is None) != (args.gif is None):
-        raise UserError("--episode and --gif go together: give both to export one episode")
+    if args.gif is not None and args.episode is None:
+        raise UserError("--gif writes one episode: give it with --episode")
     if args.gif is not None and args.compare:
         raise UserError("--compare adds a row to the HTML report: it does not go with --gif")
     _check_goal_status_flags(args, gif=args.gif is not None)
+    selection = view_selection(args)
     if args.gif is not None:
         status = export_episode(args.run_dir, args.episode, args.gif)
         print(f"wrote {args.gif} ({status.frames} frames)")
@@ -378,10 +408,12 @@ def cmd_view(args: argparse.Namespace) -> int:
             compare=args.compare or [],
             goal_status=args.goal_status,
             worlds=args.do_nothing_worlds,
+            selection=selection,
         )
+        listed = f", {outcome.listed} more listed" if outcome.listed else ""
         print(
-            f"wrote {outcome.index} ({len(outcome.statuses)} episodes, {outcome.frames} frames, "
-            f"{outcome.size_bytes / 1e6:.1f} MB)"
+            f"wrote {outcome.index} ({len(outcome.statuses)} episodes{listed}, "
+            f"{outcome.frames} frames, {outcome.size_bytes / 1e6:.1f} MB)"
         )
         problems = outcome.mismatches
     if problems:
@@ -394,6 +426,34 @@ def cmd_view(args: argparse.Namespace) -> int:
             print(f"  {episode}: {'; '.join(status.problems)}", file=sys.stderr)
         return 1
     return 0
+
+
+def view_selection(args: argparse.Namespace) -> Any:
+    """`view`'s filters and sample as a `Selection`, each name checked."""
+    from env.goals import SCENARIO_CLASSES, parse_categories
+    from llm_agents.run_data.records import EPISODE_ENDS
+    from llm_agents.viewer import Selection
+
+    def names(values: list[str] | None, known: tuple[str, ...], flag: str) -> tuple[str, ...]:
+        chosen = tuple(
+            part.strip() for value in values or [] for part in value.split(",") if part.strip()
+        )
+        for name in chosen:
+            if name not in known:
+                raise UserError(f"unknown {flag} {name!r}; known: {', '.join(known)}")
+        return chosen
+
+    filtered = args.sample is not None or args.categories or args.classes or args.outcome
+    if args.episode is not None and filtered:
+        raise UserError("--episode renders one episode: it does not go with --sample or filters")
+    return Selection(
+        sample=args.sample,
+        seed=args.seed,
+        categories=parse_categories(args.categories) if args.categories else (),
+        classes=names(args.classes, SCENARIO_CLASSES, "--class"),
+        outcomes=names(args.outcome, EPISODE_ENDS, "--outcome"),
+        episode=args.episode if args.gif is None else None,
+    )
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
