@@ -1,6 +1,7 @@
 """The whole official CrafText dataset through every command: each text of every split of every
 difficulty (paraphrases included) played a few steps by the scripted expert through `eval`, each
-run read back by `report`, and each text planned by a mock model through `plan`.
+run read back by `report`, its every episode replayed and rendered by `view`, and each text
+planned by a mock model through `plan`.
 
 Nothing here judges play or plans: it checks that the whole dataset goes through each command,
 which writes its files and prints no traceback (Medium's train split once stopped at its 693rd
@@ -200,3 +201,20 @@ def test_plan_plans_every_text(official_data: Path, tmp_path: Path, difficulty: 
     assert set(json.loads(output.read_text())) == texts
     assert f"{len(texts)} instructions: {len(texts)} valid, 0 repaired, 0 failed" in command.out
     assert output.with_suffix(".meta.json").is_file()
+
+
+@pytest.mark.parametrize("difficulty", DIFFICULTIES)
+def test_view_renders_every_episode(
+    played_runs: dict[Difficulty, PlayedRun], difficulty: Difficulty
+) -> None:
+    run = played_runs[difficulty]
+    command = run_command(["view", str(run.run_dir), "--no-progress"])
+    assert_clean(command)
+    report = run.run_dir / "report"
+    episodes = read_episodes(run.run_dir / "episodes.jsonl")
+    pages = list((report / "episodes").glob("*.html"))
+    assert len(pages) == len(episodes)
+    # Every replay reproduced its record (a mismatch is flagged on the run page), and every
+    # page states its goal in words, whatever its kind.
+    assert 'id="replay-mismatch"' not in (report / "index.html").read_text()
+    assert all('id="goal-words">' in page.read_text() for page in pages)

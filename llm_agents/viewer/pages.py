@@ -181,7 +181,9 @@ def build_view(
     except OSError as exc:
         raise UserError(f"cannot create {pages}: {exc.strerror}") from exc
     try:
-        outcome = _write_report(run, rendered, out, progress, batch_size, compare, compared, flagged)
+        outcome = _write_report(
+            run, rendered, out, progress, batch_size, compare, compared, flagged
+        )
         _move_into_place(out, final)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
