@@ -33,7 +33,13 @@ from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
-from llm_agents.backends.base import CHANGES_RESULTS, ChoiceRule, GenerateConfig, result_values
+from llm_agents.backends.base import (
+    CHANGES_RESULTS,
+    ChoiceRule,
+    ChoiceScoring,
+    GenerateConfig,
+    result_values,
+)
 from llm_agents.backends.retry import RetryWaits
 from llm_agents.evaluation.protocol import ProtocolName, apply_protocol
 from llm_agents.run_data.store import RENAMED_SETTINGS, with_current_names
@@ -135,11 +141,19 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
+    predated_settings: ClassVar[dict[str, Any]] = {"choice_scoring": "sum"}
+    """Settings added after runs were recorded whose default is not how those runs played:
+    the value such a run played with (`recorded`, `predated`)."""
 
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
+    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "mean"
+    """--choice loglik: how a name's log-probabilities make its score: sum (its tokens' total,
+    no end of turn: favours the shortest name; runs recorded before this setting played it),
+    mean (per token, the end of turn included), bytes (per byte, lm-evaluation-harness's
+    acc_norm) or pmi (minus the same after a content-free prompt). See the README's Choices."""
     difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
     """CrafText difficulty: easy, medium (Craftax-Classic in the official configs) or hard
     (full Craftax); --categories then picks its splits."""
@@ -271,11 +285,41 @@ class EvalConfig(ModelSettings, GroundingSettings):
             raise ValueError(f"unknown action {value!r}{hint}")
         return value
 
+    @model_validator(mode="after")
+    def _scoring_with_loglik(self) -> EvalConfig:
+        if (
+            "choice_scoring" in self.model_fields_set
+            and self.choice != "loglik"
+            and self.choice_scoring != type(self).model_fields["choice_scoring"].default
+        ):
+            raise ValueError(
+                f"choice_scoring {self.choice_scoring!r} scores --choice loglik only; this run's "
+                f"choice is {self.choice or 'free text'} (leave --choice-scoring out)"
+            )
+        return self
+
+    def result_settings(self) -> dict[str, Any]:
+        """As `ModelSettings.result_settings`; the choice scoring only where it scores
+        (`--choice loglik`), so other runs never differ by it."""
+        settings = super().result_settings()
+        if self.choice != "loglik":
+            settings["choice_scoring"] = None
+        return settings
+
+    @classmethod
+    def predated(cls, recorded: dict[str, Any]) -> dict[str, Any]:
+        """The result settings a run that recorded `recorded` (its identity's settings) played
+        with: the defaults, except `predated_settings` where it predates them."""
+        return cls.model_construct(
+            **{**cls.predated_settings, "choice": recorded.get("choice")}
+        ).result_settings()
+
     @classmethod
     def recorded(cls, settings: dict[str, Any]) -> EvalConfig:
         """The config a run recorded (`RunResults.config`), as it was: not validated again (the
-        paths it names may not exist here), defaults for the settings the run predates."""
-        current = with_current_names(settings)
+        paths it names may not exist here), and for the settings the run predates the value it
+        played with (`predated_settings`, else the default)."""
+        current = {**cls.predated_settings, **with_current_names(settings)}
         return cls.model_construct(**{k: v for k, v in current.items() if k in cls.model_fields})
 
     def env_config(self) -> EnvConfig:

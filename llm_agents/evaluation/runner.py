@@ -191,7 +191,7 @@ def _previous_run(out: Path, identity: RunIdentity) -> RunResults | None:
         return None
     previous = read_results(results_path)
     changed = identity.differences(
-        previous.identity, added=EvalConfig.model_construct().result_settings()
+        previous.identity, added=EvalConfig.predated(previous.identity.settings)
     )
     if changed:
         raise UserError(
