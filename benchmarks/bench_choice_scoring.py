@@ -136,6 +136,13 @@ def main() -> None:
     def run_dir(rule: str, category: str) -> Path:
         return out / f"{rule}-{category}-{args.limit}x{args.max_steps}"
 
+    def played_dir(rule: str, category: str) -> Path:
+        """The run of `rule` on `category`: this step cap's, else another's (--only-print)."""
+        own = run_dir(rule, category)
+        if own.exists() or not args.only_print:
+            return own
+        return next(iter(sorted(out.glob(f"{rule}-{category}-{args.limit}x*"))), own)
+
     if args.run_one:
         rule, category = args.run_one
         target = run_dir(rule, category)
@@ -173,7 +180,7 @@ def main() -> None:
 
     print(
         f"zero-shot --choice loglik, {args.model}, Classic, first {args.limit} goals of each "
-        f"category, {args.max_steps} steps"
+        f"category, {'steps as played' if args.only_print else f'{args.max_steps} steps'}"
     )
     header = "  ".join(f"{c:>32}" for c in args.categories)
     print(f"{'played rule':<12}{header}  {'all':>26}  commonest action (played)")
@@ -181,7 +188,7 @@ def main() -> None:
         cells, played = [], Counter[str]()
         won = started = 0
         for category in args.categories:
-            target = run_dir(rule, category)
+            target = played_dir(rule, category)
             if not (target / "steps.jsonl").exists():
                 cells.append("-")
                 continue
@@ -198,12 +205,12 @@ def main() -> None:
         print(f"{rule:<12}{row}  {total:>26}  {_commonest(played)}")
 
     print("\nOn the same states (each rule's pick at every step the played rules reached):")
-    print(f"{'rule':<8}" + "".join(f"{c:>32}" for c in args.categories))
+    print(f"{'rule':<8}" + "".join(f"{c:>66}" for c in args.categories))
     records: dict[str, list[dict[str, Any]]] = {}
     for category in args.categories:
         records[category] = []
         for rule in args.play:
-            shadow = run_dir(rule, category) / SHADOW_FILE
+            shadow = played_dir(rule, category) / SHADOW_FILE
             if shadow.exists():
                 records[category] += [json.loads(line) for line in shadow.open()]
     for rule in RULES:
@@ -212,7 +219,7 @@ def main() -> None:
             picks = Counter(record[rule] for record in records[category])
             top = ", ".join(f"{n} {c / max(1, picks.total()):.2f}" for n, c in picks.most_common(3))
             cells.append(f"{top} (n={picks.total()})" if picks else "-")
-        print(f"{rule:<8}" + "".join(f"{c:>32}" for c in cells))
+        print(f"{rule:<8}" + "".join(f"{c:>66}" for c in cells))
 
 
 if __name__ == "__main__":
