@@ -8,7 +8,7 @@ all), so each rule's commonest action is also measured on the very states the pl
 reached ("on the same states"), at no extra model cost: the bias of a rule shows there even
 where there was no time to play it.
 
-    python benchmarks/bench_choice_scoring.py --model hf:/path/to/qwen2.5-coder-0.5b
+    python benchmarks/bench_choice_scoring.py [--model hf:/path/to/qwen2.5-coder-0.5b]
         [--play sum mean bytes pmi] [--categories one new_objects] [--limit 8]
         [--max-steps 250] [--dataset PATH] [--out runs/bench-choice-scoring]
 
@@ -119,7 +119,7 @@ def _commonest(actions: Counter[str]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", required=True, help="an hf: model spec")
+    parser.add_argument("--model", default="hf:smollm2-135m", help="an hf: model spec")
     parser.add_argument("--play", nargs="+", choices=RULES, default=list(RULES))
     parser.add_argument("--categories", nargs="+", default=["one", "new_objects"])
     parser.add_argument("--limit", type=int, default=8)
