@@ -95,7 +95,7 @@ MISTAKES: dict[str, Mistake] = {
         "choice_scoring",
     ),
     "choice scoring without loglik": Mistake(
-        [*EVAL, "--choice", "guided", "--choice-scoring", "pmi"], "scores --choice loglik only"
+        [*EVAL, "--choice", "guided", "--choice-scoring", "bytes"], "scores --choice loglik only"
     ),
     "scoring rule on a server without prompt log-probabilities": Mistake(
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", *LOGLIK_PMI],

@@ -149,7 +149,7 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
-    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "mean"
+    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "pmi"
     """--choice loglik: how a name's log-probabilities make its score: sum (its tokens' total,
     no end of turn: favours the shortest name; runs recorded before this setting played it),
     mean (per token, the end of turn included), bytes (per byte, lm-evaluation-harness's
