@@ -125,10 +125,29 @@ def test_summary_counts_per_category_goal_and_termination() -> None:
     assert (summary.overall.low, summary.overall.high) == pytest.approx(scipy_wilson(4, 19))
 
     goals = {goal: (r.successes, r.episodes) for goal, r in summary.by_goal.items()}
-    assert goals == {"wood": (3, 3), "table": (0, 7), "wood+table": (1, 4), "lava": (0, 5)}
+    assert goals == {
+        "one/wood": (3, 3),
+        "one/table": (0, 7),
+        "combo/wood+table": (1, 4),
+        "new_objects/lava": (0, 5),
+    }
     assert summary.terminations == {"success": 4, "death": 7, "timeout": 8}
     assert summary.steps_to_success_mean == pytest.approx(32.5)
     assert summary.steps_to_success_median == pytest.approx(30.0)
+
+
+def test_goals_of_one_id_in_different_splits_are_counted_apart() -> None:
+    # Medium's train and test splits both number their goals from 0, say.
+    episodes = [
+        episode(0, category="train", goal="0", success=True),
+        episode(1, category="paraphrased", goal="0"),
+        episode(2, category="paraphrased", goal="0"),
+    ]
+    rates = summarize(episodes).by_goal
+    assert {key: (r.successes, r.episodes) for key, r in rates.items()} == {
+        "train/0": (1, 1),
+        "paraphrased/0": (0, 2),
+    }
 
 
 def test_summary_rates_are_per_step_over_the_whole_run() -> None:

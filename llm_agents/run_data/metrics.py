@@ -19,7 +19,7 @@ from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES
 from env.termination import TERMINATIONS
 from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord
 
-__all__ = ["SuccessRate", "Summary", "Understanding", "summarize", "wilson_interval"]
+__all__ = ["SuccessRate", "Summary", "Understanding", "goal_key", "summarize", "wilson_interval"]
 
 
 def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -105,7 +105,8 @@ class Summary(BaseModel):
     """Success per scenario class present, then per category present (the paper's Table 2:
     `Build` -> `train` -> rate)."""
     by_goal: dict[str, SuccessRate]
-    """Success per goal id."""
+    """Success per goal, keyed `category/goal_id`: ids repeat across splits (a test split's
+    goal can share its id with a training goal), and a category lies within one split."""
     terminations: dict[str, int]
     """Episodes per termination reason (`success`, `death`, `timeout`), zeros included, and
     `not_started` when some episode could not start."""
@@ -127,6 +128,11 @@ def _success_rates(groups: dict[str, list[bool]]) -> dict[str, SuccessRate]:
     return {key: SuccessRate.of(sum(outcomes), len(outcomes)) for key, outcomes in groups.items()}
 
 
+def goal_key(episode: EpisodeRecord) -> str:
+    """The key of an episode's goal among a run's (`Summary.by_goal`): its category and id."""
+    return f"{episode.category}/{episode.goal_id}"
+
+
 def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
     """Metrics over `episodes`; raises `UserError` when there are none."""
     if not episodes:
@@ -137,7 +143,7 @@ def summarize(episodes: Sequence[EpisodeRecord]) -> Summary:
     for episode in episodes:
         by_category[episode.category].append(episode.success)
         by_scenario[episode.scenario_class][episode.category].append(episode.success)
-        by_goal[episode.goal_id].append(episode.success)
+        by_goal[goal_key(episode)].append(episode.success)
     terminations = Counter(episode.termination for episode in episodes)
     success_steps = [episode.steps for episode in episodes if episode.success]
     total_steps = sum(episode.steps for episode in episodes)

@@ -43,6 +43,7 @@ from llm_agents.evaluation.report import (
     scenario_rows,
     table_columns,
 )
+from llm_agents.run_data.metrics import goal_key
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
@@ -391,7 +392,7 @@ def _run_context(
         ],
         "episodes": [(view, statuses[view.record.episode_id]) for view in run.episodes],
         "category_names": sorted({record.category for record in records}),
-        "goal_names": sorted({record.goal_id for record in records}),
+        "goal_names": sorted({goal_key(record) for record in records}),
         "episodes_dir": EPISODES_DIR,
     }
 
