@@ -127,11 +127,24 @@ class GroundingSettings(BaseModel):
 
     grounding_shots: Annotated[int, CHANGES_RESULTS] = Field(0, ge=0, le=16)
     """Worked examples shown before each instruction is read (ground, guided): instructions of
-    the difficulty's training goals answered with their goals' JSON, never the goal being read;
-    0: none, only the prompt's own example."""
+    the difficulty's training goals answered with their goals' JSON, never the answer of the
+    text being read (no example phrasing its goal or reading as its goal, in any wording); 0:
+    none, only the prompt's own example."""
 
 
-class EvalConfig(ModelSettings, GroundingSettings):
+class FailureSettings(BaseModel):
+    """When a command that asks a model many times gives up on a failing backend: `eval`,
+    `ground`."""
+
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, use_attribute_docstrings=True
+    )
+
+    max_consecutive_failures: int = Field(8, ge=1)
+    """Stop the run (keeping what finished) after this many failed model answers in a row."""
+
+
+class EvalConfig(ModelSettings, GroundingSettings, FailureSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
@@ -170,8 +183,6 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Action taken when the model's answer cannot be parsed (counted as invalid)."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
-    max_consecutive_failures: int = Field(8, ge=1)
-    """Stop the run (keeping what finished) after this many failed model answers in a row."""
     protocol: Annotated[ProtocolName, CHANGES_RESULTS] = "default"
     """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
     `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
