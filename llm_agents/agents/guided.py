@@ -3,15 +3,15 @@
 At the start of each episode the model grounds the instruction once (`ground.j2` offering the
 run's difficulty's goal kinds, parsed by `parse_grounding`, cached per text, so the paraphrase
 played again in another world costs no request, and a text several slots start at once is asked
-by one of them while the others wait on its answer); then the expert (`expert.py`) plays the goal as
-the model read it, never the dataset record's: the achievements it read, or on Medium and Hard
-the placing goal with the block, side, distance, size and counts it read. This separates
-understanding from acting: its success is what a model that plays perfectly-scripted moves
-would reach with its own reading of the goals. `grounding_shots` shows the request worked
-examples from the training goals first, as `craftext-llm ground` does (the episode's goal is
-read for that alone: no example answered with it is shown). An invalid grounding is
-an episode the agent could not start: its first decision carries the invalid grounding and the
-runner ends it there, unscored as play but counted as a failure.
+by one of them while the others wait on its answer, their prompts `deferred`); then the expert
+(`expert.py`) plays the goal as the model read it, never the dataset record's: the achievements
+it read, or on Medium and Hard the placing goal with the block, side, distance, size and counts
+it read. This separates understanding from acting: its success is what a model that plays
+perfectly-scripted moves would reach with its own reading of the goals. `grounding_shots` shows
+the request worked examples from the training goals first, as `craftext-llm ground` does (the
+episode's goal is read for that alone: no example answered with it is shown). An invalid
+grounding is an episode the agent could not start: its first decision carries the invalid
+grounding and the runner ends it there, unscored as play but counted as a failure.
 """
 
 from __future__ import annotations
