@@ -29,6 +29,7 @@ from llm_agents.evaluation.grounding_run import (
 )
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.grounding_metrics import Scored, confusions, score
+from llm_agents.run_data.metrics import wilson_interval
 from llm_agents.run_data.readings import EasyReading
 from llm_agents.run_data.store import read_episodes, read_results
 
@@ -174,6 +175,27 @@ def test_a_field_nobody_read_or_holds_has_no_rate() -> None:
         result.fields["forbidden"].precision is None and result.fields["forbidden"].recall is None
     )
     assert result.exact.rate == 1.0
+
+
+def test_the_phrasings_of_a_goal_and_the_atoms_of_a_text_are_not_independent() -> None:
+    right = '{"required": ["PLACE_TABLE", "COLLECT_WOOD", "COLLECT_STONE"]}'
+    wood = (("COLLECT_WOOD", "COLLECT_STONE", "PLACE_TABLE"), ())
+    # Six phrasings of each of two goals: one goal always read right, the other never.
+    items = [scored(wood, right) for _ in range(6)]
+    items += [scored((("EAT_COW",), ()), '{"required": ["DRINK_WATER"]}') for _ in range(6)]
+    result = score(items)
+    assert (result.exact.successes, result.exact.episodes, result.exact.clusters) == (6, 12, 2)
+    # Twelve texts, but two goals' worth of evidence.
+    assert (result.exact.low, result.exact.high) == pytest.approx(wilson_interval(1, 2))
+    recall = result.fields["required"].recall
+    assert recall is not None and (recall.successes, recall.episodes) == (18, 24)
+    assert recall.clusters == 2 and recall.high - recall.low > 0.5
+    # Told the goals' ids, the same: one cluster per goal.
+    named = [
+        Scored(i.split, i.category, i.truth, i.grounding, goal_id=str(n // 6))
+        for n, i in enumerate(items)
+    ]
+    assert score(named).exact == result.exact
 
 
 # ----------------------------------------------------------------------------- ground runs
@@ -556,7 +578,11 @@ def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understa
     summary = outcome.summary
     assert summary is not None and summary.understanding is not None
     read = summary.understanding
-    assert (read.grounded.successes, read.grounded.episodes, read.not_started) == (4, 8, 2)
+    # Counted per text (4 texts, 2 read right), not per episode: each text played in 2 worlds.
+    assert (read.grounded.successes, read.grounded.episodes, read.not_started) == (2, 4, 2)
+    # Two goals, each with both its texts read right or both wrong: each counts once.
+    assert read.grounded.clusters == 2
+    assert (read.grounded.low, read.grounded.high) == pytest.approx(wilson_interval(1, 2))
     assert read.success_when_right is not None and read.success_when_right.episodes == 4
     assert read.success_when_wrong is not None and read.success_when_wrong.successes == 0
     assert summary.terminations["not_started"] == 2
@@ -565,7 +591,8 @@ def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understa
     assert main(["report", str(tmp_path / "run")]) == 0
     report = capsys.readouterr().out
     assert "not started 2" in report
-    assert "goal read exactly right in 0.50" in report and "(could not start: 2)" in report
+    assert "goal read exactly right in 0.50" in report and "n=4 g=2 texts" in report
+    assert "(could not start: 2 episodes)" in report
 
 
 def test_guided_is_shown_the_worked_examples_ground_shows(
@@ -579,7 +606,7 @@ def test_guided_is_shown_the_worked_examples_ground_shows(
     model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
     outcome = run_eval(build_config(settings), model, env=short_env)
     assert outcome.summary is not None and outcome.summary.understanding is not None
-    assert outcome.summary.understanding.grounded.successes == 2
+    assert outcome.summary.understanding.grounded.successes == 2  # two texts
 
     grounder = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
     cfg = ground_config(tmp_path / "ground", dataset_file, categories=["new_objects"])

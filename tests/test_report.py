@@ -25,7 +25,8 @@ def episode(index: int, category: str, success: bool) -> EpisodeRecord:
     return EpisodeRecord.model_validate(
         {
             "episode_id": f"ep{index}",
-            "goal_id": f"{category}-goal",
+            # A goal per episode: its outcome is independent of the others' (plain Wilson).
+            "goal_id": f"{category}-goal-{index}",
             "instruction": "place a table",
             "instruction_variant": 2 if category == "paraphrased" else 0,
             "category": category,
@@ -51,7 +52,7 @@ def episodes_with(counts: dict[str, tuple[int, int]]) -> list[EpisodeRecord]:
 
 def expected_cell(k: int, n: int) -> str:
     ci = binomtest(k, n).proportion_ci(method="wilson")
-    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n}"
+    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n} g={n}"
 
 
 def table_rows(table: str) -> dict[str, dict[str, str]]:

@@ -24,13 +24,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError
 
-from env.dataset import CATEGORIES, Instruction, load_dataset, parse_categories
+from env.dataset import Instruction, load_dataset
 from env.errors import UserError
-from env.goals import DIFFICULTY_KINDS, Difficulty, check_categories, run_category
+from env.goals import DIFFICULTY_KINDS, run_category
 from env.scenario_tasks import encode_goals
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
@@ -48,18 +48,12 @@ from llm_agents.backends.base import (
     ChoiceSet,
     ModelAPI,
 )
-from llm_agents.evaluation.config import (
-    FailureSettings,
-    GroundingSettings,
-    ModelSettings,
-)
-from llm_agents.evaluation.protocol import protocol_for
+from llm_agents.evaluation.config import FailureSettings, GroundingSettings, TextSelection
 from llm_agents.evaluation.runner import BackendFailure
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.provenance import code_version, note_other_code
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
 from llm_agents.run_data.store import (
-    RENAMED_SETTINGS,
     RESULTS_FILE,
     RunIdentity,
     RunStatus,
@@ -77,18 +71,10 @@ from prompts import template_digests
 GROUNDINGS_FILE = "groundings.jsonl"
 
 
-class GroundConfig(ModelSettings, GroundingSettings, FailureSettings):
-    """What `craftext-llm ground` does."""
+class GroundConfig(TextSelection, GroundingSettings, FailureSettings):
+    """What `craftext-llm ground` does (its `--difficulty` also picks the goal kinds the prompt
+    offers)."""
 
-    renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
-
-    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
-    """CrafText difficulty: easy, medium or hard; --categories then picks its splits, and the
-    prompt offers its goal kinds."""
-    categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
-    """Instruction categories whose texts are grounded: easy's one, combo, paraphrased,
-    new_objects; medium's and hard's train, paraphrased, new_objects (unset: every one of the
-    difficulty's that eval's default protocol plays, all four for easy)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Ground every paraphrase of each goal as well as its original instruction."""
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
@@ -98,29 +84,6 @@ class GroundConfig(ModelSettings, GroundingSettings, FailureSettings):
     """Where groundings and results are written; rerunning on it resumes the run."""
     requests_per_call: int = Field(16, ge=1)
     """Conversations sent to the backend in one call (a server gets them concurrently)."""
-
-    @classmethod
-    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
-        """Categories, when unset, from the difficulty (an unknown one is left to validation)."""
-        difficulty = settings.get("difficulty", "easy")
-        if "categories" in settings or difficulty == "easy" or difficulty not in DIFFICULTY_KINDS:
-            return settings
-        default = next(
-            choice.value
-            for choice in protocol_for("default", difficulty).choices
-            if choice.setting == "categories"
-        )
-        return settings | {"categories": default}
-
-    @field_validator("categories", mode="before")
-    @classmethod
-    def _known_categories(cls, value: Any) -> tuple[str, ...]:
-        return tuple(parse_categories(value))
-
-    @model_validator(mode="after")
-    def _categories_of_the_difficulty(self) -> GroundConfig:
-        check_categories(self.categories, self.difficulty)
-        return self
 
 
 class GroundingRecord(BaseModel):
@@ -358,7 +321,10 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
 def summarize_records(records: Sequence[GroundingRecord]) -> GroundingSummary | None:
     """The scores of answered texts."""
     return summarize_groundings(
-        [Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class) for r in records]
+        [
+            Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class, r.goal_id)
+            for r in records
+        ]
     )
 
 

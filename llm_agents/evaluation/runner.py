@@ -35,6 +35,7 @@ from typing import Any
 from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import run_category
+from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.grounding import examples_digest, training_examples
@@ -44,7 +45,12 @@ from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
 from llm_agents.evaluation.play import play_episodes
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode, build_schedule
-from llm_agents.evaluation.sink import RunSink, drop_unfinished_steps, finished_episodes
+from llm_agents.evaluation.sink import (
+    RunSink,
+    drop_unfinished_steps,
+    finished_episodes,
+    recorded_actions,
+)
 from llm_agents.run_data.metrics import Summary
 from llm_agents.run_data.provenance import code_version, note_other_code
 from llm_agents.run_data.store import (
@@ -130,7 +136,8 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     """
     out = Path(config.output_dir)
     check_output_dir(out)
-    dataset = load_dataset(config.dataset)
+    # The open-ended task reads no dataset: its one goal is our own.
+    dataset = open_ended_dataset() if config.task == "open_ended" else load_dataset(config.dataset)
     instructions = dataset.instructions(
         config.categories, include_paraphrases=config.paraphrases, difficulty=config.difficulty
     )
@@ -350,6 +357,7 @@ def run_schedule(
         EpisodeQueue(pending),
         config.max_consecutive_failures,
         endpoint_stats,
+        actions=recorded_actions(out, done_ids) if config.record_steps else None,
     )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None

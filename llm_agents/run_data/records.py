@@ -91,8 +91,9 @@ class EpisodeRecord(BaseModel):
     """Id of the CrafText goal the instruction states."""
     instruction: str
     """The instruction text the agent was given."""
-    instruction_variant: int = Field(ge=0, le=5)
-    """Which wording of the goal: 0 the original, 1-5 a paraphrase."""
+    instruction_variant: int = Field(ge=0)
+    """Which wording of the goal: 0 the original, 1..n one of its n paraphrases (as many as the
+    dataset gives it: 4, 5 or 10 in the official data)."""
     category: Category
     """The goal set the episode counts towards."""
     scenario_class: ScenarioClass = "Achievements"

@@ -38,9 +38,10 @@ from pydantic import (
 from env.errors import UserError
 from env.goals import Dataset, Difficulty, category_split
 from llm_agents.backends.endpoints import EndpointStats
-from llm_agents.run_data.metrics import Summary
+from llm_agents.run_data.metrics import ActionHistogram, Summary
 from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.scores import RunScores
 
 logger = logging.getLogger(__name__)
 
@@ -352,8 +353,14 @@ class RunResults(BaseModel):
 
     summary: Summary | None = None
     """Metrics over the scheduled episodes finished so far; None before the first one ends."""
+    scores: RunScores | None = None
+    """The field's achievement scores (Crafter score, BALROG progression, craftaxlm) of the same
+    episodes; None before the first one ends (and in runs recorded before they were kept)."""
     groundings: dict[str, Grounding] = Field(default_factory=dict)
     """Episode id -> the goal the agent read before playing it (`guided`), per finished episode."""
+    actions: dict[str, ActionHistogram] = Field(default_factory=dict)
+    """Episode id -> the actions it took (from its step records), per finished episode; empty
+    when the run keeps no step log (`summary.actions` pools them)."""
     status: RunStatus = "partial"
     """See `RunStatus`."""
     failure: str | None = None
