@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -621,3 +622,47 @@ def test_a_missing_gguf_reader_gives_the_install_command(
     with pytest.raises(UserError, match=r"'accelerate'.*craftext-llm\[hf\]"):
         embedded.convert_gguf(tmp_path / "model.gguf", tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB"),
+        RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory"),
+        RuntimeError("MPS backend out of memory (MPS allocated: 1 GB)"),
+        hf_model.ContextLengthError("a prompt of 9000 tokens is longer than the model's context"),
+    ],
+)  # fmt: skip
+def test_running_out_of_memory_or_context_fails_the_batch_as_the_backends(
+    error: Exception,
+) -> None:
+    def run(batch: Any) -> Any:
+        raise error
+
+    outputs = HFModel._in_batches(SimpleNamespace(rows_per_forward=2), [FRANCE] * 3, run)  # type: ignore[arg-type]
+    assert [o.finish_reason for o in outputs] == ["error"] * 3
+    assert all(type(error).__name__ in (o.error or "") for o in outputs)
+
+
+@pytest.mark.parametrize(
+    "error", [RuntimeError("The size of tensor a (3) must match"), ValueError("bad logits")]
+)
+def test_any_other_error_of_a_forward_pass_is_a_bug_and_raised(error: Exception) -> None:
+    def run(batch: Any) -> Any:
+        raise error
+
+    with pytest.raises(type(error), match=str(error).split("(")[0]):
+        HFModel._in_batches(SimpleNamespace(rows_per_forward=2), [FRANCE], run)  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_a_prompt_over_the_context_length_is_a_backend_failure(model: HFModel) -> None:
+    context = model.context_length
+    assert context == model.model.config.max_position_embeddings
+    long = [ChatMessage(role="user", content="wood " * (context + 10))]
+    [output] = model.generate([long])
+    assert output.finish_reason == "error" and "longer than the model's context" in (
+        output.error or ""
+    )
+    [fine] = model.generate([FRANCE])
+    assert fine.finish_reason != "error"

@@ -221,6 +221,8 @@ OTHER_VALUES: dict[str, object] = {
     "batch_size": 2,
     "renderer": "grid",
     "history_length": 2,
+    "report_invalid_answers": True,
+    "task": "open_ended",
     "plans": "plans.json",
     "output_dir": "elsewhere",
     "fallback_action": "DO",

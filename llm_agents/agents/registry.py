@@ -18,6 +18,7 @@ AGENTS: dict[str, str] = {
     "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
     "expert": "llm_agents.agents.expert:ExpertAgent",
     "guided": "llm_agents.agents.guided:GuidedAgent",
+    "noop": "llm_agents.agents.noop:NoopAgent",
 }
 
 
@@ -41,6 +42,8 @@ class AgentSettings(Protocol):
     def fallback_action(self) -> str: ...
     @property
     def history_length(self) -> int: ...
+    @property
+    def report_invalid_answers(self) -> bool: ...
     @property
     def templates_dir(self) -> str | None: ...
     @property

@@ -120,6 +120,24 @@ class HFOptions(BaseModel):
         return device
 
 
+class ContextLengthError(ValueError):
+    """A prompt longer than the model's context (`max_position_embeddings`)."""
+
+
+#: How the allocators word running out of memory where they raise a plain RuntimeError (the
+#: CPU's, cuBLAS's, Apple's MPS); CUDA's own is `torch.OutOfMemoryError`.
+_OUT_OF_MEMORY = ("out of memory", "can't allocate memory", "CUBLAS_STATUS_ALLOC_FAILED")
+
+
+def backend_failure(err: BaseException) -> bool:
+    """Whether an error of a forward pass is the backend's failure (out of memory, or a prompt
+    over the context length: the batch failed, the run goes on and retries it on resume)
+    rather than a bug, which must surface."""
+    if isinstance(err, ContextLengthError | torch.OutOfMemoryError):
+        return True
+    return isinstance(err, RuntimeError) and any(words in str(err) for words in _OUT_OF_MEMORY)
+
+
 class HFModel(ModelAPI):
     """A transformers causal LM answering batches of chat conversations."""
 
@@ -176,6 +194,9 @@ class HFModel(ModelAPI):
         )
         self._end_of_turn = end_of_turn_id(self.tokenizer)
         self._content_free = ContentFreeScores()
+        # A longer prompt is a backend failure (`ContextLengthError`), read before the weights.
+        positions = getattr(model_config, "max_position_embeddings", None)
+        self.context_length: int | None = positions if isinstance(positions, int) else None
 
     @property
     def model(self) -> Any:
@@ -380,7 +401,10 @@ class HFModel(ModelAPI):
             try:
                 outputs.extend(run(batch))
             except (RuntimeError, ValueError) as err:
-                # Out of memory or a prompt over the context length fails this batch only.
+                # Out of memory or a prompt over the context length fails this batch only, as
+                # a backend failure; any other error is a bug, and raised.
+                if not backend_failure(err):
+                    raise
                 outputs.extend(
                     ModelOutput(
                         text="", finish_reason="error", error=f"{type(err).__name__}: {err}"
@@ -407,7 +431,8 @@ class HFModel(ModelAPI):
     def _encode_prompts(
         self, conversations: Sequence[Conversation], texts: list[str]
     ) -> list[np.ndarray]:
-        """The token ids of each conversation's rendered `texts`, equal to encoding each whole.
+        """The token ids of each conversation's rendered `texts`, equal to encoding each whole
+        (a `ContextLengthError` when one is longer than the model's context).
 
         A system message (an agent's is the same every step, and most of every prompt) is
         encoded once and its tokens kept (`_head`); each call encodes only the rest of every
@@ -421,12 +446,19 @@ class HFModel(ModelAPI):
             text[len(head[0]) :] if head else text for head, text in zip(heads, texts, strict=True)
         ]
         encoded = self.tokenizer(rests, add_special_tokens=False).input_ids
-        return [
+        prompts = [
             np.concatenate([head[1], np.asarray(ids, dtype=np.int64)])
             if head
             else np.asarray(ids, dtype=np.int64)
             for head, ids in zip(heads, encoded, strict=True)
         ]
+        longest = max((len(prompt) for prompt in prompts), default=0)
+        if self.context_length is not None and longest > self.context_length:
+            raise ContextLengthError(
+                f"a prompt of {longest} tokens is longer than the model's context "
+                f"({self.context_length})"
+            )
+        return prompts
 
     def _head(self, conversation: Conversation, text: str) -> tuple[str, np.ndarray] | None:
         """The start of `text` whose tokens are kept for its system message, with the tokens.
