@@ -29,6 +29,7 @@ EVAL = [
     "eval", "--model", "mock:", "--variant", "classic", "--categories", "combo", "--max-steps", "2",
     "--limit", "1", "--batch-size", "1", "--output-dir", "{tmp}/run", "--no-progress",
 ]  # fmt: skip
+LOGLIK_PMI = ["--choice", "loglik", "--choice-scoring", "pmi"]
 PLAN = ["plan", "--model", "mock:", "--output", "{tmp}/plans.json", "--no-progress", "--limit", "1"]
 
 
@@ -112,6 +113,24 @@ MISTAKES: dict[str, Mistake] = {
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", "--choice", "loglik"], "loglik"
     ),
     "unknown choice rule": Mistake([*EVAL, "--choice", "best"], "invalid choice"),
+    "unknown choice scoring": Mistake(
+        [*EVAL, "--choice", "loglik", "--choice-scoring", "median"], "invalid choice"
+    ),
+    "unknown choice scoring in a file": with_message(
+        config_file("run.toml", 'choice = "loglik"\nchoice_scoring = "median"\n'),
+        "choice_scoring",
+    ),
+    "choice scoring without loglik": Mistake(
+        [*EVAL, "--choice", "guided", "--choice-scoring", "bytes"], "scores --choice loglik only"
+    ),
+    "scoring rule on a server without prompt log-probabilities": Mistake(
+        [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", *LOGLIK_PMI],
+        "log-probabilities",
+    ),
+    "the hf choice_scoring option that became a setting": Mistake(
+        [*EVAL, "--model", "hf:smollm2-135m", "--backend-option", "choice_scoring=mean"],
+        "no option 'choice_scoring'",
+    ),
     "unknown agent": Mistake([*EVAL, "--agent", "genius"], "genius"),
     "few-shot without demonstrations": Mistake([*EVAL, "--agent", "few-shot"], "demos"),
     # numbers out of range

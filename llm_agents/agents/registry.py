@@ -10,7 +10,7 @@ from typing import Protocol
 
 from env.goals import Difficulty
 from env.variant import Variant
-from llm_agents.backends.base import ChoiceRule
+from llm_agents.backends.base import ChoiceRule, ChoiceScoring
 
 AGENTS: dict[str, str] = {
     "zero-shot": "llm_agents.agents.zero_shot:ZeroShotAgent",
@@ -36,6 +36,8 @@ class AgentSettings(Protocol):
     def renderer(self) -> str: ...
     @property
     def choice(self) -> ChoiceRule | None: ...
+    @property
+    def choice_scoring(self) -> ChoiceScoring: ...
     @property
     def fallback_action(self) -> str: ...
     @property

@@ -34,7 +34,13 @@ from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
-from llm_agents.backends.base import CHANGES_RESULTS, ChoiceRule, GenerateConfig, result_values
+from llm_agents.backends.base import (
+    CHANGES_RESULTS,
+    ChoiceRule,
+    ChoiceScoring,
+    GenerateConfig,
+    result_values,
+)
 from llm_agents.backends.retry import RetryWaits
 from llm_agents.evaluation.protocol import ProtocolName, apply_protocol, protocol_for
 from llm_agents.run_data.store import RENAMED_SETTINGS, with_current_names
@@ -162,19 +168,40 @@ class GroundingSettings(BaseModel):
 
     grounding_shots: Annotated[int, CHANGES_RESULTS] = Field(0, ge=0, le=16)
     """Worked examples shown before each instruction is read (ground, guided): instructions of
-    the difficulty's training goals answered with their goals' JSON, never the goal being read;
-    0: none, only the prompt's own example."""
+    the difficulty's training goals answered with their goals' JSON, never the answer of the
+    text being read (no example phrasing its goal or reading as its goal, in any wording); 0:
+    none, only the prompt's own example."""
 
 
-class EvalConfig(ModelSettings, GroundingSettings):
+class FailureSettings(BaseModel):
+    """When a command that asks a model many times gives up on a failing backend: `eval`,
+    `ground`."""
+
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, use_attribute_docstrings=True
+    )
+
+    max_consecutive_failures: int = Field(8, ge=1)
+    """Stop the run (keeping what finished) after this many failed model answers in a row."""
+
+
+class EvalConfig(ModelSettings, GroundingSettings, FailureSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
+    predated_settings: ClassVar[dict[str, Any]] = {"choice_scoring": "sum"}
+    """Settings added after runs were recorded whose default is not how those runs played:
+    the value such a run played with (`recorded`, `predated`)."""
 
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
+    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "pmi"
+    """--choice loglik: how a name's log-probabilities make its score: sum (its tokens' total,
+    no end of turn: favours the shortest name; runs recorded before this setting played it),
+    mean (per token, the end of turn included), bytes (per byte, lm-evaluation-harness's
+    acc_norm) or pmi (minus the same after a content-free prompt). See the README's Choices."""
     difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
     """CrafText difficulty: easy, medium (Craftax-Classic in the official configs) or hard
     (full Craftax); --categories then picks its splits."""
@@ -212,8 +239,6 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Action taken when the model's answer cannot be parsed (counted as invalid)."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
-    max_consecutive_failures: int = Field(8, ge=1)
-    """Stop the run (keeping what finished) after this many failed model answers in a row."""
     protocol: Annotated[ProtocolName, CHANGES_RESULTS] = "default"
     """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
     `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
@@ -314,11 +339,41 @@ class EvalConfig(ModelSettings, GroundingSettings):
             raise ValueError(f"unknown action {value!r}{hint}")
         return value
 
+    @model_validator(mode="after")
+    def _scoring_with_loglik(self) -> EvalConfig:
+        if (
+            "choice_scoring" in self.model_fields_set
+            and self.choice != "loglik"
+            and self.choice_scoring != type(self).model_fields["choice_scoring"].default
+        ):
+            raise ValueError(
+                f"choice_scoring {self.choice_scoring!r} scores --choice loglik only; this run's "
+                f"choice is {self.choice or 'free text'} (leave --choice-scoring out)"
+            )
+        return self
+
+    def result_settings(self) -> dict[str, Any]:
+        """As `ModelSettings.result_settings`; the choice scoring only where it scores
+        (`--choice loglik`), so other runs never differ by it."""
+        settings = super().result_settings()
+        if self.choice != "loglik":
+            settings["choice_scoring"] = None
+        return settings
+
+    @classmethod
+    def predated(cls, recorded: dict[str, Any]) -> dict[str, Any]:
+        """The result settings a run that recorded `recorded` (its identity's settings) played
+        with: the defaults, except `predated_settings` where it predates them."""
+        return cls.model_construct(
+            **{**cls.predated_settings, "choice": recorded.get("choice")}
+        ).result_settings()
+
     @classmethod
     def recorded(cls, settings: dict[str, Any]) -> EvalConfig:
         """The config a run recorded (`RunResults.config`), as it was: not validated again (the
-        paths it names may not exist here), defaults for the settings the run predates."""
-        current = with_current_names(settings)
+        paths it names may not exist here), and for the settings the run predates the value it
+        played with (`predated_settings`, else the default)."""
+        current = {**cls.predated_settings, **with_current_names(settings)}
         return cls.model_construct(**{k: v for k, v in current.items() if k in cls.model_fields})
 
     def env_config(self) -> EnvConfig:

@@ -10,9 +10,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from env.errors import UserError
-from llm_agents.evaluation.grounding_run import read_ground_results
+from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
 from llm_agents.run_data.grounding_metrics import GroundingScore
 from llm_agents.run_data.metrics import SuccessRate
+from llm_agents.run_data.provenance import code_note
 from llm_agents.run_data.store import RESULTS_FILE
 
 __all__ = ["report_grounding"]
@@ -128,4 +129,9 @@ def report_grounding(run_dir: str | Path) -> str:
             f"Backend failures: {results.failed_calls} (last: {results.last_error}); "
             "rerun the same command to ask again."
         )
+    if results.status == "failed":
+        lines.append(f"Stopped: the backend kept failing ({results.failure}).")
+    mixed = code_note((record.code for record in read_groundings(out)), "answers")
+    if mixed:
+        lines.append(mixed)
     return "\n".join(lines)

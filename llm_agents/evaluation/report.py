@@ -14,6 +14,7 @@ success_rule=...)`).
 
 from __future__ import annotations
 
+import json
 import math
 import statistics
 from collections.abc import Collection, Mapping, Sequence
@@ -50,6 +51,7 @@ from llm_agents.run_data.metrics import (
     action_histogram,
     summarize,
 )
+from llm_agents.run_data.provenance import code_note
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.scores import RunScores, Scores, achievement_list_of, score_run
 from llm_agents.run_data.store import (
@@ -688,6 +690,9 @@ def report_run(
         + (f" (re-scored; the run was played under {played})" if rule != played else "")
         + f". Goals completed on the step the game ended: {at_game_over}."
     ]
+    mixed = code_note(episode.code for episode in episodes)
+    if mixed:
+        notes.append(mixed)
     actions = run_actions(run_dir, results, episodes)
     summary = run_summary(results, episodes, rule, actions)
     notes += episode_actions_line(actions)
@@ -772,14 +777,39 @@ def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
     return [*columns, "overall"]
 
 
+#: Settings that change a run's numbers without changing what it plays, named as a comparison
+#: names them when runs differ in them (a setting a run predates reads as unset).
+_COMPARED_SETTINGS = {
+    "choice": "choice",
+    "choice_scoring": "choice scoring",
+    "variant": "variant",
+    "protocol": "protocol",
+}
+
+
 def comparison_notes(runs: Sequence[ComparedRun]) -> list[str]:
-    """What a reader of the comparison must know: the runs read different datasets or played
-    different difficulties."""
+    """What a reader of the comparison must know: the runs read different datasets, played
+    different difficulties, or differ in a setting that changes the numbers (choice, choice
+    scoring, success rule, variant, protocol)."""
     notes = []
     if len({run.results.dataset.get("sha256") for run in runs}) > 1:
         notes.append("Note: the compared runs read different datasets (or one is unknown).")
     if len({difficulty_of_run(run.results) for run in runs}) > 1:
         notes.append("Note: the compared runs played different difficulties.")
+    values = {
+        label: [run.results.config.get(key) for run in runs]
+        for key, label in _COMPARED_SETTINGS.items()
+    }
+    values["success rule"] = [recorded_rule(run.results) for run in runs]
+    differing = [
+        f"{label} ({', '.join('unset' if value is None else str(value) for value in seen)})"
+        for label, seen in values.items()
+        if len({json.dumps(value, sort_keys=True) for value in seen}) > 1
+    ]
+    if differing:
+        notes.append(
+            f"Note: the compared runs differ in {'; '.join(differing)} (in the rows' order)."
+        )
     return notes
 
 

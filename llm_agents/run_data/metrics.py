@@ -48,6 +48,7 @@ __all__ = [
     "action_histogram",
     "clustered_rate",
     "goal_cluster",
+    "goal_key",
     "summarize",
     "wilson_interval",
 ]
@@ -291,6 +292,11 @@ def _success_rates(groups: dict[str, list[EpisodeRecord]]) -> dict[str, SuccessR
     return {key: _clustered_success(episodes) for key, episodes in groups.items()}
 
 
+def goal_key(episode: EpisodeRecord) -> str:
+    """The key of an episode's goal among a run's (`Summary.by_goal`): its category and id."""
+    return f"{episode.category}/{episode.goal_id}"
+
+
 def summarize(
     episodes: Sequence[EpisodeRecord], actions: Mapping[str, Mapping[str, int]] | None = None
 ) -> Summary:
@@ -305,7 +311,7 @@ def summarize(
     for episode in episodes:
         by_category[episode.category].append(episode)
         by_scenario[episode.scenario_class][episode.category].append(episode)
-        by_goal[f"{episode.category}/{episode.goal_id}"].append(episode.success)
+        by_goal[goal_key(episode)].append(episode.success)
     terminations = Counter(episode.termination for episode in episodes)
     success_steps = [episode.steps for episode in episodes if episode.success]
     total_steps = sum(episode.steps for episode in episodes)

@@ -133,6 +133,9 @@ class EpisodeRecord(BaseModel):
     reset_key: list[int] | None = Field(None, min_length=2, max_length=2)
     """The raw PRNG key (two uint32 words) the episode's world was reset with; None in records
     written before it was stored (replays then derive it the way the runner did)."""
+    code: str | None = None
+    """The version of the code that played the episode (`code_version`); None in records
+    written before it was stored."""
 
     # A computed field is written to JSON but ignored on reading, so the rate can never
     # disagree with the count it comes from.

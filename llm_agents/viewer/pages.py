@@ -54,7 +54,7 @@ from llm_agents.evaluation.report import (
     scheduled_episodes,
     table_columns,
 )
-from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram
+from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
 from llm_agents.run_data.store import RESULTS_FILE, read_results
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.goals import block_words, rendering_of
@@ -609,7 +609,7 @@ def _run_context(
         "category_names": sorted({record.category for record in records}),
         "class_names": sorted({record.scenario_class for record in records}),
         "kind_names": sorted({view.goal.kind for view in run.episodes if view.goal}),
-        "goal_names": sorted({record.goal_id for record in records}),
+        "goal_names": sorted({goal_key(record) for record in records}),
         "episodes_dir": EPISODES_DIR,
         # Issue 31: the legend of the rates (clustered by goal) and the actions taken.
         "rates_legend": rates_legend(summary),
