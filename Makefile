@@ -60,7 +60,7 @@ test: lint
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment"; fi
 	@# Debian's Chromium for the browser test of `craftext-llm view` (apt-get, only when missing).
 	bash scripts/setup_chromium.sh
-	$(BIN)/python -m pytest -ra
+	$(BIN)/python -m pytest -ra --durations=10
 
 # compare_plans.py is a comparison tool that needs a plans file, not a benchmark: not run here.
 bench: $(VENV)/.stamp-dev

@@ -31,6 +31,7 @@ import time
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -67,12 +68,16 @@ def _label(model: str) -> str:
     return model.split(":", 1)[-1].rsplit("/", 1)[-1]
 
 
-def _rate(outcomes: list[bool]) -> str:
-    """Success rate with its 95% Wilson interval: the play samples are small."""
-    from llm_agents.run_data.metrics import wilson_interval
+def _rate(episodes: list[Any]) -> str:
+    """Success rate with its 95% Wilson interval clustered by goal (the play samples are small,
+    and a goal's texts are not independent)."""
+    from llm_agents.run_data.metrics import clustered_rate, goal_cluster
 
-    low, high = wilson_interval(sum(outcomes), len(outcomes))
-    return f"{sum(outcomes) / len(outcomes):.2f} [{low:.2f}, {high:.2f}] (n={len(outcomes)})"
+    return clustered_rate((goal_cluster(e), int(e.success), 1) for e in episodes).cell()
+
+
+def _interval(rate: Any) -> str:
+    return "-" if rate is None else f"[{rate.low:.2f}, {rate.high:.2f}]"
 
 
 @dataclass(frozen=True)
@@ -126,6 +131,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
+    from llm_agents.run_data.metrics import CLUSTERED_LABEL, understanding
     from llm_agents.run_data.store import read_episodes
 
     out = Path(args.out)
@@ -151,7 +157,10 @@ def main() -> None:
             cached[reader] = sum(record.cached for record in read_groundings(run_dir))
 
     print(f"\nGrounding (EASY, {'originals only' if paraphrases else 'every text'}, CPU):")
-    header = f"{'model':<28} {'set':<12} {'texts':>5} {'exact':>6} {'req R':>6} {'forb R':>6} {'invalid':>7}"
+    header = (
+        f"{'model':<28} {'set':<12} {'texts':>5} {'g':>4} {'exact':>6} {'[interval]':>12} "
+        f"{'req R':>6} {'forb R':>6} {'invalid':>7}"
+    )
     print(header)
     for model, results in grounded.items():
         assert results.summary is not None, f"{model.label}: no answers"
@@ -160,7 +169,8 @@ def main() -> None:
             recall = {f: s.recall.rate if s.recall else None for f, s in score.fields.items()}
             req, forb = recall.get("required"), recall.get("forbidden")
             print(
-                f"{model.label:<28} {name:<12} {score.texts:>5} {score.exact.rate:>6.2f} "
+                f"{model.label:<28} {name:<12} {score.texts:>5} {score.exact.clusters or '-':>4} "
+                f"{score.exact.rate:>6.2f} {_interval(score.exact):>12} "
                 f"{'-' if req is None else f'{req:.2f}':>6} "
                 f"{'-' if forb is None else f'{forb:.2f}':>6} {score.invalid:>7}"
             )
@@ -172,6 +182,7 @@ def main() -> None:
         else:
             measured = f"{pace:.2f}"
         print(f"{model.label:<28} seconds per instruction: {measured}")
+    print(f"Intervals: {CLUSTERED_LABEL}; g = goals.")
 
     if args.no_play:
         return
@@ -209,21 +220,19 @@ def main() -> None:
                 *common,
             )  # fmt: skip
             episodes += read_episodes(run_dir / "episodes.jsonl")
-        by_category = {
-            c: [e.success for e in episodes if e.category == c] for c in args.play_categories
-        }
+        by_category = {c: [e for e in episodes if e.category == c] for c in args.play_categories}
         cells = "  ".join(f"{c} {_rate(v)}" for c, v in by_category.items() if v)
-        line = f"  {agent:<10} success {_rate([e.success for e in episodes])}  {cells}"
-        read = [e for e in episodes if e.grounding_correct is not None]
-        if read:
-            right = [e.success for e in read if e.grounding_correct]
-            wrong = [e.success for e in read if not e.grounding_correct]
+        line = f"  {agent:<10} success {_rate(episodes)}  {cells}"
+        # Per distinct text: a text is read once, however many worlds play it.
+        read = understanding(episodes)
+        if read is not None:
             line += (
-                f"  | read right {len(right)}/{len(read)}, success when right "
-                f"{sum(right) / len(right) if right else float('nan'):.2f}, when wrong "
-                f"{sum(wrong) / len(wrong) if wrong else float('nan'):.2f}"
+                f"  | read right (texts) {read.grounded.cell()}, success when right "
+                f"{read.success_when_right.cell() if read.success_when_right else '-'}, "
+                f"when wrong {read.success_when_wrong.cell() if read.success_when_wrong else '-'}"
             )
         print(f"{line}  [{seconds:.0f} s]")
+    print(f"Intervals: {CLUSTERED_LABEL}.")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,12 @@ Each is measured after a warm-up of the same shapes, so compilation is not count
 the view's one-off startup (tracing, compiling) is estimated from its warm-up and printed apart.
 
     python benchmarks/bench_view.py [--episodes 64 256] [--max-steps 250] [--variant full]
+
+With `--run DIR` it times `view` on an existing run instead (e.g. an expert Medium run, or a
+paper-protocol-sized one with `--sample 100`): the whole command's wall time, what it rendered
+and listed, and the report's size.
+
+    python benchmarks/bench_view.py --run runs/medium-expert [--sample 100]
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from env import CrafTextEnv, EnvConfig, Variant
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval
-from llm_agents.viewer import build_view
+from llm_agents.viewer import Selection, build_view
 
 ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION: DOWN"]
 #: The mock script answering them in turn, named in the config as the model that plays.
@@ -64,6 +70,21 @@ def play(env: CrafTextEnv, out: Path, episodes: int, batch: int) -> Timing:
     return timing
 
 
+def view_existing(run: Path, sample: int | None, replay_batch: int) -> None:
+    """The wall time of `view` on `run` (the first call in this process: startup included)."""
+    with timed() as viewed:
+        outcome = build_view(
+            run, progress=False, batch_size=replay_batch, selection=Selection(sample=sample)
+        )
+    rendered = len(outcome.statuses)
+    print(
+        f"view {run}{f' --sample {sample}' if sample else ''}: {viewed.wall:.1f} s wall, "
+        f"{viewed.cpu:.1f} s CPU; {rendered} episodes rendered, {outcome.listed} listed, "
+        f"{outcome.frames} frames; report {outcome.size_bytes / 1e6:.1f} MB; "
+        f"{len(outcome.mismatches)} replays not reproducing"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, nargs="+", default=[64, 256])
@@ -71,7 +92,12 @@ def main() -> None:
     parser.add_argument("--variant", default="full", choices=["full", "classic"])
     parser.add_argument("--batch-size", type=int, default=32, help="episodes in flight")
     parser.add_argument("--replay-batch", type=int, default=16, help="episodes replayed at once")
+    parser.add_argument("--run", type=Path, help="time `view` on this run directory instead")
+    parser.add_argument("--sample", type=int, help="with --run: render a seeded sample of N")
     args = parser.parse_args()
+    if args.run is not None:
+        view_existing(args.run, args.sample, args.replay_batch)
+        return
 
     env = CrafTextEnv(EnvConfig(variant=Variant(args.variant), max_steps=args.max_steps))
     rows = []

@@ -484,6 +484,17 @@ class VectorEnv:
                 output[group] = row_values[: len(group)]
         return _host_batch(game, termination, steps, outputs)
 
+    def step_terminations(self, actions: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """`step` every slot where `active` is true, pulling only each slot's termination code
+        to the host, not its world: for players that never look (the do-nothing agent)."""
+        state = self._require_state()
+        self._state, _ = self._step(
+            state,
+            jnp.asarray(np.asarray(actions, np.int32).reshape(self.batch_size)),
+            jnp.asarray(np.asarray(active, bool).reshape(self.batch_size)),
+        )
+        return np.asarray(jax.device_get(self._state.termination))
+
     def _fresh_host(self) -> HostBatch:
         # numpy zeros: an eager jnp.zeros would be one more compile on an accelerator.
         return self._to_host(self._require_state(), _no_outputs(self.batch_size))

@@ -205,9 +205,10 @@ def _read_dataset_json(path: Path) -> Dataset:
         return Dataset.model_validate_json(path.read_bytes())
     except ValidationError as error:
         first = error.errors()[0]
-        where = ".".join(str(part) for part in first["loc"])
+        where = ".".join(str(part) for part in first["loc"]) or "the dataset"
+        message = first["msg"].removeprefix("Value error, ")
         raise UserError(
-            f"{path} is not a valid dataset JSON ({error.error_count()} errors; first at {where}: {first['msg']})"
+            f"{path} is not a valid dataset JSON ({error.error_count()} errors; first at {where}: {message})"
         ) from None
     except OSError as error:
         raise UserError(f"cannot read dataset JSON {path}: {error.strerror}") from None

@@ -21,6 +21,7 @@ from pydantic import (
     Discriminator,
     Field,
     Tag,
+    ValidationError,
     field_validator,
     model_validator,
 )
@@ -154,6 +155,19 @@ def category_split(category: Category, difficulty: Difficulty) -> Split:
     return cast(Split, f"{difficulty}_{_SPLIT_PART[category]}")
 
 
+def split_categories(split: Split) -> tuple[Difficulty, tuple[Category, ...]]:
+    """The difficulty and categories whose goals are `split`'s (`category_split` the other way):
+    EASY's train split holds `one` and `combo`, every other split one category."""
+    difficulty = difficulty_of(split)
+    part = split.split("_", 1)[1]
+    if difficulty == "easy" and part == "train":
+        return difficulty, ("one", "combo")
+    categories = [
+        category for category in DIFFICULTY_CATEGORIES[difficulty] if _SPLIT_PART[category] == part
+    ]
+    return difficulty, tuple(categories)
+
+
 def run_category(goal: AnyGoal) -> Category:
     """The goal set a run counts `goal` in: an EASY goal's own category; a Medium or Hard goal's
     split (`train`, `paraphrased`, `new_objects`), as the paper's Table 2 groups them."""
@@ -204,7 +218,8 @@ class _GoalText(BaseModel):
     instruction: str
     """The original instruction text."""
     paraphrases: tuple[str, ...]
-    """The official paraphrases of the instruction (5 for nearly every goal; a few have fewer)."""
+    """The official paraphrases of the instruction, as many as the data gives (the official data:
+    5 for nearly every goal, 4 for a few, 10 for Medium's `INSTRUCTION_STONE_3`)."""
 
     @model_validator(mode="after")
     def _scenario_is_the_splits(self) -> _GoalText:
@@ -389,7 +404,7 @@ class Instruction(BaseModel):
     goal: AnyGoal
     """The goal the text describes."""
     variant: int
-    """0 for the original instruction, 1..n for the goal's paraphrases (n is usually 5)."""
+    """0 for the original instruction, 1..n for the goal's n paraphrases."""
     text: str
     """The instruction text itself."""
 
@@ -437,13 +452,23 @@ class Dataset(BaseModel):
     goals: tuple[AnyGoal, ...]
     """All goals, split by split, in the official order."""
 
+    # What the rest of the project assumes of the data, checked here, once, as it is loaded;
+    # nothing else is (paraphrase counts, ids repeated across splits are the data's own).
     @model_validator(mode="after")
-    def _unique_ids(self) -> Dataset:
+    def _what_runs_assume(self) -> Dataset:
         seen: set[tuple[str, str]] = set()
         for goal in self.goals:
+            # A run names a goal by its category and id (episode ids, replays, per-goal rates).
             if (goal.split, goal.id) in seen:
                 raise ValueError(f"goal {goal.id!r} appears twice in {goal.split}")
             seen.add((goal.split, goal.id))
+            # Grounding offers a difficulty's kinds only: a goal of another could never be read.
+            kinds = DIFFICULTY_KINDS[goal.difficulty]
+            if goal.kind not in kinds:
+                raise ValueError(
+                    f"goal {goal.id!r} in {goal.split} is a {goal.kind} goal; "
+                    f"{goal.difficulty} goals are {', '.join(kinds)}"
+                )
         return self
 
     def split(self, name: str) -> list[AnyGoal]:
@@ -525,6 +550,16 @@ class Dataset(BaseModel):
         target = Path(path)
         _atomic_write(target, self.model_dump_json(indent=1).encode())
         return target
+
+
+def checked_dataset(source: DatasetSource, goals: Iterable[AnyGoal]) -> Dataset:
+    """The dataset of `goals` read from `source`, a goal that breaks what runs assume of the
+    data (see `Dataset`) as one line naming the source."""
+    try:
+        return Dataset(source=source, goals=tuple(goals))
+    except ValidationError as error:
+        message = error.errors()[0]["msg"].removeprefix("Value error, ")
+        raise UserError(f"{source.path}: {message}") from None
 
 
 def split_digest(goals: Sequence[AnyGoal]) -> str:

@@ -41,6 +41,7 @@ from env.goals import (
     SourceKind,
     Split,
     category_of,
+    checked_dataset,
     difficulty_of,
 )
 
@@ -278,9 +279,8 @@ def parse_wheel(wheel: Path) -> Dataset:
             dataset = _parse_tree(_ZipFiles(archive), kind="wheel", label=wheel)
     except zipfile.BadZipFile:
         raise UserError(f"{wheel} is not a valid wheel (zip) file") from None
-    return Dataset(
-        source=dataset.source.model_copy(update={"sha256": sha256_file(wheel)}),
-        goals=dataset.goals,
+    return checked_dataset(
+        dataset.source.model_copy(update={"sha256": sha256_file(wheel)}), dataset.goals
     )
 
 
@@ -294,9 +294,8 @@ def parse_archive(archive: Path, url: str, commit: str) -> Dataset:
             dataset = _parse_tree(_ZipFiles(opened, root), kind="archive", label=url)
     except zipfile.BadZipFile:
         raise UserError(f"{url} is not a valid zip archive") from None
-    return Dataset(
-        source=dataset.source.model_copy(update={"path": url, "version": commit}),
-        goals=dataset.goals,
+    return checked_dataset(
+        dataset.source.model_copy(update={"path": url, "version": commit}), dataset.goals
     )
 
 
@@ -327,7 +326,7 @@ def _parse_tree(files: _SourceFiles, kind: SourceKind, label: str | Path) -> Dat
     version_match = re.search(rb"^Version:\s*(\S+)", metadata or b"", flags=re.MULTILINE)
     version = version_match.group(1).decode() if version_match else files.git_commit()
     source = DatasetSource(kind=kind, path=str(label), version=version, sha256=tree.digest())
-    return Dataset(source=source, goals=tuple(goals))
+    return checked_dataset(source, goals)
 
 
 _SPLIT_MODULE_FILES = ("SMALL/instructions.py", "SMALL/instructions/__init__.py", "SMALL/test.py")

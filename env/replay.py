@@ -23,6 +23,7 @@ import numpy as np
 
 from env.achievements import ACHIEVEMENTS
 from env.craftext_env import CrafTextEnv, EpisodeState, make_task
+from env.scenario_checker import checker_trace, overworld
 from env.scenario_tasks import NUM_PARAMS
 from env.termination import Termination
 from env.variant import Variant
@@ -30,6 +31,14 @@ from env.variant import Variant
 #: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for
 #: the full game, only at 16 for Classic; 10 makes a full-game report 2.5x smaller.
 BLOCK_SIZES = {Variant.FULL: 10, Variant.CLASSIC: 16}
+#: Map rows and columns a frame shows above the inventory, the player in the middle (craftax's
+#: `OBS_DIM` of each game).
+VIEW_CELLS = {Variant.FULL: (9, 11), Variant.CLASSIC: (7, 9)}
+
+
+Carry = tuple[EpisodeState, jax.Array]
+"""What the replay carries from step to step: the batch's states and the map each episode's
+checker last read."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,11 @@ class Replay:
     """How many actions had been taken when the replay ended; None when it never did."""
     episode_return: float
     """Sum of rewards up to the end (or over every action when it never ended)."""
+    trace: np.ndarray
+    """int32 (steps + 1, 4): `env.scenario_checker.checker_trace` of each state, as `frames`."""
+    end_map: np.ndarray
+    """The block map the checker read when the episode ended (after its last action when it
+    never did): the map a line, square or placement was found in."""
 
 
 class Replayer:
@@ -83,26 +97,40 @@ class Replayer:
         def draw(game: Any) -> jax.Array:
             return jnp.clip(jnp.round(render(game)), 0, 255).astype(jnp.uint8)
 
-        def reset(keys: jax.Array, task: Any) -> tuple[EpisodeState, jax.Array]:
+        variant = env.variant
+
+        def trace(state: EpisodeState) -> jax.Array:
+            return jax.vmap(
+                lambda game, task: checker_trace(game, task.kind, task.params, variant)
+            )(state.game, state.task)
+
+        def reset(keys: jax.Array, task: Any) -> tuple[Carry, jax.Array, jax.Array]:
             # One world at a time, as `env.jitted_reset` makes it: vectorized over a batch,
             # Craftax's world generation rounds differently in some lanes (seen from lane 8 of
             # 12 or more on an AVX-512 CPU), and the world would depend on where it was made.
             state = jax.lax.map(lambda inputs: env.reset(*inputs), (keys, task))
-            return state, jax.vmap(draw)(state.game)
+            end_map = jax.vmap(lambda game: overworld(game, variant))(state.game)
+            return (state, end_map), jax.vmap(draw)(state.game), trace(state)
 
-        def advance(state: EpisodeState, actions: jax.Array) -> tuple[EpisodeState, Any]:
-            def one_step(state: EpisodeState, action: jax.Array) -> tuple[EpisodeState, Any]:
+        def advance(carry: Carry, actions: jax.Array) -> tuple[Carry, Any]:
+            def one_step(carry: Carry, action: jax.Array) -> tuple[Carry, Any]:
+                state, end_map = carry
+                ended = state.done
                 state, info = env.step_batch(state, action)
-                return state, (
+                # The game goes on stepping after the end; the map the checker last read stays.
+                now = jax.vmap(lambda game: overworld(game, variant))(state.game)
+                end_map = jnp.where(ended[:, None, None], end_map, now)
+                return (state, end_map), (
                     jax.vmap(draw)(state.game),
                     info.reward,
                     info.done,
                     info.termination,
                     info.new_achievements,
+                    trace(state),
                 )
 
             # Scan over time with the batch inside: outputs come back time-major.
-            return jax.lax.scan(one_step, state, actions.T)
+            return jax.lax.scan(one_step, carry, actions.T)
 
         self._reset = jax.jit(reset)
         self._advance = jax.jit(advance)
@@ -130,7 +158,7 @@ class Replayer:
     def _compute(self, batch: list[ReplayInput]) -> list[Replay]:
         return self._collect(batch, self._launch(batch))
 
-    def _launch(self, batch: list[ReplayInput]) -> tuple[jax.Array, list[Any]]:
+    def _launch(self, batch: list[ReplayInput]) -> tuple[Any, list[Any]]:
         """Start the batch's computation; returns its (not yet computed) outputs."""
         # Padding slots repeat the last episode; their output is dropped.
         padded = batch + [batch[-1]] * (self.batch_size - len(batch))
@@ -147,24 +175,22 @@ class Replayer:
         )
         for row, episode in enumerate(padded):
             actions[row, : len(episode.actions)] = episode.actions
-        state, first = self._reset(keys, task)
+        carry, first, first_trace = self._reset(keys, task)
         chunks = []
         # At least one chunk, so even a batch of empty episodes has step outputs to slice.
         for offset in range(0, max(longest, 1), self.chunk):
-            state, outputs = self._advance(
-                state, jnp.asarray(actions[:, offset : offset + self.chunk])
+            carry, outputs = self._advance(
+                carry, jnp.asarray(actions[:, offset : offset + self.chunk])
             )
             chunks.append(outputs)
-        return first, chunks
+        return (first, first_trace, carry[1]), chunks
 
-    def _collect(
-        self, batch: list[ReplayInput], launched: tuple[jax.Array, list[Any]]
-    ) -> list[Replay]:
-        first, chunks = jax.device_get(launched)
+    def _collect(self, batch: list[ReplayInput], launched: tuple[Any, list[Any]]) -> list[Replay]:
+        (first, first_trace, end_maps), chunks = jax.device_get(launched)
         # Chunk outputs are time-major: (chunk, batch, ...). Frames, the bulk, are copied once,
         # straight from the chunks into each episode's array.
-        reward, done, termination, unlocked = (
-            np.concatenate([chunk[field] for chunk in chunks]) for field in range(1, 5)
+        reward, done, termination, unlocked, traces = (
+            np.concatenate([chunk[field] for chunk in chunks]) for field in range(1, 6)
         )
         replays = []
         for row, episode in enumerate(batch):
@@ -185,6 +211,8 @@ class Replayer:
                     done[:length, row],
                     termination[:length, row],
                     unlocked[:length, row],
+                    np.concatenate([first_trace[row : row + 1], traces[:length, row]]),
+                    np.asarray(end_maps[row]),
                 )
             )
         return replays
@@ -196,6 +224,8 @@ def _summarize(
     dones: np.ndarray,
     terminations: np.ndarray,
     unlocked: np.ndarray,
+    trace: np.ndarray,
+    end_map: np.ndarray,
 ) -> Replay:
     ended = np.flatnonzero(dones)
     last = int(ended[0]) + 1 if ended.size else len(dones)
@@ -207,6 +237,8 @@ def _summarize(
         termination=termination,
         ended_at=last if ended.size else None,
         episode_return=float(rewards[:last].sum()),
+        trace=trace,
+        end_map=end_map,
     )
 
 

@@ -10,7 +10,8 @@ published success rates were scored with them (the named rule `official`; docs i
 - Full Craftax: every map check reads the overworld (`map[0]`), whatever the player's floor.
 - Localization: both blocks within 5 tiles (Chebyshev) of the player, the placed block
   `distance` tiles right/left/up/down of the target.
-- Line and square: a 21x21 window around the player, clamped inside the map. Sizes past 4 are
+- Line and square: a 21x21 window around the player, placed as `dynamic_slice` does: a negative
+  start counts from the map's far end, then the start is clamped inside the map. Sizes past 4 are
   checked as 4 (the official `lax.switch` clamps). A line of 2 succeeds when the window has no
   such block at all (straight) or exactly 3 (diagonal); lines of 3 and 4 need exactly that many
   blocks in the window, in a row. Squares need their border clear of the block. Neighbour cells
@@ -31,14 +32,14 @@ import jax.numpy as jnp
 
 from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import goal_reached
-from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS
+from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS, KIND_INDEX
 from env.variant import Variant
 
-_WINDOW_RADIUS = 10
-_WINDOW = 2 * _WINDOW_RADIUS + 1
-_LOCAL_RADIUS = 5
-_LOCAL = 2 * _LOCAL_RADIUS + 1
-_STAR_FILTER = 7
+WINDOW_RADIUS = 10
+WINDOW = 2 * WINDOW_RADIUS + 1
+LOCAL_RADIUS = 5
+LOCAL = 2 * LOCAL_RADIUS + 1
+STAR_FILTER = 7
 
 
 def overworld(game: Any, variant: Variant) -> jax.Array:
@@ -46,7 +47,7 @@ def overworld(game: Any, variant: Variant) -> jax.Array:
     return game.map if variant is Variant.CLASSIC else game.map[0]
 
 
-def _inventory(game: Any, variant: Variant) -> jax.Array:
+def inventory(game: Any, variant: Variant) -> jax.Array:
     slots = CLASSIC_INVENTORY_SLOTS if variant is Variant.CLASSIC else INVENTORY_SLOTS
     return jnp.stack([jnp.asarray(getattr(game.inventory, slot), jnp.int32) for slot in slots])
 
@@ -55,23 +56,23 @@ def _conditional_placing(
     previous: Any, game: Any, params: jax.Array, variant: Variant
 ) -> jax.Array:
     slot, count, block, place_count = params[0], params[1], params[2], params[3]
-    had = _inventory(previous, variant)[slot] >= count
-    has = _inventory(game, variant)[slot] >= count
+    had = inventory(previous, variant)[slot] >= count
+    has = inventory(game, variant)[slot] >= count
     standing = jnp.sum(overworld(previous, variant) == block) >= place_count
     return had & ~has & standing
 
 
 def _localization(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
     placed, target, side, distance = params[0], params[1], params[2], params[3]
-    padded = jnp.pad(overworld(game, variant), _LOCAL_RADIUS, constant_values=-1)
+    padded = jnp.pad(overworld(game, variant), LOCAL_RADIUS, constant_values=-1)
     row, column = game.player_position[0], game.player_position[1]
-    local = jax.lax.dynamic_slice(padded, (row, column), (_LOCAL, _LOCAL))
+    local = jax.lax.dynamic_slice(padded, (row, column), (LOCAL, LOCAL))
     # side codes: 0 right (+column), 1 left, 2 up (-row), 3 down
     d_row = jnp.where(side == 2, -distance, jnp.where(side == 3, distance, 0))
     d_column = jnp.where(side == 0, distance, jnp.where(side == 1, -distance, 0))
-    placed_around = jnp.pad(local == placed, _LOCAL_RADIUS, constant_values=False)
+    placed_around = jnp.pad(local == placed, LOCAL_RADIUS, constant_values=False)
     placed_at_offset = jax.lax.dynamic_slice(
-        placed_around, (_LOCAL_RADIUS + d_row, _LOCAL_RADIUS + d_column), (_LOCAL, _LOCAL)
+        placed_around, (LOCAL_RADIUS + d_row, LOCAL_RADIUS + d_column), (LOCAL, LOCAL)
     )
     return jnp.any((local == target) & placed_at_offset)
 
@@ -81,23 +82,23 @@ def _window(game: Any, block: jax.Array, variant: Variant) -> jax.Array:
     row, column = game.player_position[0], game.player_position[1]
     found = (overworld(game, variant) == block).astype(jnp.int32)
     return jax.lax.dynamic_slice(
-        found, (row - _WINDOW_RADIUS, column - _WINDOW_RADIUS), (_WINDOW, _WINDOW)
+        found, (row - WINDOW_RADIUS, column - WINDOW_RADIUS), (WINDOW, WINDOW)
     )
 
 
-_REACH = 4
+REACH = 4
 """The farthest neighbour offset any line or square looks at, in rows or columns."""
 
 
 def _extended(window: jax.Array) -> jax.Array:
-    """The window with `_REACH` extra cells on every side holding what JAX indexing reads there:
+    """The window with `REACH` extra cells on every side holding what JAX indexing reads there:
     a negative index wraps once to the far end, an index past the end clamps to the last cell."""
 
     def extend(array: jax.Array, axis: int) -> jax.Array:
         size = array.shape[axis]
-        wrapped = jax.lax.slice_in_dim(array, size - _REACH, size, axis=axis)
+        wrapped = jax.lax.slice_in_dim(array, size - REACH, size, axis=axis)
         last = jax.lax.slice_in_dim(array, size - 1, size, axis=axis)
-        clamped = jnp.repeat(last, _REACH, axis=axis)
+        clamped = jnp.repeat(last, REACH, axis=axis)
         return jnp.concatenate([wrapped, array, clamped], axis=axis)
 
     return extend(extend(window, 0), 1)
@@ -109,7 +110,7 @@ def _all_at(extended: jax.Array, offsets: list[tuple[int, int]], value: int) -> 
     Static slices of the extended window, and-ed one by one, rather than a gather per offset
     stacked: XLA fuses them, which made the line and square checks a small part of the step."""
     held = [
-        extended[_REACH + dr : _REACH + dr + _WINDOW, _REACH + dc : _REACH + dc + _WINDOW] == value
+        extended[REACH + dr : REACH + dr + WINDOW, REACH + dc : REACH + dc + WINDOW] == value
         for dr, dc in offsets
     ]
     return functools.reduce(jnp.logical_and, held)
@@ -143,7 +144,7 @@ def _line(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
     return found[jnp.clip(params[1] - 2, 0, 2)]
 
 
-def _square_offsets(side: int) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+def square_offsets(side: int) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
     """The filled cells and the border ring of a square of `side`, relative to the checked
     center (the top-left cell for even sides, the middle for 3)."""
     first = -1 if side == 3 else 0
@@ -161,7 +162,7 @@ def _square(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
     extended = _extended(_window(game, params[0], variant))
     found = []
     for side in (2, 3, 4):
-        filled, ring = _square_offsets(side)
+        filled, ring = square_offsets(side)
         solid = _all_at(extended, filled, 1)
         clear = _all_at(extended, ring, 0)
         found.append(jnp.any(solid & clear))
@@ -171,26 +172,26 @@ def _square(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
 def _star(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
     block, radius, arm = params[0], params[1], params[2]
     row, column = game.player_position[0], game.player_position[1]
-    padded = jnp.pad(overworld(game, variant), _WINDOW_RADIUS, constant_values=-1)
-    around = jax.lax.dynamic_slice(padded, (row, column), (_WINDOW, _WINDOW))
-    offsets = jnp.arange(_WINDOW) - _WINDOW_RADIUS
+    padded = jnp.pad(overworld(game, variant), WINDOW_RADIUS, constant_values=-1)
+    around = jax.lax.dynamic_slice(padded, (row, column), (WINDOW, WINDOW))
+    offsets = jnp.arange(WINDOW) - WINDOW_RADIUS
     near = jnp.abs(offsets) <= radius
     found = (jnp.where(near[:, None] & near[None, :], around, -1) == block).astype(jnp.int32)
-    centre = _STAR_FILTER // 2
+    centre = STAR_FILTER // 2
     first = centre - arm // 2
-    taps = jnp.arange(_STAR_FILTER)
+    taps = jnp.arange(STAR_FILTER)
     in_arm = (taps >= first) & (taps < first + arm)
-    outputs = _WINDOW - _STAR_FILTER + 1
+    outputs = WINDOW - STAR_FILTER + 1
 
     def shifted(dr: int, dc: int) -> jax.Array:
         return found[dr : dr + outputs, dc : dc + outputs]
 
-    across = sum(in_arm[k] * shifted(centre, k) for k in range(_STAR_FILTER))
-    down = sum(in_arm[k] * shifted(k, centre) for k in range(_STAR_FILTER))
-    main = sum(in_arm[k] * shifted(k, k) for k in range(_STAR_FILTER))
+    across = sum(in_arm[k] * shifted(centre, k) for k in range(STAR_FILTER))
+    down = sum(in_arm[k] * shifted(k, centre) for k in range(STAR_FILTER))
+    main = sum(in_arm[k] * shifted(k, k) for k in range(STAR_FILTER))
     anti = sum(
-        (in_arm[k] & in_arm[_STAR_FILTER - 1 - k]) * shifted(k, _STAR_FILTER - 1 - k)
-        for k in range(_STAR_FILTER)
+        (in_arm[k] & in_arm[STAR_FILTER - 1 - k]) * shifted(k, STAR_FILTER - 1 - k)
+        for k in range(STAR_FILTER)
     )
     straight = (across == arm) & (down == arm)
     diagonal = (main == arm) & (anti == arm)
@@ -217,3 +218,24 @@ def goal_met(
         lambda: _star(game, params, variant),
     ]
     return jax.lax.switch(kind, branches)
+
+
+TRACE_FIELDS = ("row", "column", "held", "standing")
+"""What `checker_trace` reports of a state, in order."""
+
+
+def checker_trace(game: Any, kind: jax.Array, params: jax.Array, variant: Variant) -> jax.Array:
+    """int32 (4,): the player's map row and column, the inventory count a conditional-placing
+    goal tracks (0 for other kinds), and how many blocks of the goal's block stand on the map
+    the checker reads (the placed block of a placing goal, the built block of a line, square or
+    star; 0 for achievements goals). A replay records it per state, so a report can show what
+    the checker looked at without keeping every state."""
+    conditional = kind == KIND_INDEX["conditional_placing"]
+    slot = jnp.where(conditional, params[0], 0)
+    block = jnp.where(conditional, params[2], params[0])
+    held = jnp.where(conditional, inventory(game, variant)[slot], 0)
+    standing = jnp.where(
+        kind == KIND_INDEX["achievements"], 0, jnp.sum(overworld(game, variant) == block)
+    )
+    position = jnp.asarray(game.player_position, jnp.int32)
+    return jnp.stack([position[0], position[1], held, standing.astype(jnp.int32)]).astype(jnp.int32)

@@ -81,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         help="another run (e.g. the expert's) shown beside it; repeat for more",
     )
+    _goal_status_flags(report)
 
     data = commands.add_parser(
         "data",
@@ -94,6 +95,17 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--dataset", help="export: official CrafText clone, craftext wheel or JSON")
     data.add_argument("--refresh", action="store_true", help="fetch: download even when cached")
 
+    export = commands.add_parser(
+        "export",
+        help="write a run in another benchmark's submission format",
+        description="--format balrog: a complete --protocol balrog run as a submission folder "
+        "of BALROG's leaderboard repository (per-episode files, crafter_summary.json, "
+        "summary.json, metadata.yaml).",
+    )
+    export.add_argument("run_dir", help="a run's output directory")
+    export.add_argument("out", help="the submission folder to write (absent or empty)")
+    export.add_argument("--format", choices=["balrog"], required=True, help="the target format")
+
     view = commands.add_parser(
         "view",
         help="write a run's HTML report with episode replays (RUN_DIR/report/index.html)",
@@ -102,7 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
         "With --episode and --gif, export one episode as an animation instead.",
     )
     view.add_argument("run_dir", help="a run's output directory")
-    view.add_argument("--episode", help="an episode id (or index) to export with --gif")
+    view.add_argument(
+        "--episode",
+        help="an episode id (or index): render its page alone, or export it with --gif",
+    )
     view.add_argument(
         "--gif",
         metavar="OUT",
@@ -115,7 +130,34 @@ def build_parser() -> argparse.ArgumentParser:
         help="another run (e.g. the expert's) whose row is shown beside this run's; repeat for "
         "more",
     )
+    view.add_argument(
+        "--sample",
+        type=int,
+        metavar="N",
+        help="render N episodes drawn at random (--seed) from those the filters keep; the run "
+        "page lists the rest without a replay",
+    )
+    view.add_argument("--seed", type=int, default=0, help="the --sample draw's seed (0)")
+    view.add_argument(
+        "--categories",
+        action="append",
+        help="render only episodes of these goal sets (comma-separated or repeated)",
+    )
+    view.add_argument(
+        "--class",
+        dest="classes",
+        action="append",
+        help="render only episodes of these scenario classes (Achievements, Conditional, "
+        "Localization, Build; comma-separated or repeated)",
+    )
+    view.add_argument(
+        "--outcome",
+        action="append",
+        help="render only episodes that ended so (success, timeout, death, not_started; "
+        "comma-separated or repeated)",
+    )
     view.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    _goal_status_flags(view)
 
     _settings_command(
         commands,
@@ -231,6 +273,31 @@ def cmd_ground(args: argparse.Namespace) -> int:
     return 0 if results.status == "complete" else EXIT_BACKEND_FAILURE
 
 
+def _goal_status_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--goal-status",
+        action="store_true",
+        help="also show the tables without the goals a do-nothing agent meets or no agent can "
+        "meet (with why), and the do-nothing agent's row (its worlds are played once, cached)",
+    )
+    parser.add_argument(
+        "--do-nothing-worlds",
+        type=int,
+        default=8,
+        metavar="N",
+        help="--goal-status: seeded worlds per goal the do-nothing agent plays (default 8)",
+    )
+
+
+def _check_goal_status_flags(args: argparse.Namespace, *, gif: bool = False) -> None:
+    if args.do_nothing_worlds < 1:
+        raise UserError(f"--do-nothing-worlds must be at least 1, not {args.do_nothing_worlds}")
+    if args.goal_status and (args.compare or gif):
+        raise UserError(
+            "--goal-status shows one run's goals: leave out " + ("--gif" if gif else "--compare")
+        )
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from llm_agents.evaluation.report import report_run
     from llm_agents.run_data.store import RESULTS_FILE, results_kind
@@ -239,13 +306,15 @@ def cmd_report(args: argparse.Namespace) -> int:
     if results_path.is_file() and results_kind(results_path) == "ground":
         from llm_agents.evaluation.grounding_report import report_grounding
 
-        if args.success_rule or args.compare:
+        if args.success_rule or args.compare or args.goal_status:
             raise UserError(
-                "a grounding run has no episodes: --success-rule and --compare do not apply"
+                "a grounding run has no episodes: --success-rule, --compare and --goal-status "
+                "do not apply"
             )
         print(report_grounding(args.run_dir))
         return 0
 
+    _check_goal_status_flags(args)
     if args.compare:
         from llm_agents.evaluation.report import compare_runs
 
@@ -257,7 +326,14 @@ def cmd_report(args: argparse.Namespace) -> int:
 
         print(compare_runs(args.run_dir, *args.compare))
         return 0
-    print(report_run(args.run_dir, success_rule=args.success_rule))
+    print(
+        report_run(
+            args.run_dir,
+            success_rule=args.success_rule,
+            goal_status=args.goal_status,
+            worlds=args.do_nothing_worlds,
+        )
+    )
     return 0
 
 
@@ -305,13 +381,22 @@ def cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from llm_agents.evaluation.balrog_export import export_balrog
+
+    print(export_balrog(args.run_dir, args.out))
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     from llm_agents.viewer import build_view, export_episode
 
-    if (args.episode is None) != (args.gif is None):
-        raise UserError("--episode and --gif go together: give both to export one episode")
+    if args.gif is not None and args.episode is None:
+        raise UserError("--gif writes one episode: give it with --episode")
     if args.gif is not None and args.compare:
         raise UserError("--compare adds a row to the HTML report: it does not go with --gif")
+    _check_goal_status_flags(args, gif=args.gif is not None)
+    selection = view_selection(args)
     if args.gif is not None:
         status = export_episode(args.run_dir, args.episode, args.gif)
         print(f"wrote {args.gif} ({status.frames} frames)")
@@ -321,10 +406,14 @@ def cmd_view(args: argparse.Namespace) -> int:
             args.run_dir,
             progress=not args.no_progress,
             compare=args.compare or [],
+            goal_status=args.goal_status,
+            worlds=args.do_nothing_worlds,
+            selection=selection,
         )
+        listed = f", {outcome.listed} more listed" if outcome.listed else ""
         print(
-            f"wrote {outcome.index} ({len(outcome.statuses)} episodes, {outcome.frames} frames, "
-            f"{outcome.size_bytes / 1e6:.1f} MB)"
+            f"wrote {outcome.index} ({len(outcome.statuses)} episodes{listed}, "
+            f"{outcome.frames} frames, {outcome.size_bytes / 1e6:.1f} MB)"
         )
         problems = outcome.mismatches
     if problems:
@@ -337,6 +426,34 @@ def cmd_view(args: argparse.Namespace) -> int:
             print(f"  {episode}: {'; '.join(status.problems)}", file=sys.stderr)
         return 1
     return 0
+
+
+def view_selection(args: argparse.Namespace) -> Any:
+    """`view`'s filters and sample as a `Selection`, each name checked."""
+    from env.goals import SCENARIO_CLASSES, parse_categories
+    from llm_agents.run_data.records import EPISODE_ENDS
+    from llm_agents.viewer import Selection
+
+    def names(values: list[str] | None, known: tuple[str, ...], flag: str) -> tuple[str, ...]:
+        chosen = tuple(
+            part.strip() for value in values or [] for part in value.split(",") if part.strip()
+        )
+        for name in chosen:
+            if name not in known:
+                raise UserError(f"unknown {flag} {name!r}; known: {', '.join(known)}")
+        return chosen
+
+    filtered = args.sample is not None or args.categories or args.classes or args.outcome
+    if args.episode is not None and filtered:
+        raise UserError("--episode renders one episode: it does not go with --sample or filters")
+    return Selection(
+        sample=args.sample,
+        seed=args.seed,
+        categories=parse_categories(args.categories) if args.categories else (),
+        classes=names(args.classes, SCENARIO_CLASSES, "--class"),
+        outcomes=names(args.outcome, EPISODE_ENDS, "--outcome"),
+        episode=args.episode if args.gif is None else None,
+    )
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -367,6 +484,7 @@ COMMANDS = {
     "plan": cmd_plan,
     "ground": cmd_ground,
     "data": cmd_data,
+    "export": cmd_export,
 }
 
 

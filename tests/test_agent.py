@@ -109,6 +109,22 @@ def test_unparseable_answers_fall_back_and_are_flagged() -> None:
     assert good.output.text == "<think>x</think>ACTION: SLEEP"
 
 
+@pytest.mark.parametrize("report", [True, False])
+def test_an_invalid_answer_is_reported_on_the_next_step_when_asked(report: bool) -> None:
+    script = iter(["I refuse.", "ACTION: LEFT", "ACTION: LEFT"])
+    model = MockModel(outputs=lambda conversation: next(script))
+    agent = make_agent(report_invalid=report)
+    agent.start_episode(0, "collect wood")
+    for observation in (fake(x=10), fake(x=10), fake(x=9)):
+        play_step(agent, model, [0], [observation])
+    second, third = (user_text(request[0]) for request in model.requests[1:])
+    reported = "step 0: NOOP (your answer named no valid action; NOOP was played)"
+    assert (reported in second) is report
+    assert "step 0: NOOP" in second
+    # A valid answer is shown as before, whichever the setting.
+    assert "step 1: LEFT: moved west" in third
+
+
 def test_echoed_prompt_is_not_taken_as_an_answer() -> None:
     agent = make_agent()
     agent.start_episode(0, "place a table near the water")

@@ -18,6 +18,7 @@ from llm_agents.agents.cot import ChainOfThoughtAgent, estimate_tokens
 from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
 from llm_agents.agents.guided import GuidedAgent
+from llm_agents.agents.noop import NoopAgent
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
@@ -93,12 +94,13 @@ def conversation_text(messages: list) -> str:
 
 
 def test_registry_names_every_strategy_and_whether_it_needs_a_model() -> None:
-    assert set(AGENTS) == {"zero-shot", "cot", "few-shot", "expert", "guided"}
+    assert set(AGENTS) == {"zero-shot", "cot", "few-shot", "expert", "guided", "noop"}
     assert agent_class("zero-shot") is ZeroShotAgent
     assert agent_class("cot") is ChainOfThoughtAgent
     assert agent_class("few-shot") is FewShotAgent
     assert agent_class("expert") is ExpertAgent
     assert agent_class("guided") is GuidedAgent
+    assert agent_class("noop") is NoopAgent
     needs_model = {name: agent_class(name).needs_model for name in AGENTS}
     assert needs_model == {
         "zero-shot": True,
@@ -106,6 +108,7 @@ def test_registry_names_every_strategy_and_whether_it_needs_a_model() -> None:
         "few-shot": True,
         "expert": False,
         "guided": True,
+        "noop": False,
     }
 
 

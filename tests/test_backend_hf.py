@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -17,7 +18,13 @@ import torch
 
 from env.errors import UserError
 from llm_agents.backends import embedded, get_model
-from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, local_model_path
+from llm_agents.backends.base import (
+    ChatMessage,
+    ChoiceSet,
+    GenerateConfig,
+    content_free_conversation,
+    local_model_path,
+)
 from llm_agents.backends.hf import HFModel, scoring
 from llm_agents.backends.hf import model as hf_model
 from llm_agents.backends.hf.scoring import (
@@ -61,18 +68,32 @@ def snapshot_conversation(name: str) -> list[ChatMessage]:
 REAL = [snapshot_conversation(path.name) for path in sorted(SNAPSHOTS.glob("prompt_*.txt"))]
 
 
+def summed(options: list[str]) -> ChoiceSet:
+    """`options` scored by the summed rule: their tokens' log-likelihood, what a plain forward
+    pass gives."""
+    return ChoiceSet(options=tuple(options), rule="loglik", scoring="sum")
+
+
 @pytest.fixture(scope="module")
 def model() -> HFModel:
     return HFModel("smollm2-135m", GenerateConfig(max_tokens=12), threads=1)
 
 
 def naive_log_likelihood(
-    model: HFModel, prompt: str, candidate: str, attention: str | None = None
+    model: HFModel,
+    prompt: str,
+    candidate: str,
+    attention: str | None = None,
+    *,
+    ended: bool = False,
 ) -> float:
-    """Score a candidate with one full forward pass over prompt + candidate, no cache, in the
-    model's own dtype and (unless `attention` names another) attention implementation."""
+    """Score a candidate with one full forward pass over prompt + candidate (and, `ended`, the
+    end-of-turn token after it), no cache, in the model's own dtype and (unless `attention`
+    names another) attention implementation."""
     prompt_ids = model.tokenizer(prompt, add_special_tokens=False).input_ids
     candidate_ids = model.tokenizer(candidate, add_special_tokens=False).input_ids
+    if ended:
+        candidate_ids.append(model.tokenizer.convert_tokens_to_ids("<|im_end|>"))
     ids = torch.tensor([prompt_ids + candidate_ids], device=model.device)
     config = model.model.config
     default = config._attn_implementation
@@ -96,7 +117,7 @@ def plain_forward_differences(
     """Largest difference between `model.choice_scores` and the plain forward pass, and the
     largest difference between two plain forward passes that differ only in their attention
     kernel (sdpa vs eager): how far the dtype's rounding alone moves a score."""
-    scores = model.choice_scores(conversations, choices)
+    scores = model.choice_scores(conversations, summed(choices))
     worst = spread = 0.0
     for conversation, row in zip(conversations, scores, strict=True):
         prompt = model._render(conversation)
@@ -149,13 +170,48 @@ def test_choice_scores_equal_a_naive_forward_pass(
 ) -> None:
     # Candidates sharing prefixes (and one a prefix of others) exercise the candidate trie.
     choices = [" Paris", "MAKE_WOOD_PICKAXE", "MAKE_STONE_PICKAXE", "MAKE", "DO", "banana split"]
-    scores = model.choice_scores(conversations, choices)
+    scores = model.choice_scores(conversations, summed(choices))
     for conversation, row in zip(conversations, scores, strict=True):
         prompt = model._render(conversation)
         expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
         assert row == pytest.approx(expected, abs=2e-3)
     # The scores really differ between candidates, so equality above is not trivial.
     assert max(scores[0]) - min(scores[0]) > 1.0
+
+
+@pytest.mark.slow
+def test_every_scoring_rule_is_its_formula_over_plain_forward_passes(model: HFModel) -> None:
+    # "DO" is a token prefix of "DOWN" and "MAKE" of the pickaxe: under every rule but the
+    # summed one the end of turn after the option is scored, so a prefix pays for stopping.
+    options = ["DO", "DOWN", "MAKE", "MAKE_WOOD_PICKAXE", " Paris"]
+    conversations = [FRANCE, PERU]
+    rows = {
+        rule: model.choice_scores(
+            conversations, ChoiceSet(options=tuple(options), rule="loglik", scoring=rule)
+        )
+        for rule in ("sum", "mean", "bytes", "pmi")
+    }
+    for index, conversation in enumerate(conversations):
+        prompt = model._render(conversation)
+        free = model._render(content_free_conversation(conversation))
+        for column, option in enumerate(options):
+            tokens = len(model._encode(option))
+            whole = naive_log_likelihood(model, prompt, option, ended=True)
+            prior = naive_log_likelihood(model, free, option, ended=True)
+            expected = {
+                "sum": naive_log_likelihood(model, prompt, option),
+                "mean": whole / (tokens + 1),
+                "bytes": whole / len(option.encode()),
+                "pmi": whole - prior,
+            }
+            got = {rule: rows[rule][index][column] for rule in rows}
+            assert got == pytest.approx(expected, abs=2e-3), option
+    # The content-free prompt is scored once for the two conversations (one system message).
+    assert len(model._content_free._kept) == 1
+
+
+def test_the_end_of_turn_token_is_the_chat_templates(model: HFModel) -> None:
+    assert model.tokenizer.convert_ids_to_tokens(model._end_of_turn) == "<|im_end|>"
 
 
 @pytest.mark.slow
@@ -166,7 +222,7 @@ def test_choice_scores_stay_exact_when_a_later_call_reuses_the_prompt_prefix(
     # Each call keeps its prompt prefix; the next one starts from the part they share.
     sequence = [[FRANCE], [PERU], [PERU], [GREETINGS[0]], [FRANCE, PERU]]
     for conversations in sequence:
-        scores = model.choice_scores(conversations, choices)
+        scores = model.choice_scores(conversations, summed(choices))
         for conversation, row in zip(conversations, scores, strict=True):
             prompt = model._render(conversation)
             expected = [naive_log_likelihood(model, prompt, choice) for choice in choices]
@@ -181,7 +237,7 @@ def test_both_choice_paths_give_the_same_scores(model: HFModel, split_attention:
     conversations = [FRANCE, PERU, GREETINGS[1]]
     model.scorer.split_attention = split_attention
     try:
-        scores = model.choice_scores(conversations, choices)
+        scores = model.choice_scores(conversations, summed(choices))
     finally:
         model.scorer.split_attention = True
     for conversation, row in zip(conversations, scores, strict=True):
@@ -240,7 +296,7 @@ def test_loglik_refuses_a_bfloat16_model_naming_the_alternative(split_attention:
         model.generate([FRANCE], choices=choices)
     assert "\n" not in str(refused.value)
     with pytest.raises(UserError, match="bfloat16"):
-        model.choice_scores([FRANCE], ["banana", "Paris"])
+        model.choice_scores([FRANCE], summed(["banana", "Paris"]))
     # The refusal comes before any weights are loaded, and leaves the user's dtype alone.
     assert model._model is None and model.dtype == torch.bfloat16
 
@@ -264,7 +320,7 @@ def test_loglik_turns_a_defaulted_bfloat16_into_float32(monkeypatch: pytest.Monk
     assert chosen.text == "Paris"
     assert model.dtype == model.model.dtype == torch.float32
     assert model.info()["dtype"] == "float32"
-    [row] = model.choice_scores([FRANCE], ["banana", "Paris"])
+    [row] = model.choice_scores([FRANCE], summed(["banana", "Paris"]))
     prompt = model._render(FRANCE)
     expected = [naive_log_likelihood(model, prompt, choice) for choice in ("banana", "Paris")]
     assert row == pytest.approx(expected, abs=2e-3)
@@ -497,7 +553,7 @@ def test_missing_model_folder_is_a_user_error(tmp_path: Path, backend: str) -> N
         ("rows_per_forward", 0, "rows_per_forward"),
         ("threads", 0, "threads"),
         ("dtype", "float8", "dtype"),
-        ("choice_scoring", "median", "choice_scoring"),
+        ("choice_scoring", "mean", "choice_scoring"),
         ("device", "gpu", "'gpu' is not a torch device"),
         ("rows_per_forwrd", 4, "did you mean 'rows_per_forward'"),
     ],
@@ -566,3 +622,47 @@ def test_a_missing_gguf_reader_gives_the_install_command(
     with pytest.raises(UserError, match=r"'accelerate'.*craftext-llm\[hf\]"):
         embedded.convert_gguf(tmp_path / "model.gguf", tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB"),
+        RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory"),
+        RuntimeError("MPS backend out of memory (MPS allocated: 1 GB)"),
+        hf_model.ContextLengthError("a prompt of 9000 tokens is longer than the model's context"),
+    ],
+)  # fmt: skip
+def test_running_out_of_memory_or_context_fails_the_batch_as_the_backends(
+    error: Exception,
+) -> None:
+    def run(batch: Any) -> Any:
+        raise error
+
+    outputs = HFModel._in_batches(SimpleNamespace(rows_per_forward=2), [FRANCE] * 3, run)  # type: ignore[arg-type]
+    assert [o.finish_reason for o in outputs] == ["error"] * 3
+    assert all(type(error).__name__ in (o.error or "") for o in outputs)
+
+
+@pytest.mark.parametrize(
+    "error", [RuntimeError("The size of tensor a (3) must match"), ValueError("bad logits")]
+)
+def test_any_other_error_of_a_forward_pass_is_a_bug_and_raised(error: Exception) -> None:
+    def run(batch: Any) -> Any:
+        raise error
+
+    with pytest.raises(type(error), match=str(error).split("(")[0]):
+        HFModel._in_batches(SimpleNamespace(rows_per_forward=2), [FRANCE], run)  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_a_prompt_over_the_context_length_is_a_backend_failure(model: HFModel) -> None:
+    context = model.context_length
+    assert context == model.model.config.max_position_embeddings
+    long = [ChatMessage(role="user", content="wood " * (context + 10))]
+    [output] = model.generate([long])
+    assert output.finish_reason == "error" and "longer than the model's context" in (
+        output.error or ""
+    )
+    [fine] = model.generate([FRANCE])
+    assert fine.finish_reason != "error"

@@ -13,7 +13,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import pytest
 from vllm_serve import (
@@ -27,7 +27,7 @@ from vllm_serve import (
 
 from env.errors import UserError
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceScoring, ChoiceSet, GenerateConfig
 from llm_agents.backends.embedded import embedded_model_dir
 from llm_agents.backends.openai import OpenAIModel
 
@@ -124,11 +124,12 @@ def test_offline_engine_generates_free_text_and_constrained_choices(
     assert result["info"]["backend"] == "vllm" and result["info"]["vllm"]
 
 
-# Scores real agent conversations by loglik; runs inside .venv-vllm (see ENGINE_SCRIPT).
+# Scores real agent conversations by loglik under every scoring rule; runs inside .venv-vllm
+# (see ENGINE_SCRIPT).
 LOGLIK_SCRIPT = """
 import json, sys
 from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, scored_choices
 
 def main():
     model_dir, in_path, out_path = sys.argv[1:4]
@@ -137,15 +138,24 @@ def main():
     options = tuple(request["options"])
     with get_model("vllm:" + model_dir, GenerateConfig(max_tokens=4), enforce_eager=True,
                    max_model_len=4096, dtype="float32", max_num_seqs=32) as model:
-        scores = model.choice_scores(conversations, options)
-        outputs = model.generate(conversations, ChoiceSet(options=options, rule="loglik"))
+        # One scoring pass gives every rule (vLLM on CPU pays per option request).
+        prompts = [model._prompt_ids(c) for c in conversations]
+        candidates = model._candidate_ids(options)
+        raw = model._log_likelihoods(prompts, candidates)
+        scores = {}
+        for rule in request["rules"]:
+            choices = ChoiceSet(options=options, rule="loglik", scoring=rule)
+            free = model._content_free_rows(conversations, choices, candidates)
+            scores[rule] = scored_choices(choices, candidates, raw, free)
+        # The whole path of an answer, the content-free prompt's cached scores included.
+        picked = ChoiceSet(options=options, rule="loglik", scoring=request["answer_rule"])
+        outputs = model.generate(conversations, picked)
         # Prompts cut to end on a KV-cache block boundary, and two tokens before one: there
         # the prefix cache reaches into the options, which must then be scored without it.
         block = model.llm.llm_engine.vllm_config.cache_config.block_size
-        prompt = model._prompt_ids(conversations[0])
+        prompt = prompts[0]
         cut = block * (len(prompt) // block)
         cut_prompts = [prompt[:cut], prompt[: cut - 2]]
-        candidates = model._candidate_ids(options)
         cut_scores = model._log_likelihoods(cut_prompts, candidates)
     with open(out_path, "w") as f:
         json.dump({"scores": scores, "outputs": [o.model_dump() for o in outputs],
@@ -190,7 +200,7 @@ def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]],
 SCORED_OPTIONS = ("UP", "DO", "PLACE_STONE", "PLACE_FURNACE", "MAKE_WOOD_SWORD", "MAKE_IRON_SWORD")
 
 
-def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
+def test_hf_and_vllm_agree_under_every_loglik_rule_on_real_prompts(
     model_dir: Path, tmp_path: Path, classic_env: Any
 ) -> None:
     pytest.importorskip("torch")
@@ -202,12 +212,15 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     # names (one token or several, sharing prefixes, each conversation's favourite among them)
     # prove the agreement in a quarter of the time all 17 took.
     options = [name for name in actions if name in SCORED_OPTIONS]
+    rules = list(get_args(ChoiceScoring))
     request = tmp_path / "request.json"
     request.write_text(
         json.dumps(
             {
                 "conversations": [[m.model_dump() for m in c] for c in conversations],
                 "options": options,
+                "rules": rules,
+                "answer_rule": "pmi",
             }
         )
     )
@@ -226,35 +239,44 @@ def test_hf_and_vllm_agree_under_loglik_on_real_prompts(
     result: dict[str, Any] = json.loads(out.read_text())
 
     hf = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), dtype="float32")
-    hf_scores = hf.choice_scores(conversations, options)
-    worst = max(
-        abs(a - b)
-        for hf_row, vllm_row in zip(hf_scores, result["scores"], strict=True)
-        for a, b in zip(hf_row, vllm_row, strict=True)
-    )
-    print(f"hf vs vllm loglik scores, float32: largest difference {worst:.2e} nats")
-    assert worst < 0.01
-    hf_cut = hf.scorer.log_likelihoods(
-        hf.model,
-        result["cut_prompts"],
-        [hf._encode(option) for option in options],
-    )
+    hf_scores = {
+        rule: hf.choice_scores(
+            conversations, ChoiceSet(options=tuple(options), rule="loglik", scoring=rule)
+        )
+        for rule in rules
+    }
+    assert set(result["scores"]) == set(rules)
+    for rule in rules:
+        worst = max(
+            abs(a - b)
+            for hf_row, vllm_row in zip(hf_scores[rule], result["scores"][rule], strict=True)
+            for a, b in zip(hf_row, vllm_row, strict=True)
+        )
+        print(f"hf vs vllm loglik scores ({rule}), float32: largest difference {worst:.2e}")
+        assert worst < 0.01, rule
+    # The rules really rank differently, so agreeing under each is not one check four times.
+    best = {
+        rule: [max(range(len(options)), key=row.__getitem__) for row in hf_scores[rule]]
+        for rule in rules
+    }
+    assert len({tuple(picks) for picks in best.values()}) > 1
+    hf_cut = hf._option_logliks(result["cut_prompts"], hf._candidate_ids(options))
     cut_worst = max(
         abs(a - b)
         for hf_row, vllm_row in zip(hf_cut, result["cut_scores"], strict=True)
-        for a, b in zip(hf_row, vllm_row, strict=True)
+        for hf_score, vllm_score in zip(hf_row, vllm_row, strict=True)
+        for a, b in zip(hf_score, vllm_score, strict=True)
     )
     assert cut_worst < 0.01
     # hf's answers are its scores' best options (its own tests check that `generate` picks
     # them), so vLLM's answers are compared with those instead of scoring everything again.
     vllm_outputs = result["outputs"]
-    hf_best = [options[max(range(len(options)), key=row.__getitem__)] for row in hf_scores]
-    assert [o["text"] for o in vllm_outputs] == hf_best
+    assert [o["text"] for o in vllm_outputs] == [options[i] for i in best["pmi"]]
     prompt_tokens = [len(ids) for ids in hf._prompt_ids(conversations)]
     assert [o["prompt_tokens"] for o in vllm_outputs] == prompt_tokens
     assert all(o["finish_reason"] == "choice" for o in vllm_outputs)
     # Real prompts of different situations: the models do not pick one answer everywhere.
-    assert len({max(range(len(options)), key=row.__getitem__) for row in hf_scores}) > 1
+    assert len({max(range(len(options)), key=row.__getitem__) for row in hf_scores["sum"]}) > 1
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ def test_plan_command_writes_plans_sidecar_and_resumes(tmp_path: Path, capsys: A
     output = tmp_path / "plans.json"
     argv = [
         "plan", "--model", f"mock:cycle:{PLAN}", "--output", str(output),
-        "--splits", "easy_test_paraphrased", "--no-progress",
+        "--difficulty", "easy", "--categories", "paraphrased", "--no-progress",
     ]  # fmt: skip
     assert main(argv) == 0
     plans = json.loads(output.read_text())
@@ -39,21 +39,20 @@ def test_plan_command_writes_plans_sidecar_and_resumes(tmp_path: Path, capsys: A
     assert f"{len(texts)} resumed" in capsys.readouterr().out
 
 
-def test_plan_command_takes_eval_category_names(tmp_path: Path) -> None:
+@pytest.mark.parametrize("names", [["new_objects"], ["easy_test_other_params"]])
+def test_plan_command_keeps_splits_as_a_deprecated_spelling(
+    tmp_path: Path, capsys: Any, names: list[str]
+) -> None:
+    # `--splits` took dataset split names before plan spoke eval's vocabulary.
     output = tmp_path / "plans.json"
     argv = [
-        "plan",
-        "--model",
-        f"mock:cycle:{PLAN}",
-        "--output",
-        str(output),
-        "--splits",
-        "new_objects",
-        "--no-progress",
-    ]
+        "plan", "--model", f"mock:cycle:{PLAN}", "--output", str(output),
+        "--splits", *names, "--no-progress",
+    ]  # fmt: skip
     assert main(argv) == 0
     texts = {t for goal in load_dataset(None).split("easy_test_other_params") for t in goal.texts}
     assert set(json.loads(output.read_text())) == texts
+    assert "--splits is deprecated; use --categories" in capsys.readouterr().err
 
 
 def test_plan_command_rejects_an_unknown_split(tmp_path: Path, capsys: Any) -> None:

@@ -32,6 +32,7 @@ from env.dataset import (
     WHEEL_FILENAME,
     WHEEL_SHA256,
     Dataset,
+    DatasetSource,
     Goal,
     Instruction,
     cache_status,
@@ -48,6 +49,7 @@ from env.dataset import (
 )
 from env.downloads import CODE_HOST_ENV_VAR
 from env.errors import UserError
+from env.goals import BuildLineGoal, checked_dataset
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 REFERENCE_FILE = SHARED_DATA / "craftext_official_easy.json"
@@ -401,6 +403,26 @@ def test_invalid_json_names_the_file(official_dataset: Dataset, tmp_path: Path) 
     broken.write_text(json.dumps(content))
     with pytest.raises(UserError, match=r"broken\.json.*FLY"):
         load_dataset(broken)
+
+
+def test_what_runs_assume_of_the_data_is_checked_once_as_it_is_loaded(
+    official_dataset: Dataset,
+) -> None:
+    source = DatasetSource(kind="directory", path="/clone")
+    goal = official_dataset.goals[0]
+    with pytest.raises(UserError, match=f"^/clone: goal {goal.id!r} appears twice in easy_train$"):
+        checked_dataset(source, [goal, goal])
+    line = BuildLineGoal(
+        id="LINE",
+        split="easy_train",
+        instruction="Build a line of 2 stones.",
+        paraphrases=(),
+        block="STONE",
+        size=2,
+        diagonal=False,
+    )
+    with pytest.raises(UserError, match=r"build_line goal; easy goals are achievements$"):
+        checked_dataset(source, [line])
 
 
 # --- user errors ---------------------------------------------------------------------------------

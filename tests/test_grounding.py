@@ -29,6 +29,7 @@ from llm_agents.evaluation.grounding_run import (
 )
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.grounding_metrics import Scored, confusions, score
+from llm_agents.run_data.metrics import wilson_interval
 from llm_agents.run_data.readings import EasyReading
 from llm_agents.run_data.store import read_episodes, read_results
 
@@ -176,6 +177,27 @@ def test_a_field_nobody_read_or_holds_has_no_rate() -> None:
     assert result.exact.rate == 1.0
 
 
+def test_the_phrasings_of_a_goal_and_the_atoms_of_a_text_are_not_independent() -> None:
+    right = '{"required": ["PLACE_TABLE", "COLLECT_WOOD", "COLLECT_STONE"]}'
+    wood = (("COLLECT_WOOD", "COLLECT_STONE", "PLACE_TABLE"), ())
+    # Six phrasings of each of two goals: one goal always read right, the other never.
+    items = [scored(wood, right) for _ in range(6)]
+    items += [scored((("EAT_COW",), ()), '{"required": ["DRINK_WATER"]}') for _ in range(6)]
+    result = score(items)
+    assert (result.exact.successes, result.exact.episodes, result.exact.clusters) == (6, 12, 2)
+    # Twelve texts, but two goals' worth of evidence.
+    assert (result.exact.low, result.exact.high) == pytest.approx(wilson_interval(1, 2))
+    recall = result.fields["required"].recall
+    assert recall is not None and (recall.successes, recall.episodes) == (18, 24)
+    assert recall.clusters == 2 and recall.high - recall.low > 0.5
+    # Told the goals' ids, the same: one cluster per goal.
+    named = [
+        Scored(i.split, i.category, i.truth, i.grounding, goal_id=str(n // 6))
+        for n, i in enumerate(items)
+    ]
+    assert score(named).exact == result.exact
+
+
 # ----------------------------------------------------------------------------- ground runs
 
 
@@ -264,6 +286,106 @@ def test_ground_resumes_a_run_written_before_worked_examples_existed(
     assert done.status == "complete" and len(again.requests) == 4
     with pytest.raises(UserError, match=r"grounding_shots \(0 before, 1 now\)"):
         prepare_grounding(ground_config(out, dataset_file, grounding_shots=1))
+
+
+def edit_results(out: Path, edit: Any) -> None:
+    import json
+
+    results = json.loads((out / "results.json").read_text())
+    edit(results)
+    (out / "results.json").write_text(json.dumps(results))
+
+
+def test_ground_resumes_only_under_the_same_examples_and_parsed_goals(
+    tmp_path: Path, dataset_file: Path
+) -> None:
+    out = tmp_path / "run"
+    first = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    cfg = ground_config(out, dataset_file, grounding_shots=1, limit=2)
+    execute_grounding(prepare_grounding(cfg), first)
+    identity = read_ground_results(out / "results.json").identity
+    assert identity.examples is not None and len(identity.examples) == 64
+    assert set(identity.goals) == {"easy_train", "easy_test_other_params"}
+    recorded = identity.examples
+
+    def another_list(results: dict[str, Any]) -> None:
+        results["identity"]["examples"] = "0" * 64
+
+    edit_results(out, another_list)
+    with pytest.raises(
+        UserError, match=rf"worked-example list \(000000000000 before, {recorded[:12]} now\)"
+    ):
+        prepare_grounding(cfg)
+
+    def unrecorded(results: dict[str, Any]) -> None:
+        # As a run written before the list was digested left it, though it showed examples.
+        del results["identity"]["examples"], results["identity"]["goals"]
+
+    edit_results(out, unrecorded)
+    with pytest.raises(UserError, match=r"worked-example list \(not recorded before"):
+        prepare_grounding(cfg)
+    edit_results(out, lambda results: results["identity"].update(examples=recorded))
+    # Goals digested only beside the identity, as older runs recorded them, count as well.
+    prepare_grounding(cfg)
+    edit_results(out, lambda r: r["dataset"]["split_sha256"].update(easy_train="1" * 64))
+    with pytest.raises(UserError, match=r"parsed goals of easy_train \(their digests changed\)"):
+        prepare_grounding(cfg)
+    edit_results(out, lambda r: r["dataset"].pop("split_sha256"))
+    prepare_grounding(cfg)
+
+    def other_goals(results: dict[str, Any]) -> None:
+        results["identity"]["goals"] = identity.goals | {"easy_test_other_params": "2" * 64}
+
+    edit_results(out, other_goals)
+    with pytest.raises(UserError, match=r"parsed goals of easy_test_other_params"):
+        prepare_grounding(cfg)
+
+
+def test_ground_resumes_under_other_code_and_its_report_says_so(
+    tmp_path: Path,
+    dataset_file: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from llm_agents.evaluation.grounding_report import report_grounding
+    from llm_agents.run_data import provenance
+
+    out = tmp_path / "run"
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    monkeypatch.setattr(provenance, "_running_code_version", lambda: "v1")
+    execute_grounding(prepare_grounding(ground_config(out, dataset_file, limit=2)), model)
+    assert "different code" not in report_grounding(out)
+    monkeypatch.setattr(provenance, "_running_code_version", lambda: "v2")
+    done = execute_grounding(prepare_grounding(ground_config(out, dataset_file)), model)
+    assert done.status == "complete" and done.versions["code"] == "v2"
+    assert "recorded by code v1; resuming it with v2" in caplog.text
+    assert sorted(r.code or "" for r in read_groundings(out)) == ["v1"] * 2 + ["v2"] * 4
+    assert "answers of this run came from different code: v2 (4), v1 (2)" in report_grounding(out)
+
+
+def test_ground_stops_after_failed_answers_in_a_row_keeping_the_answered(
+    tmp_path: Path, dataset_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from llm_agents.evaluation.runner import BackendFailure
+
+    out = tmp_path / "run"
+    texts = [t for g in GOALS for t in g.texts]
+    # Two answers, then the backend fails for good.
+    model = MockModel(outputs=[right_answer(t) for t in texts[:2]], cycle=False)
+    cfg = ground_config(out, dataset_file, max_consecutive_failures=2, requests_per_call=1)
+    with pytest.raises(BackendFailure, match="stopped after 2 failed model answers in a row"):
+        execute_grounding(prepare_grounding(cfg), model)
+    assert len(model.requests) == 4  # it stopped asking at the second failure in a row
+    results = read_ground_results(out / "results.json")
+    assert (results.status, results.finished, results.failed_calls) == ("failed", 2, 2)
+    assert results.failure is not None and len(read_groundings(out)) == 2
+
+    args = ["ground", "--model", "mock:error", "--no-probe", "--dataset", str(dataset_file),
+            "--variant", "classic", "--output-dir", str(tmp_path / "cli"), "--no-progress",
+            "--categories", "one", "combo", "new_objects", "--max-consecutive-failures", "3"]  # fmt: skip
+    capsys.readouterr()
+    assert main(args) == 3
+    assert "stopped after 3 failed model answers in a row" in capsys.readouterr().err
 
 
 def test_ground_answers_picked_from_the_goals_are_read_by_the_same_parser(
@@ -456,7 +578,11 @@ def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understa
     summary = outcome.summary
     assert summary is not None and summary.understanding is not None
     read = summary.understanding
-    assert (read.grounded.successes, read.grounded.episodes, read.not_started) == (4, 8, 2)
+    # Counted per text (4 texts, 2 read right), not per episode: each text played in 2 worlds.
+    assert (read.grounded.successes, read.grounded.episodes, read.not_started) == (2, 4, 2)
+    # Two goals, each with both its texts read right or both wrong: each counts once.
+    assert read.grounded.clusters == 2
+    assert (read.grounded.low, read.grounded.high) == pytest.approx(wilson_interval(1, 2))
     assert read.success_when_right is not None and read.success_when_right.episodes == 4
     assert read.success_when_wrong is not None and read.success_when_wrong.successes == 0
     assert summary.terminations["not_started"] == 2
@@ -465,7 +591,8 @@ def test_guided_run_grounds_once_per_text_plays_the_reading_and_reports_understa
     assert main(["report", str(tmp_path / "run")]) == 0
     report = capsys.readouterr().out
     assert "not started 2" in report
-    assert "goal read exactly right in 0.50" in report and "(could not start: 2)" in report
+    assert "goal read exactly right in 0.50" in report and "n=4 g=2 texts" in report
+    assert "(could not start: 2 episodes)" in report
 
 
 def test_guided_is_shown_the_worked_examples_ground_shows(
@@ -479,7 +606,7 @@ def test_guided_is_shown_the_worked_examples_ground_shows(
     model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
     outcome = run_eval(build_config(settings), model, env=short_env)
     assert outcome.summary is not None and outcome.summary.understanding is not None
-    assert outcome.summary.understanding.grounded.successes == 2
+    assert outcome.summary.understanding.grounded.successes == 2  # two texts
 
     grounder = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
     cfg = ground_config(tmp_path / "ground", dataset_file, categories=["new_objects"])
@@ -487,6 +614,57 @@ def test_guided_is_shown_the_worked_examples_ground_shows(
     guided = {instruction_of(c): c for c, _ in model.requests}
     grounded = {instruction_of(c): c for c, _ in grounder.requests}
     assert guided == grounded and all(len(shown_examples(c)) == 1 for c in guided.values())
+
+
+def test_guided_asks_once_for_a_text_several_slots_start_at_once(
+    tmp_path: Path, dataset_file: Path, short_env: CrafTextEnv
+) -> None:
+    settings = {
+        "agent": "guided", "model": "mock:", "dataset": str(dataset_file), "variant": "classic",
+        "categories": ["one"], "paraphrases": False, "max_steps": MAX_STEPS,
+        "episodes_per_instruction": 4, "batch_size": 4, "output_dir": str(tmp_path / "run"),
+    }  # fmt: skip
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    outcome = run_eval(build_config(settings), model, env=short_env)
+    assert len(model.requests) == 1  # four slots began "Collect wood." together
+    assert outcome.summary is not None and outcome.summary.understanding is not None
+    assert outcome.summary.understanding.grounded.successes == 4
+    assert outcome.results.status == "complete"
+
+
+def test_guided_examples_and_code_are_the_runs_identity(
+    tmp_path: Path,
+    dataset_file: Path,
+    short_env: CrafTextEnv,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from llm_agents.evaluation.report import report_run
+    from llm_agents.run_data import provenance
+
+    out = tmp_path / "run"
+    settings = {
+        "agent": "guided", "model": "mock:", "dataset": str(dataset_file), "variant": "classic",
+        "categories": ["one", "combo"], "max_steps": MAX_STEPS, "grounding_shots": 1,
+        "batch_size": 2, "output_dir": str(out),
+    }  # fmt: skip
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    monkeypatch.setattr(provenance, "_running_code_version", lambda: "v1")
+    run_eval(build_config(settings | {"limit": 1}), model, env=short_env)
+    identity = read_results(out / "results.json").identity
+    assert identity.examples is not None and set(identity.goals) == {"easy_train"}
+
+    monkeypatch.setattr(provenance, "_running_code_version", lambda: "v2")
+    outcome = run_eval(build_config(settings), model, env=short_env)
+    assert outcome.results.status == "complete" and outcome.results.versions["code"] == "v2"
+    assert "recorded by code v1; resuming it with v2" in caplog.text
+    codes = [e.code for e in read_episodes(out / "episodes.jsonl")]
+    assert sorted(c or "" for c in codes) == ["v1", "v2", "v2", "v2"]
+    assert "episodes of this run came from different code: v2 (3), v1 (1)" in report_run(out)
+
+    edit_results(out, lambda r: r["identity"].update(examples="0" * 64))
+    with pytest.raises(UserError, match=r"worked-example list \(000000000000 before"):
+        run_eval(build_config(settings), model, env=short_env)
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ import pytest
 
 from env import CrafTextEnv, EnvConfig, Variant
 from env.dataset import Dataset, DatasetSource
+from env.dataset import Goal as AchievementsGoal
 from env.goals import DIFFICULTY_KINDS, SPLITS, AnyGoal
 from env.official_source import parse_directory
 from llm_agents.agents.grounding import grounding_messages, parse_grounding, reading_json
@@ -185,6 +186,55 @@ def test_medium_worked_examples_show_every_kind_answered_as_the_prompt_asks(
         assert json.loads(example.answer)["kind"] == truths[example.instruction].kind
         read = parse_grounding(example.answer, CLASSIC, "medium").reading
         assert read == truths[example.instruction]
+
+
+def test_no_text_of_any_split_is_shown_its_own_answer_at_any_number_of_shots(
+    official: Dataset,
+) -> None:
+    from llm_agents.agents.grounding import examples_for, training_examples
+
+    with_answer_elsewhere = 0
+    for difficulty in ("easy", "medium", "hard"):
+        examples = training_examples(official, difficulty)  # type: ignore[arg-type]
+        answers = {example.answer for example in examples}
+        variant = CLASSIC if difficulty != "hard" else Variant.FULL
+        for goal in (g for g in official.goals if g.difficulty == difficulty):
+            truth = reading_of(goal)
+            own = reading_json(truth, difficulty)  # type: ignore[arg-type]
+            for text in goal.texts:
+                # Every example a text can be shown, at any number of shots: the first n of
+                # these are what n shots show.
+                shown = examples_for(text, truth, examples, len(examples))
+                assert own not in {example.answer for example in shown}, (difficulty, text)
+                if own in answers and text not in {t for e in examples for t in e.texts}:
+                    # A goal training states in other words: the request itself, at the most
+                    # shots a run may ask for, holds no turn answering with it.
+                    with_answer_elsewhere += 1
+                    messages = grounding_messages(
+                        text, variant, difficulty=difficulty, examples=examples, shots=16,
+                        answer=truth,
+                    )  # fmt: skip
+                    assert len(messages) == 2 + 2 * 16 and own not in {
+                        m.content for m in messages if m.role == "assistant"
+                    }
+    # The official test splits repeat training goals in other words (EASY and Medium alike).
+    assert with_answer_elsewhere > 50
+
+
+def test_examples_are_never_chosen_blind_to_the_answer() -> None:
+    from llm_agents.agents.grounding import training_examples
+
+    dataset = Dataset(
+        source=DatasetSource(kind="json", path="goals"),
+        goals=(
+            AchievementsGoal(id="W", split="easy_train", category="one",
+                             instruction="Collect wood.", paraphrases=(), required=("COLLECT_WOOD",)),
+        ),
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="pass answer"):
+        grounding_messages(
+            "Chop a tree.", CLASSIC, examples=training_examples(dataset, "easy"), shots=1
+        )
 
 
 def pick(official: Dataset, split: str, kind: str) -> AnyGoal:
@@ -375,12 +425,20 @@ def test_choice_options_are_the_runs_typed_goals_read_by_the_same_parser(
         "difficulty": "medium", "paraphrases": False, "choice": "loglik",
         "output_dir": str(tmp_path / "run"),
     }  # fmt: skip
-    texts = {goal.instruction: reading_json(reading_of(goal)) for goal in medium_goals}
+    texts = {goal.instruction: reading_json(reading_of(goal), "medium") for goal in medium_goals}
     model = MockModel(outputs=lambda conversation: texts[instruction_of(conversation)])
     results = execute_grounding(prepare_grounding(build_settings(GroundConfig, settings)), model)
     options = model.requests[0][1]
     assert options is not None and set(options.options) == set(texts.values())
     assert results.summary is not None and results.summary.overall.exact.rate == 1.0
+    # The options are written as Medium's prompt and worked examples write a goal: an
+    # achievements goal names its kind.
+    (achievements,) = [o for o in options.options if '"achievements"' in o]
+    assert json.loads(achievements)["kind"] == "achievements"
+    example = next(goal for goal in medium_goals if goal.kind == "achievements")
+    from llm_agents.agents.grounding import grounding_examples
+
+    assert grounding_examples([example])[0].answer == achievements
 
 
 def test_an_easy_run_written_before_goal_kinds_still_reads_and_scores_the_same(

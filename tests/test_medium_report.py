@@ -44,8 +44,9 @@ def episodes() -> list[EpisodeRecord]:
             number = next(index)
             records.append(
                 EpisodeRecord(
-                    episode_id=f"{category}/{scenario}-goal/0/{i}",
-                    goal_id=f"{scenario}-goal",
+                    episode_id=f"{category}/{scenario}-goal-{i}/0/0",
+                    # A goal per episode: outcomes independent, the plain Wilson interval.
+                    goal_id=f"{scenario}-goal-{i}",
                     instruction="build a line of stones",
                     instruction_variant=0,
                     category=category,  # type: ignore[arg-type]
@@ -63,7 +64,7 @@ def episodes() -> list[EpisodeRecord]:
 
 def cell(k: int, n: int) -> str:
     ci = binomtest(k, n).proportion_ci(method="wilson")
-    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n}"
+    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n} g={n}"
 
 
 def rows_of(lines: list[str]) -> dict[str, dict[str, str]]:

@@ -10,8 +10,14 @@ from hypothesis import strategies as st
 from scipy.stats import binomtest
 
 from env.errors import UserError
-from llm_agents.run_data.metrics import summarize, wilson_interval
-from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.metrics import (
+    action_counts,
+    action_histogram,
+    clustered_rate,
+    summarize,
+    wilson_interval,
+)
+from llm_agents.run_data.records import EpisodeRecord, StepRecord
 
 
 def episode(
@@ -120,15 +126,39 @@ def test_summary_counts_per_category_goal_and_termination() -> None:
         rate = summary.by_category[category]
         assert (rate.successes, rate.episodes) == (k, n)
         assert rate.rate == pytest.approx(k / n)
-        assert (rate.low, rate.high) == pytest.approx(scipy_wilson(k, n), abs=1e-12)
+    # One goal alone: its episodes are independent worlds, the plain Wilson interval.
+    for category in ("combo", "new_objects"):
+        rate = summary.by_category[category]
+        assert rate.clusters == 1
+        assert (rate.low, rate.high) == pytest.approx(scipy_wilson(rate.successes, rate.episodes))
+    # `one` pools a goal met every time with one never met: wider than if episodes were free.
+    one = summary.by_category["one"]
+    assert one.clusters == 2 and one.design_effect is not None and one.design_effect > 1
+    plain = scipy_wilson(3, 10)
+    assert one.low < plain[0] and one.high > plain[1]
     assert (summary.overall.successes, summary.overall.episodes) == (4, 19)
-    assert (summary.overall.low, summary.overall.high) == pytest.approx(scipy_wilson(4, 19))
+    assert summary.overall.clusters == 4
 
     goals = {goal: (r.successes, r.episodes) for goal, r in summary.by_goal.items()}
-    assert goals == {"wood": (3, 3), "table": (0, 7), "wood+table": (1, 4), "lava": (0, 5)}
+    assert goals == {
+        "one/wood": (3, 3),
+        "one/table": (0, 7),
+        "combo/wood+table": (1, 4),
+        "new_objects/lava": (0, 5),
+    }
     assert summary.terminations == {"success": 4, "death": 7, "timeout": 8}
     assert summary.steps_to_success_mean == pytest.approx(32.5)
     assert summary.steps_to_success_median == pytest.approx(30.0)
+
+
+def test_one_id_in_two_splits_is_two_goals() -> None:
+    # Medium's INSTRUCTION_STONE_4 is a square in train and a line in the paraphrased split.
+    episodes = [
+        episode(0, category="train", goal="INSTRUCTION_STONE_4", success=True),
+        episode(1, category="paraphrased", goal="INSTRUCTION_STONE_4"),
+    ]
+    rates = {goal: (r.successes, r.episodes) for goal, r in summarize(episodes).by_goal.items()}
+    assert rates == {"paraphrased/INSTRUCTION_STONE_4": (0, 1), "train/INSTRUCTION_STONE_4": (1, 1)}
 
 
 def test_summary_rates_are_per_step_over_the_whole_run() -> None:
@@ -149,3 +179,76 @@ def test_summary_rates_are_per_step_over_the_whole_run() -> None:
 def test_summary_of_nothing_is_a_user_error() -> None:
     with pytest.raises(UserError, match="no finished episodes"):
         summarize([])
+
+
+@given(st.lists(st.booleans(), min_size=1, max_size=60))
+def test_one_trial_per_goal_is_the_plain_wilson_interval(outcomes: list[bool]) -> None:
+    rate = clustered_rate((f"goal{i}", int(ok), 1) for i, ok in enumerate(outcomes))
+    assert (rate.low, rate.high) == pytest.approx(
+        scipy_wilson(sum(outcomes), len(outcomes)), abs=1e-9
+    )
+    assert rate.clusters == len(outcomes)
+
+
+@pytest.mark.parametrize(("met", "goals", "worlds"), [(3, 10, 50), (1, 4, 6), (7, 9, 2)])
+def test_goals_met_all_or_nothing_count_once_each(met: int, goals: int, worlds: int) -> None:
+    """Under the paper protocol a goal is played in 50 worlds; when each goal is met in all of
+    them or in none, the run knows `goals` outcomes, not `goals * worlds`."""
+    rate = clustered_rate({f"g{i}": (worlds if i < met else 0, worlds) for i in range(goals)})
+    assert (rate.successes, rate.episodes) == (met * worlds, goals * worlds)
+    assert rate.design_effect == pytest.approx(worlds)
+    assert (rate.low, rate.high) == pytest.approx(scipy_wilson(met, goals), abs=1e-9)
+
+
+def test_goals_alike_leave_the_interval_as_it_was() -> None:
+    rate = clustered_rate({f"g{i}": (5, 10) for i in range(8)})
+    assert rate.design_effect == 1.0
+    assert (rate.low, rate.high) == pytest.approx(scipy_wilson(40, 80))
+
+
+def test_the_same_goal_given_twice_adds_up_and_bad_counts_are_refused() -> None:
+    twice = clustered_rate([("a", 1, 2), ("b", 0, 2), ("a", 1, 2)])
+    once = clustered_rate({"a": (2, 4), "b": (0, 2)})
+    assert twice == once
+    with pytest.raises(ValueError):
+        clustered_rate({"a": (3, 2)})
+    with pytest.raises(ValueError):
+        clustered_rate({})
+
+
+def step(episode_id: str, action: str, index: int) -> StepRecord:
+    return StepRecord(
+        episode_id=episode_id,
+        step=index,
+        observation="",
+        prompt_hash="",
+        raw_output=action,
+        action_name=action,
+        action_id=0,
+        parse_stage="choice",
+        fallback_used=False,
+        reward=0.0,
+        done=False,
+    )
+
+
+def test_action_histograms_per_episode_and_pooled_over_the_run() -> None:
+    steps = [
+        *(step("ep0", "DO", i) for i in range(9)),
+        step("ep0", "NOOP", 9),
+        *(step("ep1", "LEFT", i) for i in range(3)),
+        step("ep1", "DO", 3),
+        step("elsewhere", "UP", 0),
+    ]
+    counts = action_counts(steps)
+    assert counts["ep0"] == {"DO": 9, "NOOP": 1}
+    first = action_histogram(counts["ep0"])
+    assert (first.commonest, first.commonest_share, first.steps) == ("DO", 0.9, 10)
+    assert first.dominated
+    summary = summarize([episode(0), episode(1)], counts)
+    assert summary.actions is not None
+    assert summary.actions.counts == {"DO": 10, "LEFT": 3, "NOOP": 1}  # commonest first
+    assert summary.actions.commonest_share == pytest.approx(10 / 14)
+    assert not summary.actions.dominated
+    assert summarize([episode(0)]).actions is None
+    assert action_histogram({}).commonest is None

@@ -11,7 +11,7 @@ import pytest
 
 from env.dataset import Category, Dataset, DatasetSource, Goal, Split
 from env.errors import UserError
-from env.goals import BuildLineGoal, LocalizationGoal
+from env.goals import GOAL_KINDS, BuildLineGoal, LocalizationGoal
 from env.variant import Variant
 from llm_agents.backends.base import ChatMessage, ChoiceSet, Conversation, ModelOutput
 from llm_agents.backends.mock import MockModel
@@ -120,6 +120,29 @@ def test_unknown_words_accepts_inflections_and_rejects_synonyms() -> None:
         "workbench",
         "rock",
     ]
+
+
+#: A plan in Craftax names for each goal kind, and the variant its difficulty plays.
+PLANS_BY_KIND = {
+    "achievements": (Variant.CLASSIC, "1. Collect wood.\n2. Place a table.\n3. Avoid the cow."),
+    "conditional_placing": (Variant.CLASSIC, "1. Collect 3 iron.\n2. Place 2 crafting tables."),
+    "localization_placing": (
+        Variant.FULL,
+        "1. Find the enchantment table.\n2. Place a furnace 2 blocks left of it.",
+    ),
+    "build_line": (Variant.CLASSIC, "1. Collect stone.\n2. Place 3 stones in a diagonal line."),
+    "build_square": (Variant.CLASSIC, "1. Collect stone.\n2. Lay stones in a solid 3x3 square."),
+    "build_star": (
+        Variant.FULL,
+        "1. Collect stone.\n2. Place stones in a star shape.\n3. Make each cross arm 3 long.",
+    ),
+}
+
+
+def test_a_plan_for_every_goal_kind_passes_in_its_variant() -> None:
+    assert set(PLANS_BY_KIND) == set(GOAL_KINDS)
+    for kind, (variant, plan) in PLANS_BY_KIND.items():
+        assert check_plan(plan, variant=variant).issues == [], kind
 
 
 def test_full_variant_names_are_unknown_to_classic() -> None:
@@ -294,23 +317,54 @@ def goal(split: Split, category: Category, instruction: str, required: str) -> G
     )
 
 
-def test_run_planner_plans_every_text_of_the_chosen_splits(tmp_path: Path) -> None:
+def test_run_planner_plans_every_text_of_the_chosen_categories(tmp_path: Path) -> None:
     goals = (
         goal("easy_train", "one", "Collect wood.", "COLLECT_WOOD"),
         goal("easy_test_paraphrased", "paraphrased", "Eat a cow.", "EAT_COW"),
     )
     source = DatasetSource(kind="json", path="test")
     dataset = Dataset(source=source, goals=goals).save_json(tmp_path / "data.json")
-    cfg = config(tmp_path, splits=["easy_test_paraphrased"], dataset=dataset)
+    cfg = config(tmp_path, categories=["paraphrased"], dataset=dataset)
     summary = run_planner(cfg, CountingModel(lambda conversation: GOOD))
     assert list(load_plans(summary.output)) == list(goals[1].texts)
-    assert json.loads(summary.sidecar.read_text())["instructions_from"]["splits"] == [
-        "easy_test_paraphrased"
+    assert json.loads(summary.sidecar.read_text())["instructions_from"]["categories"] == [
+        "paraphrased"
     ]
     with pytest.raises(UserError, match="easy_hard"):
         run_planner(
-            config(tmp_path, splits=["easy_hard"], dataset=dataset), CountingModel(scripted)
+            config(tmp_path, categories=["easy_hard"], dataset=dataset), CountingModel(scripted)
         )
+
+
+@pytest.mark.parametrize(
+    ("names", "difficulty", "categories"),
+    [
+        (["easy_train"], "easy", ("one", "combo")),
+        (["easy_test_paraphrased", "new_objects"], "easy", ("paraphrased", "new_objects")),
+        (["medium_train,medium_test_other_params"], "medium", ("train", "new_objects")),
+        ("hard_train", "hard", ("train",)),
+    ],
+)
+def test_split_names_are_read_as_their_difficulty_and_categories(
+    tmp_path: Path, names: object, difficulty: str, categories: tuple[str, ...]
+) -> None:
+    # What `--splits` took before plan chose its texts as eval does.
+    cfg = config(tmp_path, categories=names)
+    assert (cfg.difficulty, cfg.categories) == (difficulty, categories)
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"categories": ["easy_train", "medium_train"]},
+        {"categories": ["hard_train"], "difficulty": "medium"},
+    ],
+)
+def test_split_names_of_two_difficulties_are_refused(
+    tmp_path: Path, settings: dict[str, object]
+) -> None:
+    with pytest.raises(UserError, match="one difficulty at a time"):
+        config(tmp_path, **settings)
 
 
 def test_run_planner_plans_medium_and_hard_goals_of_any_kind(tmp_path: Path) -> None:
@@ -337,8 +391,10 @@ def test_run_planner_plans_medium_and_hard_goals_of_any_kind(tmp_path: Path) -> 
     )
     source = DatasetSource(kind="json", path="test")
     dataset = Dataset(source=source, goals=(line, placing)).save_json(tmp_path / "data.json")
-    cfg = config(tmp_path, splits=["medium_train", "hard_train"], dataset=dataset)
-    summary = run_planner(cfg, CountingModel(lambda conversation: GOOD))
+    for difficulty in ("medium", "hard"):
+        cfg = config(tmp_path, difficulty=difficulty, categories=["train"], dataset=dataset)
+        summary = run_planner(cfg, CountingModel(lambda conversation: GOOD))
+    # One difficulty a run; the second adds its plans to the first's.
     assert list(load_plans(summary.output)) == [*line.texts, *placing.texts]
 
 

@@ -116,7 +116,9 @@ def test_every_choice_names_a_real_setting() -> None:
     fields = set(EvalConfig.model_fields)
     generation = set(GenerateConfig.model_fields)
     every = [
-        protocol_for(name, level) for name in PROTOCOLS for level in ("easy", "medium", "hard")
+        protocol_for(name, level)
+        for name in PROTOCOLS
+        for level in (("easy",) if name == "balrog" else ("easy", "medium", "hard"))
     ]
     for protocol in every:
         for choice in protocol.choices:
@@ -128,7 +130,7 @@ def test_every_choice_names_a_real_setting() -> None:
 
 
 def test_an_unknown_protocol_is_a_user_error() -> None:
-    with pytest.raises(UserError, match="unknown protocol 'papers'; known: default, paper"):
+    with pytest.raises(UserError, match="unknown protocol 'papers'; known: default, paper, balrog"):
         get_protocol("papers")
     with pytest.raises(UserError, match="unknown protocol"):
         build_config({"protocol": "papers"})
@@ -169,3 +171,51 @@ def test_a_paper_run_plays_the_official_world_and_records_its_protocol(tmp_path:
         get_model(config.model, config.generation) as model,
     ):
         run_eval(mismatched, model, env=env)
+
+
+def test_the_balrog_protocol_sets_balrogs_crafter_evaluation() -> None:
+    config = build_config({"protocol": "balrog"})
+    assert (config.task, config.variant, config.max_steps) == ("open_ended", Variant.CLASSIC, 2000)
+    assert (config.episodes_per_instruction, config.world_seeding) == (10, "per_episode")
+    assert (config.generation.temperature, config.history_length) == (1.0, 16)
+    assert (config.fallback_action, config.report_invalid_answers) == ("NOOP", True)
+    assert config.protocol_overrides == ()
+    # The other protocols leave both new settings as runs had them before.
+    assert (EvalConfig().task, EvalConfig().report_invalid_answers) == ("craftext", False)
+    with pytest.raises(UserError, match="open-ended Crafter task, no CrafText difficulty"):
+        build_config({"protocol": "balrog", "difficulty": "medium"})
+
+
+@pytest.mark.slow
+def test_a_balrog_run_plays_the_open_ended_goal_until_the_game_or_the_cap_ends(
+    tmp_path: Path,
+) -> None:
+    from env.open_ended import OPEN_ENDED_ID, OPEN_ENDED_TEXT
+
+    config = build_config(
+        {
+            "protocol": "balrog",
+            "model": "mock:hash:ACTION: LEFT|no idea|ACTION: DO|ACTION: UP",
+            "max_steps": 12,
+            "episodes_per_instruction": 3,
+            "batch_size": 3,
+            "output_dir": str(tmp_path),
+        }
+    )
+    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=12))
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model, env=env)
+    results = read_results(tmp_path / "results.json")
+    assert (results.config["task"], results.status) == ("open_ended", "complete")
+    episodes = read_episodes(tmp_path / "episodes.jsonl")
+    assert len(episodes) == 3
+    for episode in episodes:
+        assert (episode.goal_id, episode.instruction) == (OPEN_ENDED_ID, OPEN_ENDED_TEXT)
+        # Never "met": the episode runs to the cap (or the player's death).
+        assert not episode.success and episode.termination in ("timeout", "death")
+    assert any(e.steps == 12 for e in episodes)
+    assert results.scores is not None and results.scores.overall.episodes == 3
+    assert results.scores.overall.achievement_list == "classic"
+    steps = [json.loads(line) for line in (tmp_path / "steps.jsonl").read_text().splitlines()]
+    invalid = [s for s in steps if s["fallback_used"]]
+    assert invalid and all(s["action_name"] == "NOOP" for s in invalid)

@@ -25,7 +25,8 @@ def episode(index: int, category: str, success: bool) -> EpisodeRecord:
     return EpisodeRecord.model_validate(
         {
             "episode_id": f"ep{index}",
-            "goal_id": f"{category}-goal",
+            # A goal per episode: its outcome is independent of the others' (plain Wilson).
+            "goal_id": f"{category}-goal-{index}",
             "instruction": "place a table",
             "instruction_variant": 2 if category == "paraphrased" else 0,
             "category": category,
@@ -51,7 +52,7 @@ def episodes_with(counts: dict[str, tuple[int, int]]) -> list[EpisodeRecord]:
 
 def expected_cell(k: int, n: int) -> str:
     ci = binomtest(k, n).proportion_ci(method="wilson")
-    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n}"
+    return f"{k / n:.2f} [{ci.low:.2f}, {ci.high:.2f}] n={n} g={n}"
 
 
 def table_rows(table: str) -> dict[str, dict[str, str]]:
@@ -439,3 +440,43 @@ def test_report_command_rescores_with_a_flag(
     assert table_rows(capsys.readouterr().out)["m (this run)"]["one"] == expected_cell(0, 2)
     assert main(["report", str(run_dir)]) == 0
     assert table_rows(capsys.readouterr().out)["m (this run)"]["one"] == expected_cell(1, 2)
+
+
+# ----------------------------------------------------------------------------- provenance and comparisons
+
+
+def test_a_run_whose_episodes_came_from_different_code_says_so(tmp_path: Path) -> None:
+    played = episodes_with({"one": (1, 3), "combo": (0, 2)})
+    versions = ["v1", "v1", "v2", None, "v2"]
+    mixed = [e.model_copy(update={"code": v}) for e, v in zip(played, versions, strict=True)]
+    report = report_run(make_run(tmp_path / "mixed", mixed))
+    assert (
+        "Note: the episodes of this run came from different code: "
+        "v1 (2), v2 (2), not recorded (1)." in report
+    )
+    same = [e.model_copy(update={"code": "v1"}) for e in played]
+    assert "different code" not in report_run(make_run(tmp_path / "same", same))
+
+
+def test_compared_runs_that_differ_in_a_setting_changing_the_numbers_say_which(
+    tmp_path: Path,
+) -> None:
+    from llm_agents.evaluation.report import compare_runs
+
+    played = episodes_with({"one": (1, 3)})
+    config = {"model": "hf:m", "variant": "full", "protocol": "default", "choice": None,
+              "success_rule": "game_over_counts"}  # fmt: skip
+    first = make_run(tmp_path / "a", played, config=config)
+    alike = make_run(tmp_path / "b", played, config=config)
+    assert "differ in" not in compare_runs(first, alike)
+
+    other = config | {"choice": "loglik", "variant": "classic", "success_rule": "official"}
+    table = compare_runs(first, make_run(tmp_path / "c", played, config=other))
+    assert (
+        "Note: the compared runs differ in choice (unset, loglik); variant (full, classic); "
+        "success rule (game_over_counts, official) (in the rows' order)." in table
+    )
+    paper = config | {"protocol": "paper"}
+    assert "differ in protocol (default, paper)" in compare_runs(
+        first, make_run(tmp_path / "d", played, config=paper)
+    )

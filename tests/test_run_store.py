@@ -211,6 +211,7 @@ OTHER_VALUES: dict[str, object] = {
     "variant": "classic",
     "probe": False,
     "choice": "guided",
+    "choice_scoring": "bytes",
     "categories": ("combo",),
     "difficulty": "hard",
     "paraphrases": False,
@@ -220,6 +221,8 @@ OTHER_VALUES: dict[str, object] = {
     "batch_size": 2,
     "renderer": "grid",
     "history_length": 2,
+    "report_invalid_answers": True,
+    "task": "open_ended",
     "plans": "plans.json",
     "output_dir": "elsewhere",
     "fallback_action": "DO",
@@ -274,6 +277,9 @@ def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_change
         base = EvalConfig(difficulty="medium", categories=("train",))
     elif name == "grounding_shots":
         base = EvalConfig(agent="guided")
+    elif name == "choice_scoring":
+        # It scores loglik choices only, and is refused with any other.
+        base = EvalConfig(choice="loglik")
     else:
         base = EvalConfig()
     changed = EvalConfig.model_validate(base.model_dump() | {name: OTHER_VALUES[name]})

@@ -17,12 +17,13 @@ from typing import Any
 import pytest
 
 from env import CrafTextEnv, EnvConfig, Variant
+from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
 from llm_agents.backends.cache import CachedModel
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.config import EvalConfig, build_config
 from llm_agents.evaluation.runner import open_model, run_eval
 from llm_agents.evaluation.schedule import build_schedule
 from llm_agents.run_data.store import read_episodes, read_results
@@ -222,6 +223,40 @@ def test_resume_refuses_a_directory_of_another_run(
     )
     assert code == EXIT_USER_ERROR
     assert "other settings" in capsys.readouterr().err
+
+
+def test_resume_under_another_choice_scoring_is_refused_naming_both(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    run(config(tmp_path, limit=1, batch_size=1, choice="loglik", choice_scoring="pmi"), short_env)
+    with pytest.raises(UserError, match=r'choice_scoring \("pmi" before, "bytes" now\)'):
+        run(
+            config(tmp_path, limit=1, batch_size=1, choice="loglik", choice_scoring="bytes"),
+            short_env,
+        )
+
+
+@pytest.mark.parametrize("choice", ["loglik", "guided"])
+def test_a_run_recorded_before_choice_scoring_resumes_under_the_rule_it_played(
+    tmp_path: Path, short_env: CrafTextEnv, choice: str
+) -> None:
+    # Played and recorded as before the setting existed: loglik summed the names' tokens.
+    played = config(tmp_path, limit=2, batch_size=1, choice=choice)
+    if choice == "loglik":
+        played = config(tmp_path, limit=2, batch_size=1, choice=choice, choice_scoring="sum")
+    run(played.model_copy(update={"limit": 1}), short_env)
+    results = json.loads((tmp_path / "results.json").read_text())
+    del results["identity"]["settings"]["choice_scoring"]
+    del results["config"]["choice_scoring"]
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    assert EvalConfig.recorded(results["config"]).choice_scoring == "sum"
+    if choice == "loglik":
+        # The default now is another rule: resuming under it would mix two rules in one run.
+        with pytest.raises(UserError, match=r'choice_scoring \("sum" before, "\w+" now\)'):
+            run(config(tmp_path, limit=2, batch_size=1, choice=choice), short_env)
+    # Guided never read the scoring: any run of it resumes as it is.
+    run(played, short_env)
+    assert len(read_episodes(tmp_path / "episodes.jsonl")) == 2
 
 
 def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:

@@ -9,9 +9,12 @@ unchanged-files check catches.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import shutil
-from collections.abc import Callable
+import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,6 +29,7 @@ EVAL = [
     "eval", "--model", "mock:", "--variant", "classic", "--categories", "combo", "--max-steps", "2",
     "--limit", "1", "--batch-size", "1", "--output-dir", "{tmp}/run", "--no-progress",
 ]  # fmt: skip
+LOGLIK_PMI = ["--choice", "loglik", "--choice-scoring", "pmi"]
 PLAN = ["plan", "--model", "mock:", "--output", "{tmp}/plans.json", "--no-progress", "--limit", "1"]
 
 
@@ -60,6 +64,29 @@ EASY_ONLY_DATASET = Dataset(
         ),
     ),
 ).model_dump_json()
+
+#: An EASY split holding a line goal (only Medium and Hard have building goals).
+EASY_LINE_DATASET = json.dumps(
+    {
+        "source": {"kind": "json", "path": "line.json"},
+        "goals": [
+            {
+                "kind": "build_line",
+                "id": "LINE",
+                "split": "easy_train",
+                "instruction": "Build a line of 2 stones.",
+                "paraphrases": [],
+                "block": "STONE",
+                "size": 2,
+                "diagonal": False,
+            }
+        ],
+    }
+)
+#: One goal twice in a split.
+REPEATED_GOAL_DATASET = json.dumps(
+    {**json.loads(EASY_ONLY_DATASET), "goals": json.loads(EASY_ONLY_DATASET)["goals"] * 2}
+)
 BROKEN_STEP = "{{ instruction }\n"
 UNDEFINED_STEP = "{{ no_such_variable }}\n"
 
@@ -86,6 +113,24 @@ MISTAKES: dict[str, Mistake] = {
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", "--choice", "loglik"], "loglik"
     ),
     "unknown choice rule": Mistake([*EVAL, "--choice", "best"], "invalid choice"),
+    "unknown choice scoring": Mistake(
+        [*EVAL, "--choice", "loglik", "--choice-scoring", "median"], "invalid choice"
+    ),
+    "unknown choice scoring in a file": with_message(
+        config_file("run.toml", 'choice = "loglik"\nchoice_scoring = "median"\n'),
+        "choice_scoring",
+    ),
+    "choice scoring without loglik": Mistake(
+        [*EVAL, "--choice", "guided", "--choice-scoring", "bytes"], "scores --choice loglik only"
+    ),
+    "scoring rule on a server without prompt log-probabilities": Mistake(
+        [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", *LOGLIK_PMI],
+        "log-probabilities",
+    ),
+    "the hf choice_scoring option that became a setting": Mistake(
+        [*EVAL, "--model", "hf:smollm2-135m", "--backend-option", "choice_scoring=mean"],
+        "no option 'choice_scoring'",
+    ),
     "unknown agent": Mistake([*EVAL, "--agent", "genius"], "genius"),
     "few-shot without demonstrations": Mistake([*EVAL, "--agent", "few-shot"], "demos"),
     # numbers out of range
@@ -156,6 +201,16 @@ MISTAKES: dict[str, Mistake] = {
     "dataset JSON that is not one": Mistake(
         [*EVAL, "--dataset", "{tmp}/data.json"], "data.json", files={"data.json": "{"}
     ),
+    "dataset with a goal kind its difficulty has not": Mistake(
+        [*EVAL, "--dataset", "{tmp}/line.json"],
+        "goal 'LINE' in easy_train is a build_line goal; easy goals are achievements",
+        files={"line.json": EASY_LINE_DATASET},
+    ),
+    "dataset with a goal twice in a split": Mistake(
+        [*EVAL, "--dataset", "{tmp}/twice.json"],
+        "goal 'PLACE_TABLE' appears twice in easy_train",
+        files={"twice.json": REPEATED_GOAL_DATASET},
+    ),
     # output directories
     "output dir is a file": Mistake(
         [*EVAL, "--output-dir", "{tmp}/taken"], "is a file", files={"taken": "x"}
@@ -197,7 +252,13 @@ MISTAKES: dict[str, Mistake] = {
     "plan output under a file": Mistake(
         [*PLAN, "--output", "{tmp}/taken/plans.json"], "taken is a file", files={"taken": "x"}
     ),
-    "plan of an unknown split": Mistake([*PLAN, "--splits", "easy_hard"], "easy_hard"),
+    "plan of an unknown category": Mistake([*PLAN, "--categories", "easy_hard"], "easy_hard"),
+    "plan of another difficulty's category": Mistake(
+        [*PLAN, "--difficulty", "hard", "--categories", "one"], "not one of hard's"
+    ),
+    "plan of splits of two difficulties": Mistake(
+        [*PLAN, "--categories", "easy_train", "medium_train"], "one difficulty at a time"
+    ),
     "plan requests per call 0": Mistake([*PLAN, "--requests-per-call", "0"], "requests_per_call"),
     "plan limit 0": Mistake([*PLAN, "--limit", "0"], "limit"),
     "plan config with generation a string": Mistake(
@@ -271,14 +332,29 @@ def test_a_mistake_is_one_line_and_changes_nothing(name: str, tmp_path: Path, ca
     assert snapshot(tmp_path) == before
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes to read-only directories")
+@contextlib.contextmanager
+def _real_user_nobody() -> Iterator[None]:
+    """Root may write to read-only directories. The output-directory check asks access(2), which
+    judges by the real user: as root (CI), make that `nobody` meanwhile, keeping root as the
+    effective user so the process can still read its own installation."""
+    if os.geteuid() != 0:
+        yield
+        return
+    os.setresuid(65534, 0, 0)
+    try:
+        yield
+    finally:
+        os.setresuid(0, 0, 0)
+
+
 def test_a_read_only_output_directory_is_one_line(tmp_path: Path, capsys: Any) -> None:
-    locked = tmp_path / "locked"
-    locked.mkdir()
+    # Under /tmp itself, not the per-user pytest folder `nobody` cannot enter.
+    locked = Path(tempfile.mkdtemp(prefix="craftext-locked-"))
     locked.chmod(0o555)
     try:
         argv = [a.replace("{tmp}/run", str(locked / "run")) for a in EVAL]
-        code, err = invoke(argv, capsys)
+        with _real_user_nobody():
+            code, err = invoke(argv, capsys)
     finally:
         locked.chmod(0o755)
     assert code != 0 and "not writable" in err

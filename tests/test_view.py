@@ -206,18 +206,82 @@ def test_mp4_export_without_ffmpeg_is_a_user_error(
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--episode", "0"], "--episode and --gif go together"),
+        (["--gif", "x.gif"], "--gif writes one episode: give it with --episode"),
         (["--episode", "no/such/0/0", "--gif", "x.gif"], "no finished episode 'no/such/0/0'"),
+        (["--episode", "no/such/0/0"], "no finished episode 'no/such/0/0'"),
+        (["--sample", "1000"], "--sample 1000 is larger than the"),
+        (["--sample", "1", "--outcome", "won"], "unknown --outcome 'won'"),
+        (["--class", "Build"], "no episode of"),
+        (["--episode", "0", "--sample", "1"], "it does not go with --sample"),
         (["--episode", "0", "--gif", "x.gif", "--compare", "."], "it does not go with --gif"),
         (["--compare", "/no/such/run"], "/no/such/run has no results.json"),
     ],
 )
 def test_view_flag_mistakes_are_one_line_errors(
-    run_dir: Path, capsys: Any, flags: list[str], message: str
+    run_dir: Path, tmp_path: Path, capsys: Any, flags: list[str], message: str
 ) -> None:
-    assert main(["view", str(run_dir), *flags]) == EXIT_USER_ERROR
+    run = _copy_run(run_dir, tmp_path)
+    assert main(["view", str(run), *flags]) == EXIT_USER_ERROR
     err = capsys.readouterr().err
-    assert message in err and "Traceback" not in err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert sorted(path.name for path in run.iterdir()) == sorted(
+        path.name for path in run_dir.iterdir() if path.name != "report"
+    )
+
+
+def test_a_goal_kind_the_viewer_does_not_know_writes_nothing(
+    run_dir: Path, tmp_path: Path, capsys: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from llm_agents.viewer import goals
+
+    run = _copy_run(run_dir, tmp_path)
+    monkeypatch.delitem(goals.RENDERINGS, "achievements")
+    assert main(["view", str(run), "--no-progress"]) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    assert "cannot show goals of kind 'achievements'" in err and "Traceback" not in err
+    assert not [path for path in run.iterdir() if "report" in path.name]
+
+
+def test_a_failure_while_rendering_leaves_the_previous_report(
+    run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from llm_agents.viewer import pages
+
+    run = _copy_run(run_dir, tmp_path)
+    (run / "report").mkdir()
+    (run / "report" / "index.html").write_text("the previous report")
+
+    def fail(*args: Any, **kwargs: Any) -> Any:
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(pages, "_run_context", fail)
+    with pytest.raises(RuntimeError):
+        build_view(run, progress=False)
+    assert (run / "report" / "index.html").read_text() == "the previous report"
+    assert sorted(path.name for path in run.iterdir() if "report" in path.name) == ["report"]
+
+
+@pytest.mark.slow
+def test_a_sample_renders_a_seeded_few_and_lists_the_rest(
+    run_dir: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy_run(run_dir, tmp_path)
+    episodes = read_episodes(run / "episodes.jsonl")
+    assert main(["view", str(run), "--sample", "2", "--seed", "3", "--no-progress"]) == 0
+    assert f"(2 episodes, {len(episodes) - 2} more listed" in capsys.readouterr().out
+    pages = sorted(path.name for path in (run / "report" / "episodes").glob("*.html"))
+    assert len(pages) == 2
+    index = (run / "report" / "index.html").read_text()
+    assert 'id="sample-note"' in index
+    for episode in episodes:
+        assert episode.instruction in index  # every episode is listed
+    assert index.count('href="episodes/episode-') == 2  # links only to rendered pages
+    # The same seed draws the same episodes.
+    assert main(["view", str(run), "--sample", "2", "--seed", "3", "--no-progress"]) == 0
+    assert sorted(p.name for p in (run / "report" / "episodes").glob("*.html")) == pages
+    combo = [e for e in episodes if e.category == "combo"]
+    assert main(["view", str(run), "--categories", "combo", "--no-progress"]) == 0
+    assert len(list((run / "report" / "episodes").glob("*.html"))) == len(combo)
 
 
 def test_view_of_a_directory_without_a_run_is_a_user_error(tmp_path: Path, capsys: Any) -> None:
@@ -281,7 +345,8 @@ def _open(browser: Any, path: Path) -> tuple[Any, list[str]]:
 
 
 def _cell(rate: dict[str, Any]) -> str:
-    return f"{rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] n={rate['episodes']}"
+    goals = f" g={rate['clusters']}" if rate.get("clusters") else ""
+    return f"{rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] n={rate['episodes']}{goals}"
 
 
 @pytest.mark.slow
@@ -313,6 +378,12 @@ def test_run_page_in_chromium_shows_the_results(
     }
     assert expert["by_category"]  # the row has numbers to check
     assert page.locator("#compare-note").count() == 0  # same dataset
+    # Issue 31: the intervals say they are clustered, and the run's actions are counted.
+    assert "clustered by goal" in page.locator("#rates-legend").inner_text()
+    actions = summary["actions"]
+    cells = page.locator("#actions tr td").all_inner_texts()
+    shown_actions = dict(zip(cells[0::3], (int(c) for c in cells[1::3]), strict=True))
+    assert shown_actions == actions["counts"] and sum(shown_actions.values()) == actions["steps"]
 
     episodes = read_episodes(run_dir / "episodes.jsonl")
     rows = page.locator("#episodes tbody tr")
@@ -323,8 +394,13 @@ def test_run_page_in_chromium_shows_the_results(
     assert set(visible.locator("td:nth-child(3)").all_inner_texts()) == {"combo"}
     page.select_option("#filter-category", "")
     page.click("#episodes th:has-text('steps')")
-    steps = [int(t) for t in page.locator("#episodes tbody td:nth-child(7)").all_inner_texts()]
+    steps = [int(t) for t in page.locator("#episodes tbody td:nth-child(8)").all_inner_texts()]
     assert steps == sorted(steps)
+    # Every goal label of the per-goal chart is drawn whole, however long the goal's id.
+    lefts = page.eval_on_selector_all(
+        "#chart-goals text", "texts => texts.map((text) => text.getBBox().x)"
+    )
+    assert lefts and min(lefts) >= 0
     assert problems == []
     page.close()
 
@@ -382,10 +458,255 @@ def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) 
     replayer = Replayer(classic_env, batch_size=12)
     keys = np.stack([episode_key(0, "goal", 0, repeat) for repeat in range(12)])
     masks = np.zeros((12, 22), bool)
-    state, _ = replayer._reset(keys, make_task(masks, masks))
+    (state, _), _, _ = replayer._reset(keys, make_task(masks, masks))
     for lane in (0, 9, 11):
         alone = classic_env.jitted_reset(keys[lane], make_task(masks[lane], masks[lane]))
         for batched, single in zip(
             jax.tree.leaves(state.game), jax.tree.leaves(alone.game), strict=True
         ):
             assert np.array_equal(np.asarray(batched)[lane], np.asarray(single))
+
+
+@pytest.mark.slow
+def test_run_page_shows_the_achievement_scores_report_prints(
+    run_dir: Path, expert_dir: Path, viewed: Any
+) -> None:
+    from llm_agents.evaluation.report import run_scores, scheduled_episodes
+    from llm_agents.run_data.store import read_results
+
+    index = (run_dir / "report" / "index.html").read_text()
+    section = index.split('id="scores-table"')[1].split("</table>")[0]
+    for path, row_class in ((run_dir, ""), (expert_dir, ' class="compared"')):
+        results = read_results(path / "results.json")
+        scores = run_scores(results, scheduled_episodes(path, results))
+        overall = scores.overall
+        cell = f"{overall.progression:.1f} ± {overall.progression_stderr:.1f}"
+        row = re.search(rf'<tr{row_class}><td>[^<]*</td><td class="num">([^<]*)</td>', section)
+        assert row is not None and row.group(1) == cell
+    assert "Crafter&#39;s 22 achievements" in index or "Crafter's 22 achievements" in index
+    episodes = read_episodes(run_dir / "episodes.jsonl")
+    table = index.split('id="episode-scores"')[1].split("</table>")[0]
+    assert table.count("<tr>") == len(episodes) + 1
+
+
+@pytest.mark.slow
+def test_an_open_ended_run_replays_from_its_own_goal(
+    tmp_path: Path, classic_env: CrafTextEnv
+) -> None:
+    out = tmp_path / "balrog"
+    config = build_config(
+        {
+            "protocol": "balrog",
+            "model": SCRIPT,
+            "max_steps": MAX_STEPS,
+            "episodes_per_instruction": 2,
+            "batch_size": 2,
+            "output_dir": str(out),
+        }
+    )
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model, env=classic_env)
+    viewed = build_view(out, progress=False)
+    assert {s.state for s in viewed.statuses.values()} == {"reproduced"}
+    assert len(viewed.statuses) == 2
+
+
+# ---------------------------------------------------------------- every goal kind
+
+
+def test_every_goal_kind_has_a_rendering() -> None:
+    from typing import get_args
+
+    from env.goals import GOAL_KINDS, AnyGoal
+    from llm_agents.viewer.goals import RENDERINGS, unrendered_kinds
+
+    # The kinds the goal records can take, read from the union itself: a kind added to
+    # `env.goals` without a rendering fails here.
+    union = get_args(get_args(AnyGoal)[0])
+    kinds = {get_args(member)[0].model_fields["kind"].default for member in union}
+    assert kinds == set(GOAL_KINDS)
+    assert unrendered_kinds() == []
+    assert set(RENDERINGS) == kinds
+
+
+@pytest.fixture(scope="module")
+def every_kind(
+    official_repository: Path, tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, Path]:
+    """An expert run per difficulty holding one episode of each of its goal kinds, from the
+    official data, a few steps each, on Classic Craftax: Hard's protocol is full Craftax, whose
+    replay compiles for minutes on a small machine, so each Hard kind is played with its first
+    goal that Classic can score (what the viewer shows of a goal does not depend on the game)."""
+    from env.dataset import Dataset, DatasetSource
+    from env.errors import UserError
+    from env.goals import DIFFICULTY_KINDS
+    from env.official_source import parse_directory
+    from env.scenario_tasks import encode_goal
+
+    def classic(goal: Any) -> bool:
+        try:
+            return goal.kind == "achievements" or bool(encode_goal(goal, Variant.CLASSIC))
+        except UserError:
+            return False
+
+    official = parse_directory(official_repository)
+    out = tmp_path_factory.mktemp("every-kind")
+    runs = {}
+    for difficulty, variant in (("medium", "classic"), ("hard", "classic")):
+        picked: dict[str, Any] = {}
+        for goal in official.goals:
+            if goal.difficulty == difficulty and goal.split.endswith("_train") and classic(goal):
+                picked.setdefault(goal.kind, goal)
+        assert set(picked) == set(DIFFICULTY_KINDS[difficulty])
+        data = out / f"{difficulty}.json"
+        source = DatasetSource(kind="json", path=str(data))
+        Dataset(source=source, goals=tuple(picked.values())).save_json(data)
+        config = build_config(
+            {
+                "agent": "expert",
+                "difficulty": difficulty,
+                "categories": ["train"],
+                "variant": variant,
+                "paraphrases": False,
+                "max_steps": 6,
+                "batch_size": 8,
+                "dataset": str(data),
+                "output_dir": str(out / difficulty),
+                "probe": False,
+            }
+        )
+        run_eval(config, NoModel())
+        assert main(["view", str(out / difficulty), "--no-progress"]) == 0
+        runs[difficulty] = out / difficulty
+    return runs
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("difficulty", ["medium", "hard"])
+def test_every_goal_kind_gets_a_page_naming_its_parameters(
+    every_kind: dict[str, Path], difficulty: str
+) -> None:
+    from llm_agents.viewer.goals import rendering_of
+
+    run = load_run(every_kind[difficulty])
+    kinds = set()
+    for view in run.episodes:
+        goal = view.goal
+        assert goal is not None
+        kinds.add(goal.kind)
+        page = (every_kind[difficulty] / "report" / "episodes" / view.page).read_text()
+        words = rendering_of(goal.kind).describe(goal)
+        assert 'id="replay-state">reproduced' in page
+        # The parameters in words, each of them named, and the dataset's JSON of the goal.
+        assert f'id="goal-words">{words}<' in page.replace("&#39;", "'")
+        for value in goal.parameters():
+            shown = value if isinstance(value, str | int) and not isinstance(value, bool) else None
+            if isinstance(shown, str) and shown.isupper():
+                assert shown.lower().replace("_", " ") in words
+            elif shown is not None:
+                assert str(shown) in words
+        assert f"&#34;id&#34;: &#34;{goal.id}&#34;" in page
+        fired = "after step" if view.record.success else "never"
+        assert re.search(rf'id="goal-fired">{fired}', page)
+        if goal.kind == "conditional_placing":
+            assert 'id="count-chart"' in page
+        elif goal.kind != "achievements":
+            assert 'id="checker-map"' in page
+            data = json.loads(re.search(r'id="episode-data">(.*?)</script>', page, re.S).group(1))
+            region = data["checker"]["marks"]["region"]
+            row, column = data["checker"]["positions"][data["checker"]["last"]]
+            # The region is around the player (a line's window may be pushed off the edges).
+            assert region[2] >= 1 and region[3] >= 1
+            if goal.kind == "localization_placing":
+                assert region[:2] == [row - 5, column - 5]
+    assert kinds == {g for g in rendering_of.__globals__["RENDERINGS"] if g in kinds}
+    assert len(kinds) == 5
+
+
+def test_the_words_follow_the_checkers_semantics() -> None:
+    from env.goals import BuildLineGoal, ConditionalPlacingGoal, LocalizationGoal
+    from llm_agents.viewer.goals import rendering_of
+
+    texts = {"instruction": "x", "paraphrases": (), "split": "medium_train", "scenario": "medium"}
+    line = BuildLineGoal(id="L", block="STONE", size=3, diagonal=True, **texts)
+    assert rendering_of("build_line").describe(line) == "a diagonal line of 3 stones"
+    place = LocalizationGoal(
+        id="P", place="FURNACE", target="CRAFTING_TABLE", side="left", distance=2, **texts
+    )
+    assert (
+        rendering_of("localization_placing")
+        .describe(place)
+        .startswith("a furnace 2 cells left of a crafting table")
+    )
+    conditional = ConditionalPlacingGoal(
+        id="C", collect="iron", collect_count=3, place="CRAFTING_TABLE", place_count=2, **texts
+    )
+    assert (
+        rendering_of("conditional_placing")
+        .describe(conditional)
+        .startswith("hold 3 iron, then place 2 crafting tables")
+    )
+
+
+@pytest.mark.slow
+def test_every_page_of_every_goal_kind_in_chromium(
+    every_kind: dict[str, Path], browser: Any
+) -> None:
+    from llm_agents.viewer.goals import rendering_of
+
+    for difficulty, run_path in every_kind.items():
+        run = load_run(run_path)
+        index, problems = _open(browser, run_path / "report" / "index.html")
+        assert index.locator("#scenario-table tbody tr").count() == len(
+            {view.record.scenario_class for view in run.episodes}
+        )
+        index.locator("a.show-class", has_text="Build").click()
+        shown = index.locator("#episodes tbody tr:visible td:nth-child(4)").all_inner_texts()
+        assert shown and set(shown) == {"Build"}
+        assert problems == [], (difficulty, problems)
+        index.close()
+        for view in run.episodes:
+            assert view.goal is not None
+            page, problems = _open(browser, run_path / "report" / "episodes" / view.page)
+            words = rendering_of(view.goal.kind).describe(view.goal)
+            assert page.locator("#goal-words").inner_text() == words
+            if view.goal.kind == "localization_placing":
+                # The checker's area is centred on the player: it is on every frame.
+                page.keyboard.press("End")
+                assert page.locator("#marks rect.region").count() == 1
+                page.uncheck("#show-marks")
+                assert page.locator("#marks rect").count() == 0
+            if view.goal.kind == "conditional_placing":
+                assert page.locator("#count-chart polyline").count() == 2
+            assert problems == [], (view.page, problems)
+            page.close()
+
+
+@pytest.mark.slow
+def test_a_guided_episode_shows_the_models_reading_beside_the_truth(
+    every_kind: dict[str, Path], tmp_path: Path
+) -> None:
+    run = _copy_run(every_kind["medium"], tmp_path)
+    wrong = {
+        "kind": "localization_placing",
+        "place": "STONE",
+        "target": "FURNACE",
+        "side": "right",
+        "distance": 1,
+    }
+    grounding = {"outcome": "valid", "stage": "json", "reading": wrong, "raw": json.dumps(wrong)}
+
+    def read_wrongly(record: dict[str, Any]) -> dict[str, Any]:
+        if record["goal_id"] == "INSTRUCTION_PLACE_STONE_FURNACE_1_1":
+            record.update(grounding=grounding, grounding_correct=False)
+        return record
+
+    (episode,) = [
+        e for e in _rewrite_episodes(run, read_wrongly) if e.grounding_correct is not None
+    ]
+    assert main(["view", str(run), "--episode", episode.episode_id, "--no-progress"]) == 0
+    (page,) = (run / "report" / "episodes").glob("*.html")
+    reading = re.search(r'id="goal-reading">(.*?)</div>', page.read_text(), re.S).group(1)
+    assert "a stone 1 cell right of a furnace" in reading  # what the model read
+    assert "a stone 1 cell left of a furnace" in reading  # the dataset's goal
+    assert 'id="reading-verdict">wrong' in reading

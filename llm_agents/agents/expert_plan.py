@@ -537,6 +537,15 @@ SPEND_ACTION: dict[str, str] = {
 }
 
 
+def expert_cannot(goal: object) -> str | None:
+    """Why the scripted expert cannot meet `goal` (a conditional-placing goal whose item it has
+    no way to spend, `SPEND_ACTION`); None when it can try."""
+    if getattr(goal, "kind", None) != "conditional_placing":
+        return None
+    item = str(getattr(goal, "collect", ""))
+    return None if item in SPEND_ACTION else f"the scripted expert cannot spend {item}"
+
+
 def spend_task(ctx: PlanContext, item: str) -> ExpertTask:
     """A task whose action takes `item` out of the inventory (a table's 2 wood, a placed stone
     or sapling, a craft's inputs), gathering the recipe's other inputs and its table and furnace

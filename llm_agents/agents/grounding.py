@@ -13,9 +13,15 @@ of the goals' canonical JSON (`reading_options`) instead, read by the same parse
 
 With `--grounding-shots N`, the request first shows N worked examples: instructions of the
 difficulty's training goals, each answered with its goal's canonical JSON, as earlier turns of the
-conversation (`grounding_examples`). Which examples are shown depends only on the text being read,
-never on its answer: the same fixed list for every text, less the goal that text phrases (a train
-instruction is never shown its own goal, in any wording).
+conversation (`grounding_examples`). No text is ever shown its own answer: every text takes the
+same fixed list, less each example whose goal it phrases or whose canonical reading equals the
+text's own (a test paraphrase of a goal that training states in other words, or a train text
+whose goal another training goal repeats), the examples after them taking their places. That
+skip is the only way the answer shapes the request.
+
+The canonical JSON of a reading (`reading_json`) is one per difficulty, as its prompt asks for
+it: EASY's achievements goal without its `kind`, every goal of Medium and Hard with it; the
+worked examples and the `--choice` options are both written in it.
 """
 
 from __future__ import annotations
@@ -65,6 +71,7 @@ _WORDS: dict[str, tuple[str, ...]] = {"side": SIDES, "cross": CROSS_TYPES}
 __all__ = [
     "GROUND_TEMPLATE",
     "GroundingExample",
+    "examples_digest",
     "examples_for",
     "goal_vocabulary",
     "grounding_examples",
@@ -96,6 +103,8 @@ class GroundingExample(BaseModel):
     """The goal's original instruction."""
     answer: str
     """The goal's canonical JSON (`reading_json`), as a right answer would give it."""
+    reading: GoalReading
+    """The goal as a reading: a text whose own reading equals it is not shown this example."""
     texts: frozenset[str]
     """Every phrasing of the goal: a text among them is not shown this example."""
 
@@ -114,14 +123,20 @@ def grounding_examples(goals: Sequence[AnyGoal]) -> tuple[GroundingExample, ...]
     return tuple(
         GroundingExample(
             instruction=goal.instruction,
-            # As the difficulty's prompt asks: only EASY's leaves an achievements goal's kind out.
-            answer=reading_json(reading_of(goal))
-            if goal.difficulty == "easy"
-            else json.dumps(reading_of(goal).model_dump(mode="json")),
+            answer=reading_json(reading_of(goal), goal.difficulty),
+            reading=reading_of(goal),
             texts=frozenset(goal.texts),
         )
         for goal in ordered
     )
+
+
+def examples_digest(examples: Sequence[GroundingExample]) -> str:
+    """SHA-256 of a worked-example list as it is offered (order, instructions, answers and the
+    phrasings each is withheld from): part of the identity of a run that shows examples."""
+    content = [[example.instruction, example.answer, sorted(example.texts)] for example in examples]
+    text = json.dumps(content, ensure_ascii=False, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def training_examples(dataset: Dataset, difficulty: Difficulty) -> tuple[GroundingExample, ...]:
@@ -131,10 +146,13 @@ def training_examples(dataset: Dataset, difficulty: Difficulty) -> tuple[Groundi
 
 
 def examples_for(
-    text: str, examples: Sequence[GroundingExample], shots: int
+    text: str, answer: GoalReading, examples: Sequence[GroundingExample], shots: int
 ) -> tuple[GroundingExample, ...]:
-    """The first `shots` examples whose goal `text` does not phrase."""
-    return tuple(example for example in examples if text not in example.texts)[:shots]
+    """The first `shots` examples that neither phrase `text`'s goal nor read as `answer`, its
+    canonical reading."""
+    return tuple(
+        example for example in examples if text not in example.texts and example.reading != answer
+    )[:shots]
 
 
 def grounding_messages(
@@ -144,11 +162,18 @@ def grounding_messages(
     difficulty: Difficulty = "easy",
     examples: Sequence[GroundingExample] = (),
     shots: int = 0,
+    answer: GoalReading | None = None,
 ) -> list[ChatMessage]:
     """The conversation asking for `instruction`'s goal as JSON, offering `difficulty`'s kinds,
-    after the first `shots` of `examples` that do not phrase its own goal, as earlier turns
-    (each instruction asked as the template asks, answered)."""
-    examples = examples_for(instruction, examples, shots)
+    after the first `shots` of `examples` that neither phrase its goal nor read as `answer` (its
+    goal's reading, needed whenever examples are shown), as earlier turns (each instruction
+    asked as the template asks, answered)."""
+    if shots and examples:
+        if answer is None:
+            raise ValueError("worked examples are chosen knowing the text's goal: pass answer")
+        examples = examples_for(instruction, answer, examples, shots)
+    else:
+        examples = ()
     kinds = DIFFICULTY_KINDS[difficulty]
     context = {
         "achievements": [
@@ -180,19 +205,23 @@ def grounding_messages(
     return [*messages[:split], *turns, *messages[split:]]
 
 
-def reading_json(reading: GoalReading) -> str:
-    """The canonical JSON of a reading, as the prompt asks for it (an achievements goal without
-    its kind, as EASY's prompt shows it)."""
-    if isinstance(reading, AchievementsReading):
+def reading_json(reading: GoalReading, difficulty: Difficulty = "easy") -> str:
+    """The canonical JSON of a reading, as `difficulty`'s prompt asks for it: an achievements
+    goal without its kind on EASY (whose prompt offers no other kind), every goal with its kind
+    on Medium and Hard."""
+    if isinstance(reading, AchievementsReading) and difficulty == "easy":
         return json.dumps(
             {"required": list(reading.required), "forbidden": list(reading.forbidden)}
         )
     return json.dumps(reading.model_dump(mode="json"))
 
 
-def reading_options(readings: Iterable[GoalReading]) -> tuple[str, ...]:
-    """The distinct readings' canonical JSON, in first-seen order: the options of `--choice`."""
-    return tuple(dict.fromkeys(reading_json(reading) for reading in readings))
+def reading_options(
+    readings: Iterable[GoalReading], difficulty: Difficulty = "easy"
+) -> tuple[str, ...]:
+    """The distinct readings' canonical JSON (`difficulty`'s), in first-seen order: the options
+    of `--choice`."""
+    return tuple(dict.fromkeys(reading_json(reading, difficulty) for reading in readings))
 
 
 def _invalid(stage: _Stage, reason: str, raw: str) -> Grounding:

@@ -2,14 +2,16 @@
 
 At the start of each episode the model grounds the instruction once (`ground.j2` offering the
 run's difficulty's goal kinds, parsed by `parse_grounding`, cached per text, so the paraphrase
-played again in another world costs no request); then the expert (`expert.py`) plays the goal as
-the model read it, never the dataset record's: the achievements it read, or on Medium and Hard
-the placing goal with the block, side, distance, size and counts it read. This separates
-understanding from acting: its success is what a model that plays perfectly-scripted moves
-would reach with its own reading of the goals. `grounding_shots` shows the request worked
-examples from the training goals first, as `craftext-llm ground` does. An invalid grounding is
-an episode the agent could not start: its first decision carries the invalid grounding and the
-runner ends it there, unscored as play but counted as a failure.
+played again in another world costs no request, and a text several slots start at once is asked
+by one of them while the others wait on its answer, their prompts `deferred`); then the expert
+(`expert.py`) plays the goal as the model read it, never the dataset record's: the achievements
+it read, or on Medium and Hard the placing goal with the block, side, distance, size and counts
+it read. This separates understanding from acting: its success is what a model that plays
+perfectly-scripted moves would reach with its own reading of the goals. `grounding_shots` shows
+the request worked examples from the training goals first, as `craftext-llm ground` does (the
+episode's goal is read for that alone: no example answered with it is shown). An invalid
+grounding is an episode the agent could not start: its first decision carries the invalid
+grounding and the runner ends it there, unscored as play but counted as a failure.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ from llm_agents.agents.grounding import (
 )
 from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.types import Decision, StepPrompt, messages_hash
-from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
-from llm_agents.run_data.readings import Grounding
+from llm_agents.backends.base import ChatMessage, ModelOutput
+from llm_agents.run_data.readings import Grounding, reading_of
 
 if TYPE_CHECKING:
     from env.goals import AnyGoal, Difficulty
@@ -66,6 +68,11 @@ class GuidedAgent:
         self.fallback_id = self.expert.fallback_id
         self._groundings: dict[str, Grounding] = {}
         self._texts: dict[int, str] = {}
+        self._goals: dict[int, AnyGoal | None] = {}
+        self._asking: dict[str, int] = {}
+        """Text -> the slot whose grounding request for it is out."""
+        self._waiting: set[int] = set()
+        """Slots deferred while another slot's request for their text is out."""
         self._unreported: dict[int, Grounding] = {}
 
     @classmethod
@@ -96,8 +103,10 @@ class GuidedAgent:
     def start_episode(
         self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
-        """Begin an episode; `goal` (the dataset record) is never read: the model's reading is."""
+        """Begin an episode; `goal` (the dataset record) is never played, the model's reading
+        is: it only keeps its own answer out of the worked examples."""
         self._texts[slot] = instruction
+        self._goals[slot] = goal
         self._unreported.pop(slot, None)
         if instruction in self._groundings:
             self._begin(slot, self._groundings[instruction])
@@ -108,7 +117,11 @@ class GuidedAgent:
             self.expert.start_goal(slot, grounding.reading)
 
     def end_episode(self, slot: int) -> None:
-        self._texts.pop(slot, None)
+        text = self._texts.pop(slot, None)
+        self._goals.pop(slot, None)
+        self._waiting.discard(slot)
+        if text is not None and self._asking.get(text) == slot:
+            del self._asking[text]
         self._unreported.pop(slot, None)
         self.expert.end_episode(slot)
 
@@ -116,11 +129,17 @@ class GuidedAgent:
         self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Render the grounding request the run will send (the expert renders nothing)."""
-        self._request(instruction)
+        self._request(instruction, goal)
 
-    def _request(self, text: str) -> list[ChatMessage]:
+    def _request(self, text: str, goal: AnyGoal | None) -> list[ChatMessage]:
         return grounding_messages(
-            text, self.variant, self.templates_dir, self.difficulty, self.examples, self.shots
+            text,
+            self.variant,
+            self.templates_dir,
+            self.difficulty,
+            self.examples,
+            self.shots,
+            answer=None if goal is None else reading_of(goal),
         )
 
     def _text(self, slot: int) -> str:
@@ -129,13 +148,24 @@ class GuidedAgent:
         return self._texts[slot]
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt:
-        """The grounding request while the slot's text is not grounded; then the expert's step,
-        which sends nothing."""
+        """The grounding request while the slot's text is not grounded (deferred while another
+        slot's request for it is out); then the expert's step, which sends nothing."""
         text = self._text(slot)
+        if slot in self._waiting and text in self._groundings:
+            # The answer it waited on arrived: the episode begins as if it had been cached.
+            self._waiting.discard(slot)
+            self._begin(slot, self._groundings[text])
         step = self.expert.prepare(slot, observation)
         if text in self._groundings:
             return step
-        messages = self._request(text)
+        if self._asking.setdefault(text, slot) != slot:
+            self._waiting.add(slot)
+            return StepPrompt(
+                slot=slot, observation=observation, messages=[], text=step.text, deferred=True
+            )
+        # It asks itself now (the slot it waited on failed to get an answer).
+        self._waiting.discard(slot)
+        messages = self._request(text, self._goals.get(slot))
         return StepPrompt(slot=slot, observation=observation, messages=messages, text=step.text)
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
@@ -143,6 +173,8 @@ class GuidedAgent:
         invalid grounding is a decision that the episode cannot start."""
         slot, text = prompt.slot, self._text(prompt.slot)
         if prompt.messages:
+            if self._asking.get(text) == slot:
+                del self._asking[text]
             if output.finish_reason == "error":
                 # The backend failed, not the model: nothing is cached, the runner aborts it.
                 return self._fallback(prompt, output)
@@ -182,18 +214,3 @@ class GuidedAgent:
             fallback_used=grounding is None,
             grounding=grounding,
         )
-
-    def act(
-        self, model: ModelAPI, slots: Sequence[int], observations: Sequence[Any]
-    ) -> list[Decision]:
-        """Decide for many slots: one call for the grounding requests among them."""
-        prompts = [self.prepare(s, o) for s, o in zip(slots, observations, strict=True)]
-        asking = [prompt for prompt in prompts if prompt.messages]
-        answers = dict(
-            zip(
-                (id(p) for p in asking),
-                model.generate([p.messages for p in asking]) if asking else [],
-                strict=True,
-            )
-        )
-        return [self.decide(p, answers.get(id(p), ModelOutput(text=""))) for p in prompts]

@@ -10,7 +10,7 @@ from typing import Protocol
 
 from env.goals import Difficulty
 from env.variant import Variant
-from llm_agents.backends.base import ChoiceRule
+from llm_agents.backends.base import ChoiceRule, ChoiceScoring
 
 AGENTS: dict[str, str] = {
     "zero-shot": "llm_agents.agents.zero_shot:ZeroShotAgent",
@@ -18,6 +18,7 @@ AGENTS: dict[str, str] = {
     "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
     "expert": "llm_agents.agents.expert:ExpertAgent",
     "guided": "llm_agents.agents.guided:GuidedAgent",
+    "noop": "llm_agents.agents.noop:NoopAgent",
 }
 
 
@@ -36,9 +37,13 @@ class AgentSettings(Protocol):
     @property
     def choice(self) -> ChoiceRule | None: ...
     @property
+    def choice_scoring(self) -> ChoiceScoring: ...
+    @property
     def fallback_action(self) -> str: ...
     @property
     def history_length(self) -> int: ...
+    @property
+    def report_invalid_answers(self) -> bool: ...
     @property
     def templates_dir(self) -> str | None: ...
     @property

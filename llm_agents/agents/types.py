@@ -26,6 +26,9 @@ class StepPrompt:
     messages: list[ChatMessage]
     text: str
     """The rendered observation."""
+    deferred: bool = False
+    """The slot waits on another slot's request (the same question, asked once): it is sent
+    nowhere, and the play loop prepares it again once that answer has been decided."""
 
 
 class Decision(BaseModel):

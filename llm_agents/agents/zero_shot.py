@@ -22,7 +22,7 @@ from env.variant import Variant, as_variant
 from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
 from llm_agents.agents.parser import parse_action
 from llm_agents.agents.types import Decision, StepPrompt, messages_hash
-from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOutput
+from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
 from prompts import render_template
 
 if TYPE_CHECKING:
@@ -150,12 +150,19 @@ class ZeroShotAgent:
         history_length: int = 5,
         fallback_action: str = "NOOP",
         choice_rule: ChoiceRule | None = None,
+        choice_scoring: ChoiceScoring = "sum",
+        report_invalid: bool = False,
     ):
         """`renderer`: a textualizer style name or a function observation -> text.
 
         `choice_rule` passes the action names as choices to the model, picked by that rule
-        (`loglik` or `guided`); None lets the model write free text.
+        (`loglik` or `guided`); None lets the model write free text. `choice_scoring`: how
+        `loglik` scores an option (`llm_agents.backends.base.choice_score`). `report_invalid`
+        tells the model, in the next step's history, that an answer named no valid action and the
+        fallback was played in its place (BALROG's harness does; by default the history shows the
+        fallback action alone).
         """
+        self.report_invalid = report_invalid
         self.variant = as_variant(variant)
         if history_length < 0:
             raise UserError(f"history_length must be >= 0, got {history_length}")
@@ -168,7 +175,9 @@ class ZeroShotAgent:
             _textualizer_renderer(renderer) if isinstance(renderer, str) else renderer
         )
         self.choices = (
-            ChoiceSet(options=tuple(action_names(self.variant)), rule=choice_rule)
+            ChoiceSet(
+                options=tuple(action_names(self.variant)), rule=choice_rule, scoring=choice_scoring
+            )
             if choice_rule is not None
             else None
         )
@@ -188,6 +197,8 @@ class ZeroShotAgent:
             history_length=config.history_length,
             fallback_action=config.fallback_action,
             choice_rule=config.choice,
+            choice_scoring=config.choice_scoring,
+            report_invalid=config.report_invalid_answers,
             **cls.strategy_settings(config),
         )
 
@@ -308,7 +319,8 @@ class ZeroShotAgent:
         action = self.fallback_id if parsed.action is None else parsed.action
         name = self.fallback_name if parsed.name is None else parsed.name
         episode = self._episodes[slot]
-        episode.pending = (name, observation)
+        shown = f"{name} (your answer named no valid action; {name} was played)"
+        episode.pending = (shown if fallback and self.report_invalid else name, observation)
         episode.step += 1
         return Decision(
             slot=slot,

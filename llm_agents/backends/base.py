@@ -11,10 +11,11 @@ import abc
 import difflib
 import inspect
 import logging
-from collections.abc import Sequence, Sized
+from collections.abc import Callable, Sequence, Sized
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Self
+from typing import Annotated, Any, ClassVar, Literal, NamedTuple, Self
 
+from jinja2 import TemplateError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from env.errors import UserError
@@ -30,6 +31,11 @@ FinishReason = Literal["stop", "length", "choice", "error"]
 #: log-likelihood after the prompt; `guided` decodes greedily, constrained to the options.
 #: The two can pick different options from the same prompt, so runs compare only under one rule.
 ChoiceRule = Literal["loglik", "guided"]
+#: How `loglik` turns an option's log-probabilities into its score (`choice_score`).
+ChoiceScoring = Literal["sum", "mean", "bytes", "pmi"]
+#: The user message of PMI's content-free prompt (Zhao et al. 2021's "N/A"): the options'
+#: prior under the conversation's system message alone.
+CONTENT_FREE_TEXT = "N/A"
 
 
 class ChatMessage(BaseModel):
@@ -55,6 +61,104 @@ class ChoiceSet(BaseModel):
     """The candidate answers, e.g. the action names."""
     rule: ChoiceRule
     """`loglik`: the option with the highest log-likelihood; `guided`: constrained greedy decoding."""
+    scoring: ChoiceScoring = "sum"
+    """`loglik` only: how an option's log-probabilities make its score (`choice_score`)."""
+
+
+class OptionLoglik(NamedTuple):
+    """One option's log-probabilities after one prompt, what every `loglik` rule is made of."""
+
+    option: float
+    """Summed log-probability of the option's own tokens."""
+    end: float
+    """Log-probability of the end-of-turn token after the option: that the answer stops there."""
+
+
+def choice_score(
+    scoring: ChoiceScoring,
+    option: str,
+    tokens: int,
+    score: OptionLoglik,
+    content_free: OptionLoglik | None = None,
+) -> float:
+    """An option's score under a `loglik` rule.
+
+    `sum`: its tokens' summed log-probability, without the end of turn (the rule before the
+    others existed, kept so older runs resume as they played: it favours the shortest name, and
+    a name that is a token prefix of another never scores lower). The others count the end of
+    turn, so a prefix pays for stopping early: `mean` per token (the option's `tokens` and the
+    end), `bytes` per UTF-8 byte of the option (lm-evaluation-harness's `acc_norm`), `pmi` minus
+    the same after the content-free prompt (`content_free`: the option's prior).
+    """
+    whole = score.option + score.end
+    if scoring == "sum":
+        return score.option
+    if scoring == "mean":
+        return whole / (tokens + 1)
+    if scoring == "bytes":
+        return whole / len(option.encode())
+    if content_free is None:
+        raise ValueError("pmi needs the options' scores after the content-free prompt")
+    return whole - (content_free.option + content_free.end)
+
+
+def content_free_conversation(conversation: Conversation) -> list[ChatMessage]:
+    """PMI's content-free prompt for `conversation`: its system messages, then a user message
+    that says nothing (`CONTENT_FREE_TEXT`). An agent's system message is the same at every
+    step, so a run asks for one such prompt's scores (`ContentFreeScores` keeps them)."""
+    system = [message for message in conversation if message.role == "system"]
+    return [*system, ChatMessage(role="user", content=CONTENT_FREE_TEXT)]
+
+
+#: An answer no chat template changes, rendered to find what closes an assistant turn.
+_ANSWER_MARK = "ANSWER_MARK"
+
+
+def end_of_turn_id(tokenizer: Any) -> int:
+    """The token that closes an assistant turn under a transformers `tokenizer`'s chat template
+    (`<|im_end|>` for Qwen and SmolLM2): what follows an answer in a rendered conversation, if
+    that is a special token, else the tokenizer's end-of-sequence token. `loglik` scores it
+    after each option: that the answer ends there."""
+    try:
+        text = str(
+            tokenizer.apply_chat_template(
+                [{"role": "user", "content": "?"}, {"role": "assistant", "content": _ANSWER_MARK}],
+                tokenize=False,
+            )
+        )
+    except (TemplateError, ValueError):
+        # A template that refuses this conversation: the eos token below.
+        text = ""
+    after = text.partition(_ANSWER_MARK)[2]
+    ids = list(tokenizer(after, add_special_tokens=False).input_ids) if after else []
+    if ids and ids[0] in set(tokenizer.all_special_ids):
+        return int(ids[0])
+    if tokenizer.eos_token_id is None:
+        raise UserError("the model's tokenizer has no end-of-turn token for loglik choices")
+    return int(tokenizer.eos_token_id)
+
+
+class ContentFreeScores:
+    """The options' scores after content-free prompts, computed once per distinct prompt and
+    option list and kept for the backend's life (a run)."""
+
+    def __init__(self) -> None:
+        self._kept: dict[tuple[tuple[int, ...], tuple[str, ...]], list[OptionLoglik]] = {}
+
+    def rows(
+        self,
+        prompts: Sequence[Sequence[int]],
+        options: Sequence[str],
+        score: Callable[[list[list[int]]], list[list[OptionLoglik]]],
+    ) -> list[list[OptionLoglik]]:
+        """Each content-free prompt's (token ids) row of option scores; `score` computes the
+        rows of prompts not seen before, all in one call."""
+        keys = [(tuple(prompt), tuple(options)) for prompt in prompts]
+        missing = list(dict.fromkeys(key for key in keys if key not in self._kept))
+        if missing:
+            rows = score([list(prompt) for prompt, _ in missing])
+            self._kept.update(zip(missing, rows, strict=True))
+        return [self._kept[key] for key in keys]
 
 
 class _ChangesResults:
@@ -162,16 +266,49 @@ class ModelOutput(BaseModel):
         return line if len(line) <= ERROR_CHARS else line[:ERROR_CHARS] + "..."
 
 
+def scored_choices(
+    choices: ChoiceSet,
+    candidates: Sequence[Sized],
+    scores: Sequence[Sequence[OptionLoglik]],
+    content_free: Sequence[Sequence[OptionLoglik]] | None = None,
+) -> list[list[float]]:
+    """Each prompt's row of option scores under `choices.scoring` (`choice_score`); the one
+    place a backend's log-probabilities become scores, so every backend ranks alike.
+    `candidates`: each option's tokens; `content_free`: each prompt's row after its content-free
+    prompt (`pmi` only)."""
+    priors = content_free if content_free is not None else [None] * len(scores)
+    return [
+        [
+            choice_score(
+                choices.scoring,
+                option,
+                len(ids),
+                score,
+                prior[index] if prior is not None else None,
+            )
+            for index, (option, ids, score) in enumerate(
+                zip(choices.options, candidates, row, strict=True)
+            )
+        ]
+        for row, prior in zip(scores, priors, strict=True)
+    ]
+
+
 def ranked_choices(
-    options: Sequence[str],
+    choices: ChoiceSet,
     prompts: Sequence[Sized],
     candidates: Sequence[Sized],
-    scores: Sequence[Sequence[float]],
+    scores: Sequence[Sequence[OptionLoglik]],
     latency_s: float,
+    content_free: Sequence[Sequence[OptionLoglik]] | None = None,
 ) -> list[ModelOutput]:
-    """One `choice` output per prompt: the option whose score in that prompt's row is highest."""
+    """One `choice` output per prompt: the option that scores highest in that prompt's row
+    under `choices.scoring` (`scored_choices`)."""
+    options = choices.options
     outputs = []
-    for prompt, row in zip(prompts, scores, strict=True):
+    for prompt, row in zip(
+        prompts, scored_choices(choices, candidates, scores, content_free), strict=True
+    ):
         best = max(range(len(options)), key=row.__getitem__)
         outputs.append(
             ModelOutput(

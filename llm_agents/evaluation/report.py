@@ -14,8 +14,10 @@ success_rule=...)`).
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Collection, Sequence
+import statistics
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,30 +36,53 @@ from env.goals import (
     category_split,
 )
 from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.evaluation.goal_flags import (
+    DEFAULT_WORLDS,
+    EXPERT_PLAYED,
+    GoalStatus,
+    run_goal_status,
+)
 from llm_agents.evaluation.protocol import protocol_for
-from llm_agents.run_data.metrics import SuccessRate, Summary, summarize
+from llm_agents.run_data.metrics import (
+    DOMINANT_SHARE,
+    SuccessRate,
+    Summary,
+    action_counts,
+    action_histogram,
+    summarize,
+)
+from llm_agents.run_data.provenance import code_note
 from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.scores import RunScores, Scores, achievement_list_of, score_run
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
+    STEPS_FILE,
     RunResults,
     read_episodes,
     read_results,
+    read_steps,
 )
 
 __all__ = [
     "PUBLISHED",
     "ComparedRun",
+    "GoalStatusTables",
     "PublishedResult",
     "compare_runs",
+    "compare_scores",
     "compared_run",
     "comparison_columns",
     "comparison_notes",
+    "format_scores",
     "format_table",
+    "goal_status_tables",
+    "goal_status_text",
     "paper_differences",
     "plot_success",
     "report_run",
     "rescore",
+    "run_scores",
 ]
 
 CHART_FILE = "success.png"
@@ -168,7 +193,46 @@ def our_rate(summary: Summary, column: str) -> SuccessRate | None:
 def our_cell(rate: SuccessRate | None, absent: bool = False) -> str:
     if rate is None:
         return NOT_IN_DATASET if absent else "-"
-    return f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}] n={rate.episodes}"
+    return rate.cell()
+
+
+def episode_actions_line(actions: Mapping[str, Mapping[str, int]] | None) -> list[str]:
+    """Per episode: how far the commonest action dominates (median and most), and in how many
+    episodes one action takes more than `DOMINANT_SHARE` of the steps."""
+    histograms = [action_histogram(counts) for counts in (actions or {}).values()]
+    shares = sorted(h.commonest_share for h in histograms if h.steps)
+    if not shares:
+        return []
+    dominated = sum(share > DOMINANT_SHARE for share in shares)
+    return [
+        f"Per episode, the commonest action's share: median {statistics.median(shares):.2f}, "
+        f"highest {shares[-1]:.2f}; one action over {DOMINANT_SHARE:.0%} of the steps in "
+        f"{dominated} of {len(shares)} episodes."
+    ]
+
+
+def rates_legend(summary: Summary) -> str:
+    """What the table's cells are: rate [interval] n=episodes (g=goals when clustered)."""
+    return f"Success rate [{summary.overall.label}] n=episodes."
+
+
+def action_lines(summary: Summary, top: int = 5) -> list[str]:
+    """The run's commonest actions, and a warning when one takes most of its steps."""
+    actions = summary.actions
+    if actions is None:
+        return ["Actions: not recorded (no step log)."]
+    if not actions.steps:
+        return ["Actions: no steps."]
+    shares = ", ".join(
+        f"{name} {count / actions.steps:.2f}" for name, count in list(actions.counts.items())[:top]
+    )
+    lines = [f"Actions ({actions.steps} steps, share of each, commonest first): {shares}."]
+    if actions.dominated:
+        lines.append(
+            f"WARNING: one action ({actions.commonest}) takes {actions.commonest_share:.0%} of "
+            f"this run's steps (more than {DOMINANT_SHARE:.0%}): the agent barely chooses."
+        )
+    return lines
 
 
 def published_cell(result: PublishedResult, column: str) -> str:
@@ -198,7 +262,8 @@ def format_table(
     notes: Sequence[str] = (),
     difficulty: Difficulty = "easy",
 ) -> str:
-    """Our success rates (95% Wilson interval, episodes) beside the published ones, as text;
+    """Our success rates (95% interval, clustered by goal, episodes) beside the published ones,
+    as text;
     for Medium and Hard, then per scenario class and goal set.
 
     With `differences` (how the run departs from the paper's protocol) the published numbers
@@ -240,13 +305,14 @@ def format_table(
     )
     unstarted = f", not started {ends['not_started']}" if "not_started" in ends else ""
     footer = [
-        f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
+        f"{rates_legend(summary)} Published: {PUBLISHED_KIND[difficulty]}.",
         f"Episodes: {summary.overall.episodes} (success {ends['success']}, "
         f"death {ends['death']}, timeout {ends['timeout']}{unstarted}).",
         *understanding_lines(summary),
         f"Invalid-action rate: {summary.invalid_action_rate:.3f}. Steps to success: {steps}.",
         f"Tokens per step: {summary.prompt_tokens_per_step:.0f} prompt, "
         f"{summary.completion_tokens_per_step:.0f} completion.",
+        *action_lines(summary),
         *notes,
     ]
     return "\n".join([*table, "", *footer])
@@ -263,9 +329,99 @@ def understanding_lines(summary: Summary) -> list[str]:
 
     return [
         f"Understanding: goal read exactly right in {our_cell(read.grounded)} "
-        f"(could not start: {read.not_started}). Success when read right: "
+        f"{'texts' if read.grounded.clusters is not None else 'episodes'} "
+        f"(could not start: {read.not_started} episodes). Success when read right: "
         f"{rate(read.success_when_right)}; read wrong: {rate(read.success_when_wrong)}.",
     ]
+
+
+@dataclass(frozen=True)
+class GoalStatusTables:
+    """A run's tables with and without the goals a do-nothing agent meets or no agent (or not
+    the expert its moves are) can meet, the do-nothing agent's row, and the goals left out."""
+
+    heading: str
+    tables: list[tuple[str, list[list[str]]]]
+    """(title, rows: a header, then rows of cells), in order."""
+    left_out: list[str]
+    """One line per goal left out, with why."""
+
+
+def goal_status_tables(
+    summary: Summary,
+    episodes: Sequence[EpisodeRecord],
+    status: GoalStatus,
+    *,
+    agent: str,
+    difficulty: Difficulty,
+) -> GoalStatusTables:
+    """The run (`episodes`, scored as `summary`) with and without its flagged goals, beside the
+    do-nothing agent on the same goals."""
+    expert = agent in EXPERT_PLAYED
+    kept = status.kept(episodes, expert)
+    names = {f"{e.category}/{e.goal_id}" for e in episodes}
+    played = [flags for key, flags in status.goals.items() if key in names]
+    flagged = {flags.key: flags for flags in played if flags.left_out(expert)}
+    without = summarize(kept) if kept else None
+    columns = table_columns(summary, difficulty)
+
+    def nothing(column: str, scenario: str | None = None) -> SuccessRate | None:
+        return status.do_nothing_rate(
+            [
+                f
+                for f in played
+                if column in ("overall", f.category)
+                and (scenario is None or f.scenario_class == scenario)
+            ]
+        )
+
+    label_without = f"this run, without the {len(flagged)} goals below"
+    label_nothing = f"do nothing (NOOP only, {status.worlds} worlds per goal)"
+    header = ["Model", *(CATEGORY_LABELS[c] for c in columns)]
+    main = [
+        header,
+        ["this run, every goal", *(our_cell(our_rate(summary, c)) for c in columns)],
+        [
+            label_without,
+            *(our_cell(our_rate(without, c) if without else None) for c in columns),
+        ],
+        [label_nothing, *(our_cell(nothing(c)) for c in columns)],
+    ]
+    tables = [("", main)]
+    if difficulty != "easy":
+        tables.append(("By scenario class, every goal:", scenario_rows(summary, difficulty)))
+        if without is not None:
+            tables.append(
+                (f"By scenario class, {label_without}:", scenario_rows(without, difficulty))
+            )
+        categories = DIFFICULTY_CATEGORIES[difficulty]
+        rows = [["Scenario", *(CATEGORY_LABELS[c] for c in categories)]]
+        for scenario in SCENARIO_ROWS:
+            if any(f.scenario_class == scenario for f in played):
+                rows.append([scenario, *(our_cell(nothing(c, scenario)) for c in categories)])
+        tables.append((f"By scenario class, {label_nothing}:", rows))
+    left_out = [
+        f"{flags.key}: {flags.left_out(expert)}"
+        + (f" ({flags.do_nothing}/{status.worlds} worlds)" if flags.trivial else "")
+        for flags in sorted(flagged.values(), key=lambda f: (f.left_out(expert) or "", f.key))
+    ]
+    heading = (
+        f"Trivial and impossible goals ({len(flagged)} of {len(played)} played; do nothing: "
+        f"NOOP only, {status.worlds} seeded worlds per goal, seed {status.seed}, "
+        f"{status.max_steps} steps, {status.success_rule} rule; impossible: from the goal and "
+        f"{status.variant} Craftax's tables"
+        + ("; the scripted expert's reach too, as this run's moves are its" if expert else "")
+        + "):"
+    )
+    return GoalStatusTables(heading=heading, tables=tables, left_out=left_out)
+
+
+def goal_status_text(tables: GoalStatusTables) -> str:
+    lines = [tables.heading]
+    for title, rows in tables.tables:
+        lines += ["", *([title] if title else []), *_render(rows)]
+    lines += ["", f"Left out ({len(tables.left_out)}):", *(f"  {line}" for line in tables.left_out)]
+    return "\n".join(lines)
 
 
 def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:
@@ -301,15 +457,40 @@ def recorded_rule(results: RunResults) -> SuccessRule:
 
 
 def run_summary(
-    results: RunResults, episodes: Sequence[EpisodeRecord], rule: SuccessRule
+    results: RunResults,
+    episodes: Sequence[EpisodeRecord],
+    rule: SuccessRule,
+    actions: Mapping[str, Mapping[str, int]] | None = None,
 ) -> Summary:
     """The metrics of a run's finished `episodes` under `rule`: the summary the runner stored
     with them when it covers exactly these under the rule they were played by, else (a re-score,
-    or episodes written after the runner's last save) computed from the episodes."""
+    episodes written after the runner's last save, or a summary written before clustered
+    intervals and action histograms) computed from the episodes and `actions` (episode id ->
+    action -> steps)."""
     stored = results.summary
-    if stored is not None and rule == recorded_rule(results) and results.finished == len(episodes):
+    if (
+        stored is not None
+        and rule == recorded_rule(results)
+        and results.finished == len(episodes)
+        and stored.overall.clusters is not None
+        and (stored.actions is not None or actions is None)
+    ):
         return stored
-    return summarize(rescore(episodes, rule))
+    return summarize(rescore(episodes, rule), actions)
+
+
+def run_actions(
+    run_dir: Path, results: RunResults, episodes: Sequence[EpisodeRecord]
+) -> dict[str, dict[str, int]] | None:
+    """Episode id -> action -> steps of `episodes`: from `results.json` when it holds every
+    one, else from the step log; None without one."""
+    if all(e.episode_id in results.actions for e in episodes):
+        return {e.episode_id: results.actions[e.episode_id].counts for e in episodes}
+    path = run_dir / STEPS_FILE
+    if not path.is_file():
+        return None
+    counts = action_counts(read_steps(path, {e.episode_id for e in episodes}))
+    return {episode_id: dict(actions) for episode_id, actions in counts.items()}
 
 
 def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
@@ -430,10 +611,11 @@ def plot_success(
     # Bars with no height (nothing published) do not count for autoscaling.
     axes.set_xlim(-0.5, len(categories) - 0.5)
     axes.set_ylabel("success rate")
+    interval = "interval clustered by goal" if summary.overall.clusters else "Wilson interval"
     axes.set_title(
-        f"CrafText {difficulty} success (ours: 95% Wilson interval)"
+        f"CrafText {difficulty} success (ours: 95% {interval})"
         if with_published or not published_rows
-        else f"CrafText {difficulty} success (ours: 95% Wilson interval; published: not comparable)"
+        else f"CrafText {difficulty} success (ours: 95% {interval}; published: not comparable)"
     )
     tallest = max(
         [rate.high for rate in ours if rate is not None]
@@ -498,9 +680,17 @@ def success_rule_note(
     )
 
 
-def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) -> str:
+def report_run(
+    run_dir: str | Path,
+    *,
+    success_rule: SuccessRule | None = None,
+    goal_status: bool = False,
+    worlds: int = DEFAULT_WORLDS,
+) -> str:
     """Rebuild the table (returned) and `success.png` of a run directory, finished or not,
-    scored under `success_rule` (None: the rule the run was played under)."""
+    scored under `success_rule` (None: the rule the run was played under); with `goal_status`,
+    then the tables without the goals a do-nothing agent meets (in `worlds` seeded worlds
+    each, played once and cached) or that cannot be met, and the do-nothing row."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise UserError(f"run directory {run_dir} does not exist")
@@ -516,7 +706,12 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
     played = recorded_rule(results)
     rule = success_rule or played
     notes = [success_rule_note(episodes, rule, played)]
-    summary = run_summary(results, episodes, rule)
+    mixed = code_note(episode.code for episode in episodes)
+    if mixed:
+        notes.append(mixed)
+    actions = run_actions(run_dir, results, episodes)
+    summary = run_summary(results, episodes, rule, actions)
+    notes += episode_actions_line(actions)
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)
     difficulty = difficulty_of_run(results)
@@ -536,7 +731,21 @@ def report_run(run_dir: str | Path, *, success_rule: SuccessRule | None = None) 
         notes=notes,
         difficulty=difficulty,
     )
-    return f"{table}\n{run_status(results)}"
+    achievement_scores = run_scores(results, episodes)
+    scores = format_scores(achievement_scores)
+    if results.config.get("task") == "open_ended":
+        scores += "\n\n" + balrog_rows(achievement_scores.overall, results)
+    if not goal_status:
+        return f"{table}\n{run_status(results)}\n\n{scores}"
+    status = run_goal_status(results.config, episodes, rule=rule, worlds=worlds)
+    flagged = goal_status_tables(
+        summary,
+        rescore(episodes, rule),
+        status,
+        agent=str(results.config.get("agent", "zero-shot")),
+        difficulty=difficulty,
+    )
+    return f"{table}\n{run_status(results)}\n\n{scores}\n\n{goal_status_text(flagged)}"
 
 
 @dataclass(frozen=True)
@@ -565,7 +774,9 @@ def compared_run(run_dir: str | Path) -> ComparedRun:
     name = model_name_of(results)
     label = name if agent == "expert" else f"{name} ({agent})"
     partial = results.status != "complete"
-    summary = run_summary(results, episodes, recorded_rule(results))
+    summary = run_summary(
+        results, episodes, recorded_rule(results), run_actions(run_dir, results, episodes)
+    )
     return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results)
 
 
@@ -582,14 +793,39 @@ def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
     return [*columns, "overall"]
 
 
+#: Settings that change a run's numbers without changing what it plays, named as a comparison
+#: names them when runs differ in them (a setting a run predates reads as unset).
+_COMPARED_SETTINGS = {
+    "choice": "choice",
+    "choice_scoring": "choice scoring",
+    "variant": "variant",
+    "protocol": "protocol",
+}
+
+
 def comparison_notes(runs: Sequence[ComparedRun]) -> list[str]:
-    """What a reader of the comparison must know: the runs read different datasets or played
-    different difficulties."""
+    """What a reader of the comparison must know: the runs read different datasets, played
+    different difficulties, or differ in a setting that changes the numbers (choice, choice
+    scoring, success rule, variant, protocol)."""
     notes = []
     if len({run.results.dataset.get("sha256") for run in runs}) > 1:
         notes.append("Note: the compared runs read different datasets (or one is unknown).")
     if len({difficulty_of_run(run.results) for run in runs}) > 1:
         notes.append("Note: the compared runs played different difficulties.")
+    values = {
+        label: [run.results.config.get(key) for run in runs]
+        for key, label in _COMPARED_SETTINGS.items()
+    }
+    values["success rule"] = [recorded_rule(run.results) for run in runs]
+    differing = [
+        f"{label} ({', '.join('unset' if value is None else str(value) for value in seen)})"
+        for label, seen in values.items()
+        if len({json.dumps(value, sort_keys=True) for value in seen}) > 1
+    ]
+    if differing:
+        notes.append(
+            f"Note: the compared runs differ in {'; '.join(differing)} (in the rows' order)."
+        )
     return notes
 
 
@@ -607,6 +843,138 @@ def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
     ]
     notes = [
         "",
-        f"Success rate [95% Wilson interval] n=episodes. Published: {PUBLISHED_KIND[difficulty]}.",
+        f"{rates_legend(runs[0].summary)} Published: {PUBLISHED_KIND[difficulty]}.",
+        *(
+            f"{run.label}: {line}"
+            for run in runs
+            for line in action_lines(run.summary)
+            if line.startswith("WARNING")
+        ),
     ]
-    return "\n".join(_render(rows) + notes + comparison_notes(runs))
+    lines = _render(rows) + notes + comparison_notes(runs)
+    scores = compare_scores([run_dir, *others], [run.label for run in runs])
+    return "\n".join([*lines, "", scores])
+
+
+# ------------------------------------------------------------------------------ field scores
+
+#: Runs with at most this many episodes list each episode's scores in the text report (more
+#: would drown the table; results.json and `view` hold every episode's).
+EPISODE_ROWS_MAX = 20
+
+
+def run_scores(results: RunResults, episodes: Sequence[EpisodeRecord]) -> RunScores:
+    """The field's achievement scores of a run's finished episodes, from their records (no
+    replay), over its variant's achievement list; the success rule does not touch them."""
+    return score_run(episodes, achievement_list_of(results.config.get("variant")))
+
+
+def scores_cells(scores: Scores) -> list[str]:
+    """Progression ± standard error, Crafter score, craftaxlm score, episodes."""
+    return [
+        f"{scores.progression:.1f} ± {scores.progression_stderr:.1f}",
+        f"{scores.crafter_score:.2f}",
+        f"{scores.craftaxlm_score:.2f}",
+        str(scores.episodes),
+    ]
+
+
+SCORES_HEADER = ["Progression % ± SE", "Crafter score", "craftaxlm", "n"]
+
+
+def format_scores(scores: RunScores) -> str:
+    """The achievement scores section of the report: overall and per category, the unlock
+    table (achievements some episode unlocked), and each episode's for a short run."""
+    overall = scores.overall
+    groups = (
+        {"overall": overall, **scores.by_category}
+        if len(scores.by_category) > 1
+        else {"overall": overall}
+    )
+    rows = [["Episodes", *SCORES_HEADER]]
+    rows += [[CATEGORY_LABELS.get(k, k), *scores_cells(v)] for k, v in groups.items()]
+    unlocked = [name for name, rate in overall.unlock_percent.items() if rate > 0]
+    unlock_rows = [["Achievement", *(CATEGORY_LABELS.get(k, k) for k in groups)]]
+    unlock_rows += [
+        [name.lower(), *(f"{group.unlock_percent[name]:.0f}%" for group in groups.values())]
+        for name in unlocked
+    ]
+    never = len(overall.unlock_percent) - len(unlocked)
+    lines = [
+        f"Achievement scores, over {overall.label} (BALROG progression, mean ± standard error "
+        "as BALROG computes it; Crafter score; craftaxlm score):",
+        *_render(rows),
+        "",
+        f"Unlocked in % of episodes (never unlocked, not listed: {never} of "
+        f"{len(overall.unlock_percent)}):",
+        *(_render(unlock_rows) if unlocked else ["  none"]),
+    ]
+    if len(scores.by_episode) <= EPISODE_ROWS_MAX:
+        episode_rows = [["Episode", "Unlocked", "Progression %", "Crafter score", "craftaxlm"]]
+        episode_rows += [
+            [
+                episode_id,
+                str(e.unlocked),
+                f"{e.progression:.1f}",
+                f"{e.crafter_score:.2f}",
+                f"{e.craftaxlm_score:.2f}",
+            ]
+            for episode_id, e in scores.by_episode.items()
+        ]
+        lines += ["", "Per episode:", *_render(episode_rows)]
+    else:
+        lines.append("Per episode: results.json `scores.by_episode` and `view`.")
+    return "\n".join(lines)
+
+
+def compare_scores(run_dirs: Sequence[str | Path], labels: Sequence[str]) -> str:
+    """The achievement scores of compared runs, a row each (`report --compare`)."""
+    rows = [["Run", "Achievements", *SCORES_HEADER]]
+    for run_dir, label in zip(run_dirs, labels, strict=True):
+        results = read_results(Path(run_dir) / RESULTS_FILE)
+        overall = run_scores(results, scheduled_episodes(Path(run_dir), results)).overall
+        rows.append([label, overall.achievement_list, *scores_cells(overall)])
+    return "\n".join(
+        ["Achievement scores (classic: Crafter's 22; full: Craftax's 67):", *_render(rows)]
+    )
+
+
+#: BALROG's Crafter leaderboard (LLM track; balrog-ai/experiments at 989931c), progression %
+#: and its standard error over 10 episodes of up to 2,000 steps: its best rows and its
+#: smallest models'.
+BALROG_PUBLISHED: tuple[tuple[str, float, float], ...] = (
+    ("Grok-4", 57.3, 3.9),
+    ("Gemini-2.5-Pro", 55.0, 6.0),
+    ("GPT-4o", 33.1, 2.3),
+    ("Qwen2.5-7B-it", 16.4, 3.0),
+    ("Llama-3.2-1B-it", 12.7, 1.9),
+)
+
+
+def balrog_rows(overall: Scores, results: RunResults) -> str:
+    """An open-ended run's progression beside BALROG's published Crafter rows, with what keeps
+    them from being strictly comparable (the game, and any balrog setting overridden)."""
+    rows = [["Model", "Progression % ± SE", "episodes"]]
+    rows.append(
+        [
+            f"{model_name_of(results)} (this run)",
+            f"{overall.progression:.1f} ± {overall.progression_stderr:.1f}",
+            str(overall.episodes),
+        ]
+    )
+    rows += [
+        [f"{name} (BALROG, published)", f"{p:.1f} ± {e:.1f}", "10"]
+        for name, p, e in BALROG_PUBLISHED
+    ]
+    overrides = results.config.get("protocol_overrides") or []
+    caveats = ["Craftax-Classic, not Crafter itself"]
+    if results.config.get("protocol") != "balrog":
+        caveats.append(f"played under --protocol {results.config.get('protocol')}")
+    if overrides:
+        caveats.append(f"balrog settings overridden: {', '.join(overrides)}")
+    return "\n".join(
+        [
+            f"BALROG's Crafter leaderboard (LLM track) beside this run ({'; '.join(caveats)}):",
+            *_render(rows),
+        ]
+    )

@@ -35,16 +35,24 @@ from typing import Any
 from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import run_category
+from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
+from llm_agents.agents.grounding import examples_digest, training_examples
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
 from llm_agents.evaluation.play import play_episodes
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode, build_schedule
-from llm_agents.evaluation.sink import RunSink, drop_unfinished_steps, finished_episodes
+from llm_agents.evaluation.sink import (
+    RunSink,
+    drop_unfinished_steps,
+    finished_episodes,
+    recorded_actions,
+)
 from llm_agents.run_data.metrics import Summary
+from llm_agents.run_data.provenance import code_version, note_other_code
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -55,6 +63,7 @@ from llm_agents.run_data.store import (
     file_sha256,
     make_output_dir,
     read_results,
+    split_digests,
 )
 
 logger = logging.getLogger(__name__)
@@ -102,6 +111,7 @@ def versions(model: ModelAPI) -> dict[str, str]:
             found[package] = importlib.metadata.version(package)
         except importlib.metadata.PackageNotFoundError:
             found[package] = "not installed"
+    found["code"] = code_version()
     found.update({f"model.{key}": value for key, value in model.info().items()})
     return found
 
@@ -126,7 +136,8 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     """
     out = Path(config.output_dir)
     check_output_dir(out)
-    dataset = load_dataset(config.dataset)
+    # The open-ended task reads no dataset: its one goal is our own.
+    dataset = open_ended_dataset() if config.task == "open_ended" else load_dataset(config.dataset)
     instructions = dataset.instructions(
         config.categories, include_paraphrases=config.paraphrases, difficulty=config.difficulty
     )
@@ -160,6 +171,10 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
         templates=_template_hashes(agent, config.templates_dir),
         plans=file_sha256(Path(config.plans), "plans file") if config.plans else None,
         dataset=dataset.source.sha256,
+        goals=split_digests(dataset, config.categories, config.difficulty),
+        examples=examples_digest(training_examples(dataset, config.difficulty))
+        if config.grounding_shots
+        else None,
     )
     return PreparedRun(
         config=config,
@@ -191,13 +206,16 @@ def _previous_run(out: Path, identity: RunIdentity) -> RunResults | None:
         return None
     previous = read_results(results_path)
     changed = identity.differences(
-        previous.identity, added=EvalConfig.model_construct().result_settings()
+        previous.identity,
+        added=EvalConfig.predated(previous.identity.settings),
+        recorded_goals=previous.dataset.get("split_sha256"),
     )
     if changed:
         raise UserError(
             f"{out} holds a run with other settings: {'; '.join(changed)}; "
             "use another --output-dir, or delete that directory to start over"
         )
+    note_other_code(out, previous.versions)
     return previous
 
 
@@ -339,6 +357,7 @@ def run_schedule(
         EpisodeQueue(pending),
         config.max_consecutive_failures,
         endpoint_stats,
+        actions=recorded_actions(out, done_ids) if config.record_steps else None,
     )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -13,8 +14,9 @@ from typing import Any
 from llm_agents.agents.types import Decision
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode
-from llm_agents.run_data.metrics import summarize
+from llm_agents.run_data.metrics import action_counts, action_histogram, summarize
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.scores import achievement_list_of, score_run
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -23,6 +25,7 @@ from llm_agents.run_data.store import (
     append_records,
     episode_ids_of_steps,
     read_episodes,
+    read_steps,
     rewrite_lines,
     write_results,
 )
@@ -40,8 +43,11 @@ class RunSink:
         queue: EpisodeQueue,
         max_failures: int,
         endpoint_stats: Callable[[], list[EndpointStats]] = list,
+        actions: dict[str, Counter[str]] | None = None,
     ):
         self.out = out
+        # Episode id -> action -> steps, from the step records (None: the run keeps no step log).
+        self.actions = actions
         self.endpoint_stats = endpoint_stats
         self.results = results
         self.scheduled_ids = set(results.schedule)
@@ -77,6 +83,12 @@ class RunSink:
         aborted: list[str],
     ) -> None:
         """Write a round's records, count its backend failures, and show progress."""
+        if self.actions is not None:
+            for episode_id, counts in action_counts(steps).items():
+                self.actions.setdefault(episode_id, Counter()).update(counts)
+            for episode_id in aborted:
+                # Its steps are dropped on resume and it is played again from the start.
+                self.actions.pop(episode_id, None)
         if steps:
             # Steps of unfinished episodes are dropped on resume, so only an episode's end needs
             # its steps on disk (before its line): an fsync per round would stall every round.
@@ -125,7 +137,19 @@ class RunSink:
         counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
         results.finished = len(counted)
         results.endpoints = self.endpoint_stats()
-        results.summary = summarize(counted) if counted else None
+        results.summary = summarize(counted, self.actions) if counted else None
+        results.actions = (
+            {}
+            if self.actions is None
+            else {
+                e.episode_id: action_histogram(self.actions.get(e.episode_id, {})) for e in counted
+            }
+        )
+        results.scores = (
+            score_run(counted, achievement_list_of(results.config.get("variant")))
+            if counted
+            else None
+        )
         results.groundings = {e.episode_id: e.grounding for e in counted if e.grounding}
         if failure is not None:
             results.status, results.failure = "failed", failure
@@ -155,3 +179,10 @@ def drop_unfinished_steps(out: Path, finished_ids: set[str]) -> None:
         rewrite_lines(
             path, [line for id_, line in episode_ids_of_steps(path) if id_ in finished_ids]
         )
+
+
+def recorded_actions(out: Path, finished_ids: set[str]) -> dict[str, Counter[str]]:
+    """Episode id -> action -> steps of the finished episodes, from the step log (empty without
+    one)."""
+    path = out / STEPS_FILE
+    return action_counts(read_steps(path, finished_ids)) if path.is_file() else {}

@@ -16,14 +16,16 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 from tqdm import tqdm
 
-from env.dataset import CATEGORY_SPLIT, AnyGoal, check_split, load_dataset
+from env.dataset import SPLITS, AnyGoal, check_split, load_dataset
+from env.errors import UserError
+from env.goals import difficulty_of, split_categories
 from env.variant import Variant
 from llm_agents.agents.actions import action_catalogue
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
-from llm_agents.evaluation.config import ModelSettings
+from llm_agents.evaluation.config import TextSelection
 from llm_agents.planning.checks import PlanCheck, PlanLimits, check_plan
 from llm_agents.planning.journal import Journal, PlanRecord, PlanSettings, journal_paths
 from llm_agents.planning.vocabulary import craftax_things
@@ -37,16 +39,11 @@ PLANNER_TEMPLATE = "planner.j2"
 REPAIR_TEMPLATE = "plan_repair.j2"
 
 
-class PlannerConfig(ModelSettings):
+class PlannerConfig(TextSelection):
     """What `craftext-llm plan` does."""
 
     output: Path
     """The plans JSON to write; the journal and sidecar sit beside it."""
-    splits: list[str] = Field(
-        default_factory=lambda: ["easy_train", "easy_test_paraphrased", "easy_test_other_params"]
-    )
-    """Dataset splits (easy_train easy_test_paraphrased easy_test_other_params) or eval's
-    category names (one and combo plan the train split) whose instructions get plans."""
     limits: PlanLimits = Field(default_factory=PlanLimits)
     """How short plans must be."""
     repair: bool = True
@@ -58,12 +55,32 @@ class PlannerConfig(ModelSettings):
     restart: bool = False
     """Discard an existing journal instead of resuming it."""
 
-    @field_validator("splits", mode="before")
+    @model_validator(mode="before")
     @classmethod
-    def _split_names(cls, value: Any) -> list[str]:
-        names: list[str] = [value] if isinstance(value, str) else list(value)
-        by_category: dict[str, str] = {str(k): str(v) for k, v in CATEGORY_SPLIT.items()}
-        return list(dict.fromkeys(check_split(by_category.get(n, n)) for n in names))
+    def _split_names(cls, data: Any) -> Any:
+        """Dataset split names, what `--splits` took before plan chose texts as eval does, as
+        their difficulty and categories (`easy_train` is `one` and `combo`)."""
+        if not isinstance(data, dict) or "categories" not in data:
+            return data
+        given = data["categories"]
+        names = [given] if isinstance(given, str) else list(given)
+        names = [part.strip() for name in names for part in str(name).split(",") if part.strip()]
+        splits = [check_split(name) for name in names if name in SPLITS]
+        if not splits:
+            return data
+        difficulties = {difficulty_of(split) for split in splits}
+        difficulties |= {data["difficulty"]} if "difficulty" in data else set()
+        if len(difficulties) > 1:
+            raise UserError(
+                f"plan reads one difficulty at a time, not {' and '.join(sorted(difficulties))}: "
+                "run it once per difficulty with the same --output (plans accumulate in the file)"
+            )
+        categories = [
+            category
+            for name in names
+            for category in (split_categories(check_split(name))[1] if name in SPLITS else (name,))
+        ]
+        return data | {"difficulty": difficulties.pop(), "categories": categories}
 
     @field_validator("output")
     @classmethod
@@ -291,16 +308,18 @@ def goal_instructions(goals: Iterable[AnyGoal]) -> list[str]:
 def planned_instructions(config: PlannerConfig) -> tuple[list[str], dict[str, Any]]:
     """The instructions `config` asks plans for (cut to `limit`), and where they came from."""
     dataset = load_dataset(config.dataset)
-    instructions = goal_instructions(
-        goal for split in config.splits for goal in dataset.split(split)
-    )
+    instructions = goal_instructions(dataset.select_goals(config.categories, config.difficulty))
     if config.limit is not None:
         instructions = instructions[: config.limit]
-    provenance = {"splits": config.splits, "dataset": dataset.source.model_dump(mode="json")}
+    provenance = {
+        "difficulty": config.difficulty,
+        "categories": list(config.categories),
+        "dataset": dataset.source.model_dump(mode="json"),
+    }
     return instructions, provenance
 
 
 def run_planner(config: PlannerConfig, model: ModelAPI, *, progress: bool = False) -> PlanSummary:
-    """Plan every instruction and paraphrase of the configured splits (`craftext-llm plan`)."""
+    """Plan every instruction and paraphrase of the configured categories (`craftext-llm plan`)."""
     instructions, provenance = planned_instructions(config)
     return plan_instructions(instructions, model, config, provenance, progress=progress)

@@ -17,7 +17,8 @@ _INTERNAL_NAMES = frozenset(
 _CREATURE_PREFIXES = ("DEFEAT_", "EAT_")
 
 #: Words any plan may use besides Craftax names: function words, generic verbs, directions,
-#: counts, units of space and words about the plan itself. Synonyms of Craftax things ("rock",
+#: counts, units of space, the shapes Medium and Hard goals build (lines, squares, stars of
+#: straight, diagonal or combined arms) and words about the plan itself. Synonyms of Craftax things ("rock",
 #: "smelter", "workbench", "seeds") are deliberately absent: a plan must use the game's names.
 _COMMON_WORDS_TEXT = """
     a an the this that these those it its them they their there here you your yourself player agent
@@ -54,6 +55,8 @@ _COMMON_WORDS_TEXT = """
     successful accordingly strategically presence existence report work
     consume deposit retrieve destroy construct assemble
     creature creatures enemy monster animal tool weapon
+    star cross plus arm ray combined long wide tall pair exactly apart lay structure formation
+    layout figure outline border perimeter solid
 """
 COMMON_WORDS = frozenset(_COMMON_WORDS_TEXT.split())
 #: Derivational endings stripped to reach a known word (wooden -> wood, upwards -> up).

@@ -8,7 +8,8 @@ invalid answer, or one of another kind, read nothing, so it lowers recall and le
 alone. A placing goal's typed parameters (block, side, distance, size, ...) are each scored as
 right or wrong over the texts read with the right kind, so they measure the parameters apart
 from the kind (`parameters`, keyed `kind.field`). Every rate carries a 95% Wilson interval
-(`SuccessRate`). Confusions name the goal kind read as another, per achievement the field the
+clustered by goal (`metrics.clustered_rate`): the ~6 phrasings of one goal, and the atoms of
+one text, are not independent trials. Confusions name the goal kind read as another, per achievement the field the
 goal put it in and the field the model put it in ("forbidden read as required"), and per
 parameter the value read for the goal's.
 """
@@ -16,13 +17,13 @@ parameter the value read for the goal's.
 from __future__ import annotations
 
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from pydantic import AliasChoices, BaseModel, Field
 
 from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES, SPLITS
-from llm_agents.run_data.metrics import SuccessRate
+from llm_agents.run_data.metrics import SuccessRate, clustered_rate
 from llm_agents.run_data.readings import (
     READING_CLASSES,
     AchievementsReading,
@@ -65,6 +66,14 @@ class Scored:
     truth: GoalReading
     grounding: Grounding
     scenario_class: str = "Achievements"
+    goal_id: str | None = None
+    """The goal's id, which the rates are clustered by (with the split); None: the goal as
+    read right (`truth`) stands for it."""
+
+    @property
+    def cluster(self) -> tuple[str, str]:
+        """The goal this text's outcomes are clustered by."""
+        return (self.split, self.goal_id or self.truth.model_dump_json())
 
 
 class FieldScore(BaseModel):
@@ -125,8 +134,17 @@ class GroundingSummary(BaseModel):
     """Invalid answers per reason, most frequent first."""
 
 
-def _rate(hits: int, total: int) -> SuccessRate | None:
-    return SuccessRate.of(hits, total) if total else None
+Tally = Counter[tuple[str, tuple[str, str]]]
+"""(what, goal) -> count."""
+
+
+def _rate(hits: Tally, total: Tally, what: str) -> SuccessRate | None:
+    clusters = {goal: (hits[(w, goal)], n) for (w, goal), n in total.items() if w == what and n}
+    return clustered_rate(clusters) if clusters else None
+
+
+def _texts(items: Sequence[Scored], hit: Callable[[Scored], bool]) -> SuccessRate:
+    return clustered_rate((item.cluster, int(hit(item)), 1) for item in items)
 
 
 def _atoms(reading: GoalReading | None) -> dict[str, frozenset[str]]:
@@ -136,46 +154,40 @@ def _atoms(reading: GoalReading | None) -> dict[str, frozenset[str]]:
 def score(items: Sequence[Scored]) -> GroundingScore:
     """Exact match, kind accuracy, invalid answers, per-field precision / recall and
     per-parameter accuracy over `items` (not empty)."""
-    hits: Counter[str] = Counter()
-    read: Counter[str] = Counter()
-    true: Counter[str] = Counter()
-    right: Counter[str] = Counter()
-    asked: Counter[str] = Counter()
+    hits: Tally = Counter()
+    read: Tally = Counter()
+    true: Tally = Counter()
+    right: Tally = Counter()
+    asked: Tally = Counter()
     for item in items:
-        reading = item.grounding.reading
+        reading, goal = item.grounding.reading, item.cluster
         for field, atoms in _atoms(item.truth).items():
             got = _atoms(reading).get(field, frozenset())
-            hits[field] += len(atoms & got)
-            read[field] += len(got)
-            true[field] += len(atoms)
+            hits[(field, goal)] += len(atoms & got)
+            read[(field, goal)] += len(got)
+            true[(field, goal)] += len(atoms)
         if reading is not None and reading.kind == item.truth.kind:
             got_values = reading.parameters()
             for field, value in item.truth.parameters().items():
                 key = f"{item.truth.kind}.{field}"
-                asked[key] += 1
-                right[key] += got_values[field] == value
+                asked[(key, goal)] += 1
+                right[(key, goal)] += got_values[field] == value
     achievements = any(isinstance(i.truth, AchievementsReading) for i in items)
     names = ["required", "forbidden"] if achievements else []
+    parameters = {key: _rate(right, asked, key) for key in _PARAMETER_ORDER}
     return GroundingScore(
         texts=len(items),
-        exact=SuccessRate.of(sum(i.grounding.matches(i.truth) for i in items), len(items)),
+        exact=_texts(items, lambda i: i.grounding.matches(i.truth)),
         invalid=sum(i.grounding.outcome == "invalid" for i in items),
         fields={
-            name: FieldScore(
-                precision=_rate(hits[name], read[name]), recall=_rate(hits[name], true[name])
-            )
+            name: FieldScore(precision=_rate(hits, read, name), recall=_rate(hits, true, name))
             for name in names
         },
-        kind=SuccessRate.of(
-            sum(
-                i.grounding.reading is not None and i.grounding.reading.kind == i.truth.kind
-                for i in items
-            ),
-            len(items),
+        kind=_texts(
+            items,
+            lambda i: i.grounding.reading is not None and i.grounding.reading.kind == i.truth.kind,
         ),
-        parameters={
-            key: SuccessRate.of(right[key], asked[key]) for key in _PARAMETER_ORDER if key in asked
-        },
+        parameters={key: rate for key, rate in parameters.items() if rate is not None},
     )
 
 

@@ -91,8 +91,9 @@ class EpisodeRecord(BaseModel):
     """Id of the CrafText goal the instruction states."""
     instruction: str
     """The instruction text the agent was given."""
-    instruction_variant: int = Field(ge=0, le=5)
-    """Which wording of the goal: 0 the original, 1-5 a paraphrase."""
+    instruction_variant: int = Field(ge=0)
+    """Which wording of the goal: 0 the original, 1..n one of its n paraphrases (as many as the
+    dataset gives it: 4, 5 or 10 in the official data)."""
     category: Category
     """The goal set the episode counts towards."""
     scenario_class: ScenarioClass = "Achievements"
@@ -137,6 +138,9 @@ class EpisodeRecord(BaseModel):
     reset_key: list[int] | None = Field(None, min_length=2, max_length=2)
     """The raw PRNG key (two uint32 words) the episode's world was reset with; None in records
     written before it was stored (replays then derive it the way the runner did)."""
+    code: str | None = None
+    """The version of the code that played the episode (`code_version`); None in records
+    written before it was stored."""
 
     # A computed field is written to JSON but ignored on reading, so the rate can never
     # disagree with the count it comes from.

@@ -7,7 +7,10 @@ only ever appended to and fsynced, so a kill leaves at worst a torn last line, w
 off; whole files are replaced atomically, so a reader sees the old version or the new one.
 
 The identity of a run is by content: the settings that change results, plus hashes of every
-template, the plans file and the dataset. A directory is resumed only under the same identity.
+template, the plans file, the dataset, the parsed goals of the splits it reads and the
+worked-example list it shows. A directory is resumed only under the same identity. The code
+that ran is not part of it: a resume under other code is allowed, and each episode records the
+code version that played it (`code_version`), so the report can say so.
 """
 
 from __future__ import annotations
@@ -33,10 +36,12 @@ from pydantic import (
 )
 
 from env.errors import UserError
+from env.goals import Dataset, Difficulty, category_split
 from llm_agents.backends.endpoints import EndpointStats
-from llm_agents.run_data.metrics import Summary
+from llm_agents.run_data.metrics import ActionHistogram, Summary
 from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.scores import RunScores
 
 logger = logging.getLogger(__name__)
 
@@ -206,12 +211,27 @@ class RunIdentity(BaseModel):
     """SHA-256 of the plans file's bytes; None without plans."""
     dataset: str | None = None
     """SHA-256 the dataset source reports for its content."""
+    goals: dict[str, str] = Field(default_factory=dict)
+    """Split -> digest of its goals as parsed (`Dataset.split_sha256`), for the splits the run
+    reads: the same source parsed by other code can give other goals."""
+    examples: str | None = None
+    """Digest of the worked-example list the run shows (`examples_digest`); None when it shows
+    none."""
 
-    def differences(self, other: RunIdentity, added: Mapping[str, Any] | None = None) -> list[str]:
+    def differences(
+        self,
+        other: RunIdentity,
+        added: Mapping[str, Any] | None = None,
+        recorded_goals: Mapping[str, Any] | None = None,
+    ) -> list[str]:
         """Human-readable differences from `other` (the identity on disk), empty when equal.
         A setting `other` predates counts as its value in `added` (its default: how that run
         played before the setting existed), so adding a setting does not strand older runs. A
-        template `other` hashed that this run does not render is no difference."""
+        template `other` hashed that this run does not render is no difference. A split whose
+        goals `other` predates digesting in its identity is compared with `recorded_goals` (the
+        digests its results recorded beside it); one digested nowhere is no difference. A run
+        that shows worked examples differs from one that recorded no list (which list it
+        showed is unknown)."""
         found = []
         predated = added or {}
         for key in sorted(self.settings.keys() | other.settings.keys()):
@@ -228,7 +248,30 @@ class RunIdentity(BaseModel):
             found.append("plans file content")
         if self.dataset != other.dataset:
             found.append("dataset content")
+        earlier = {**(recorded_goals or {}), **other.goals}
+        changed = [s for s in sorted(self.goals) if earlier.get(s, self.goals[s]) != self.goals[s]]
+        if changed:
+            found.append(f"parsed goals of {', '.join(changed)} (their digests changed)")
+        if self.examples != other.examples:
+            # Runs recorded before the list was digested showed one all the same.
+            unrecorded = other.examples is None and other.settings.get("grounding_shots")
+            before = "not recorded" if unrecorded else _digest(other.examples)
+            found.append(f"worked-example list ({before} before, {_digest(self.examples)} now)")
         return found
+
+
+def _digest(value: str | None) -> str:
+    return "none" if value is None else value[:12]
+
+
+def split_digests(
+    dataset: Dataset, categories: Iterable[str], difficulty: Difficulty
+) -> dict[str, str]:
+    """Split -> digest of its parsed goals (`RunIdentity.goals`), for the splits that
+    `categories` of `difficulty` read and the dataset has."""
+    digests = dataset.split_sha256()
+    splits = sorted({category_split(category, difficulty) for category in categories})  # type: ignore[arg-type]
+    return {split: digests[split] for split in splits if split in digests}
 
 
 def _short(value: Any) -> str:
@@ -310,8 +353,14 @@ class RunResults(BaseModel):
 
     summary: Summary | None = None
     """Metrics over the scheduled episodes finished so far; None before the first one ends."""
+    scores: RunScores | None = None
+    """The field's achievement scores (Crafter score, BALROG progression, craftaxlm) of the same
+    episodes; None before the first one ends (and in runs recorded before they were kept)."""
     groundings: dict[str, Grounding] = Field(default_factory=dict)
     """Episode id -> the goal the agent read before playing it (`guided`), per finished episode."""
+    actions: dict[str, ActionHistogram] = Field(default_factory=dict)
+    """Episode id -> the actions it took (from its step records), per finished episode; empty
+    when the run keeps no step log (`summary.actions` pools them)."""
     status: RunStatus = "partial"
     """See `RunStatus`."""
     failure: str | None = None

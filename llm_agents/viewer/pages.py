@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
+import random
+import shutil
 import statistics
 import time
+import uuid
 from collections import Counter, deque
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -24,26 +28,36 @@ import numpy as np
 
 from env.errors import UserError
 from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.goal_flags import DEFAULT_WORLDS, run_goal_status
 from llm_agents.evaluation.report import (
     CATEGORY_LABELS,
     PUBLISHED_KIND,
     ComparedRun,
+    GoalStatusTables,
     chart_categories,
     compared_run,
     comparison_columns,
     comparison_notes,
     difficulty_of_run,
+    goal_status_tables,
     model_name_of,
     our_rate,
     paper_differences,
     published_cell,
     published_for,
+    rates_legend,
     recorded_rule,
+    rescore,
+    run_scores,
     run_summary,
     scenario_rows,
+    scheduled_episodes,
     table_columns,
 )
+from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
+from llm_agents.run_data.store import RESULTS_FILE, read_results
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
+from llm_agents.viewer.goals import block_words, rendering_of
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
 
 logger = logging.getLogger(__name__)
@@ -64,6 +78,8 @@ class ReplayStatus:
     """What differs from the record (mismatch), or why there is no replay."""
     frames: int = 0
     """Frames the replay drew (actions + 1); 0 without a replay."""
+    checker: dict[str, Any] | None = None
+    """What the goal's checker read over the replay (`_checker_data`); None without one."""
 
 
 @dataclass
@@ -79,10 +95,54 @@ class ViewOutcome:
     """Frames rendered."""
     size_bytes: int
     """Total size of the report's files."""
+    listed: int = 0
+    """Episodes listed on the run page without a page of their own (not in the sample)."""
 
     @property
     def mismatches(self) -> dict[str, ReplayStatus]:
         return {key: s for key, s in self.statuses.items() if s.state == "mismatch"}
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which episodes of a run get a page: those matching every given filter, or a seeded
+    sample of them; the rest are listed on the run page only."""
+
+    sample: int | None = None
+    """How many episodes to render, drawn at random (seeded) from those matching; None: all."""
+    seed: int = 0
+    categories: tuple[str, ...] = ()
+    classes: tuple[str, ...] = ()
+    outcomes: tuple[str, ...] = ()
+    episode: str | None = None
+    """One episode (id or index) to render alone."""
+
+    def pick(self, run: LoadedRun) -> list[EpisodeView]:
+        """The episodes to render, in schedule order; a `UserError` when the selection cannot be
+        met (an episode not in the run, a sample larger than what matches)."""
+        if self.episode is not None:
+            return [run.find(self.episode)]
+        matching = [
+            view
+            for view in run.episodes
+            if (not self.categories or view.record.category in self.categories)
+            and (not self.classes or view.record.scenario_class in self.classes)
+            and (not self.outcomes or view.record.termination in self.outcomes)
+        ]
+        filtered = self.categories or self.classes or self.outcomes
+        if not matching:
+            raise UserError(f"no episode of {run.path} matches the filters given")
+        if self.sample is None:
+            return matching
+        if self.sample < 1:
+            raise UserError(f"--sample must be at least 1, not {self.sample}")
+        if self.sample > len(matching):
+            raise UserError(
+                f"--sample {self.sample} is larger than the {len(matching)} episodes of "
+                f"{run.path}{' that match the filters' if filtered else ''}"
+            )
+        chosen = random.Random(self.seed).sample(range(len(matching)), self.sample)
+        return [matching[i] for i in sorted(chosen)]
 
 
 def build_view(
@@ -91,31 +151,79 @@ def build_view(
     progress: bool = True,
     batch_size: int = 16,
     compare: Sequence[str | Path] = (),
+    goal_status: bool = False,
+    worlds: int = DEFAULT_WORLDS,
+    selection: Selection | None = None,
 ) -> ViewOutcome:
-    """Replay every episode of `run_dir` and write its HTML report; returns where and how it went.
+    """Replay the episodes of `run_dir` (all, or `selection`'s) and write its HTML report;
+    returns where and how it went.
 
     A replay that does not reproduce its record is logged as a warning and flagged on its page
     and on the run page. The runs in `compare` (e.g. the expert's) get a row each beside the
-    run's in the results table, as `report --compare` prints them.
+    run's in the results table, as `report --compare` prints them. With `goal_status`, the run
+    page also shows the tables without trivial and impossible goals (`report --goal-status`).
+    The report is written into a temporary folder beside the run's and moved into place once
+    complete: a failure leaves the previous report (or none), never half of a new one.
     """
     run = load_run(run_dir)
+    rendered = (selection or Selection()).pick(run)
+    for view in rendered:
+        if view.goal is not None:
+            rendering_of(view.goal.kind)
     # Read before the long rendering, so a wrong path fails at once.
     compared = [compared_run(other) for other in compare]
-    out = run.path / REPORT_DIR
+    flagged = _goal_status(run, worlds) if goal_status else None
+    final = run.path / REPORT_DIR
+    out = run.path / f".{REPORT_DIR}.{os.getpid()}.{uuid.uuid4().hex}.tmp"
     pages = out / EPISODES_DIR
     try:
-        pages.mkdir(parents=True, exist_ok=True)
+        pages.mkdir(parents=True)
     except OSError as exc:
         raise UserError(f"cannot create {pages}: {exc.strerror}") from exc
+    try:
+        outcome = _write_report(
+            run, rendered, out, progress, batch_size, compare, compared, flagged
+        )
+        _move_into_place(out, final)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    outcome.index = final / outcome.index.relative_to(out)
+    return outcome
+
+
+def _move_into_place(built: Path, final: Path) -> None:
+    old = final.with_name(f"{built.name}.old")
+    try:
+        if final.exists():
+            final.rename(old)
+        built.rename(final)
+    except OSError as exc:
+        raise UserError(f"cannot move the report into {final}: {exc.strerror}") from exc
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _write_report(
+    run: LoadedRun,
+    rendered: list[EpisodeView],
+    out: Path,
+    progress: bool,
+    batch_size: int,
+    compare: Sequence[str | Path],
+    compared: Sequence[ComparedRun],
+    flagged: GoalStatusTables | None,
+) -> ViewOutcome:
+    pages = out / EPISODES_DIR
     templates = _templates()
-    neighbours = _neighbours(run.episodes)
+    neighbours = _neighbours(rendered)
     statuses: dict[str, ReplayStatus] = {}
     frames = 0
     started = time.perf_counter()
     render_seconds = 0.0
-    bar = _progress(progress, len(run.episodes))
+    bar = _progress(progress, len(rendered))
+    variant = EvalConfig.recorded(run.config).env_config().variant
     try:
-        for view, sheet, status in _replays(run, batch_size, bar):
+        for view, sheet, status in _replays(run, rendered, batch_size, bar):
             frames += status.frames
             render_seconds = time.perf_counter() - started
             statuses[view.record.episode_id] = status
@@ -124,7 +232,7 @@ def build_view(
             _write(
                 pages / view.page,
                 templates.get_template("episode.html.j2").render(
-                    **_episode_context(run, view, sheet, status, neighbours)
+                    **_episode_context(run, view, sheet, status, neighbours, variant)
                 ),
             )
     finally:
@@ -133,7 +241,11 @@ def build_view(
     index = out / "index.html"
     _write(
         index,
-        templates.get_template("index.html.j2").render(**_run_context(run, statuses, compared)),
+        templates.get_template("index.html.j2").render(
+            **_run_context(run, statuses, compared),
+            goal_status=flagged,
+            **_scores_context(run, compare, compared),
+        ),
     )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
     return ViewOutcome(
@@ -142,6 +254,7 @@ def build_view(
         render_seconds=render_seconds,
         frames=frames,
         size_bytes=size,
+        listed=len(run.episodes) - len(rendered),
     )
 
 
@@ -158,14 +271,14 @@ def export_episode(run_dir: str | Path, episode: str, path: str | Path) -> Repla
 
 
 def _replays(
-    run: LoadedRun, batch_size: int, bar: Any
+    run: LoadedRun, rendered: list[EpisodeView], batch_size: int, bar: Any
 ) -> Iterator[tuple[EpisodeView, SpriteSheet | None, ReplayStatus]]:
-    for view in run.episodes:
+    for view in rendered:
         if view.unreplayable:
             if bar is not None:
                 bar.update(1)
             yield view, None, ReplayStatus("not replayed", [view.unreplayable])
-    playable = [view for view in run.episodes if not view.unreplayable]
+    playable = [view for view in rendered if not view.unreplayable]
     if not playable:
         return
     # Episodes of similar length share a batch, so little of a batch is padding.
@@ -178,6 +291,7 @@ def _replays(
     with ThreadPoolExecutor(2, thread_name_prefix="encode") as pool:
         for view, replay in zip(playable, replays, strict=True):
             status = _status(view, replay)
+            status.checker = _checker_data(view, replay, replayer.env.variant)
             if status.state == "mismatch":
                 logger.warning(
                     "the replay of episode %s does not reproduce its record: %s",
@@ -231,6 +345,95 @@ def _replay_input(view: EpisodeView, variant: Any) -> Any:
         kind=int(task.kind[0]),
         params=tuple(int(value) for value in task.params[0]),
     )
+
+
+def _checker_data(view: EpisodeView, replay: Any, variant: Any) -> dict[str, Any]:
+    """What the goal's checker read over the replay: the player's cell on every frame, the
+    tracked counts (conditional placing), and its marks on the last map it read."""
+    from env.replay import BLOCK_SIZES, VIEW_CELLS
+
+    assert view.goal is not None
+    rendering = rendering_of(view.goal.kind)
+    trace = replay.trace
+    last = replay.ended_at if replay.ended_at is not None else len(trace) - 1
+    position = (int(trace[last, 0]), int(trace[last, 1]))
+    rows, columns = VIEW_CELLS[variant]
+    data: dict[str, Any] = {
+        "positions": trace[:, :2].tolist(),
+        "view": {"rows": rows, "columns": columns, "block": BLOCK_SIZES[variant]},
+        "last": last,
+    }
+    if rendering.chart:
+        data["held"] = trace[:, 2].tolist()
+        data["standing"] = trace[:, 3].tolist()
+    marks = rendering.marks(view.goal, replay.end_map, position, variant)
+    if marks is not None:
+        data["marks"] = {
+            "region": list(marks.region),
+            "met": marks.met,
+            "blocks": [list(cell) for cell in marks.blocks],
+            "completed": [list(cell) for cell in marks.completed],
+            "references": [list(cell) for cell in marks.references],
+            "targets": [list(cell) for cell in marks.targets],
+            "notes": list(marks.notes),
+        }
+        data["minimap"] = _minimap(marks, replay.end_map, position, variant.block_names)
+    return data
+
+
+#: Ground colours of the small map, by a word of the block's name (the goal's blocks are drawn
+#: over them); a block matching none is light grey.
+_GROUND = {
+    "WATER": "#9cc3e6",
+    "GRASS": "#b7dfb0",
+    "TREE": "#6fa86a",
+    "SAND": "#eee3b8",
+    "PATH": "#d9cbb0",
+    "LAVA": "#f2a36b",
+    "STONE": "#b8b8b8",
+    "DARKNESS": "#57606a",
+}
+
+
+def _ground(name: str) -> str:
+    return next((colour for word, colour in _GROUND.items() if word in name), "#d8dee4")
+
+
+def _minimap(
+    marks: Any, board: np.ndarray, position: tuple[int, int], block_names: Sequence[str]
+) -> dict[str, Any]:
+    """The checker's region as cells with their ground colour and classes, for the small map."""
+    shape = board.shape
+    row0, column0, rows, columns = marks.region
+    classes = {
+        **{tuple(cell): "block" for cell in marks.blocks},
+        **{tuple(cell): "reference" for cell in marks.references},
+    }
+    targets = {tuple(cell) for cell in marks.targets}
+    completed = {tuple(cell) for cell in marks.completed}
+    cells = []
+    for r in range(row0, row0 + rows):
+        for c in range(column0, column0 + columns):
+            inside = 0 <= r < shape[0] and 0 <= c < shape[1]
+            names = [classes.get((r, c), "ground") if inside else "outside"]
+            if (r, c) in targets:
+                names.append("target")
+            if (r, c) in completed:
+                names.append("completed")
+            if (r, c) == position:
+                names.append("player")
+            name = block_names[int(board[r, c])] if inside else "outside the map"
+            cells.append(
+                {
+                    "x": c - column0,
+                    "y": r - row0,
+                    "cls": " ".join(names),
+                    "fill": _ground(name) if inside else "#ffffff",
+                    "name": name.lower().replace("_", " "),
+                    "at": [r, c],
+                }
+            )
+    return {"rows": rows, "columns": columns, "cells": cells, "origin": [row0, column0]}
 
 
 def _status(view: EpisodeView, replay: Any) -> ReplayStatus:
@@ -313,7 +516,15 @@ def _run_context(
 ) -> dict[str, Any]:
     records = [view.record for view in run.episodes]
     results = run.results
-    summary = run_summary(results, records, recorded_rule(results))
+    actions = (
+        {
+            view.record.episode_id: Counter(s.action_name for s in view.steps)
+            for view in run.episodes
+        }
+        if run.has_steps
+        else None
+    )
+    summary = run_summary(results, records, recorded_rule(results), actions)
     model = model_name_of(results)
     partial = results.status != "complete"
     differences = paper_differences(results, recorded_rule(results))
@@ -360,6 +571,12 @@ def _run_context(
     errors = sum(len(view.errors) for view in run.episodes)
     latencies = sorted(run.latencies)
     states = Counter(status.state for status in statuses.values())
+    listed = ReplayStatus("listed only", ["not in this report's sample (see `view --sample`)"])
+    everyone = [(view, statuses.get(view.record.episode_id, listed)) for view in run.episodes]
+    # Goal ids are long (MAKE_STONE_SWORD_AND_COLLECT_SAPLING_NO_MAKE_IRON_SWORD): the chart's
+    # label column is as wide as the longest, at 8 px a character of its 11 px font (upper-case
+    # letters measure about 7.5 in Chromium's sans-serif).
+    label_width = 16 + 8 * max((len(name) for name in summary.by_goal), default=10)
     return {
         "title": f"{model} on CrafText",
         "model": model,
@@ -383,17 +600,50 @@ def _run_context(
         "config": _flatten(results.config),
         "replay_states": {
             state: states.get(state, 0) for state in ("reproduced", "mismatch", "not replayed")
-        },
-        "mismatched": [
-            (view, statuses[view.record.episode_id])
-            for view in run.episodes
-            if statuses[view.record.episode_id].state == "mismatch"
-        ],
-        "episodes": [(view, statuses[view.record.episode_id]) for view in run.episodes],
+        }
+        | ({"listed only": len(everyone) - len(statuses)} if len(everyone) > len(statuses) else {}),
+        "mismatched": [(view, status) for view, status in everyone if status.state == "mismatch"],
+        "episodes": everyone,
+        "rendered": len(statuses),
+        "label_width": label_width,
         "category_names": sorted({record.category for record in records}),
-        "goal_names": sorted({record.goal_id for record in records}),
+        "class_names": sorted({record.scenario_class for record in records}),
+        "kind_names": sorted({view.goal.kind for view in run.episodes if view.goal}),
+        "goal_names": sorted({goal_key(record) for record in records}),
         "episodes_dir": EPISODES_DIR,
+        # Issue 31: the legend of the rates (clustered by goal) and the actions taken.
+        "rates_legend": rates_legend(summary),
+        "dominant_share": DOMINANT_SHARE,
     }
+
+
+def _goal_status(run: LoadedRun, worlds: int) -> GoalStatusTables:
+    """Issue 31: the run's tables without trivial and impossible goals, and doing nothing."""
+    results = run.results
+    records = [view.record for view in run.episodes]
+    rule = recorded_rule(results)
+    status = run_goal_status(results.config, records, rule=rule, worlds=worlds)
+    return goal_status_tables(
+        run_summary(results, records, rule),
+        rescore(records, rule),
+        status,
+        agent=str(results.config.get("agent", "zero-shot")),
+        difficulty=difficulty_of_run(results),
+    )
+
+
+def _scores_context(
+    run: LoadedRun, compare: Sequence[str | Path], compared: Sequence[ComparedRun]
+) -> dict[str, Any]:
+    """The field's achievement scores of the run (overall, per category, per episode, the
+    unlock table) and of each compared run, from their records, as `report` prints them."""
+    scores = run_scores(run.results, [view.record for view in run.episodes])
+    others = []
+    for path, other in zip(compare, compared, strict=True):
+        results = read_results(Path(path) / RESULTS_FILE)
+        overall = run_scores(results, scheduled_episodes(Path(path), results)).overall
+        others.append((other.label, overall))
+    return {"scores": scores, "compared_scores": others}
 
 
 def _latency(latencies: list[float]) -> dict[str, float] | None:
@@ -426,6 +676,7 @@ def _episode_context(
     sheet: SpriteSheet | None,
     status: ReplayStatus,
     neighbours: dict[str, tuple[str | None, str | None]],
+    variant: Any,
 ) -> dict[str, Any]:
     record = view.record
     previous, following = neighbours[record.episode_id]
@@ -445,8 +696,10 @@ def _episode_context(
         }
         for step in view.steps
     ]
+    checker = status.checker
     data = {
         "steps": steps,
+        "checker": checker,
         "termination": record.termination,
         "sheet": None
         if sheet is None
@@ -463,6 +716,9 @@ def _episode_context(
         "model": model_name_of(run.results),
         "record": record,
         "goal": view.goal,
+        "panel": _goal_panel(view),
+        "checker": checker,
+        "chart": _count_chart(view, checker) if checker and "held" in checker else None,
         "errors": view.errors,
         "status": status,
         "sheet": sheet,
@@ -472,4 +728,84 @@ def _episode_context(
         "steps": steps,
         "previous": previous,
         "next": following,
+        "actions": action_histogram(Counter(step.action_name for step in view.steps))
+        if view.steps
+        else None,
+    }
+
+
+def _goal_panel(view: EpisodeView) -> dict[str, Any]:
+    """The goal in words and as the dataset's JSON, when the checker fired, and the model's
+    reading of the instruction beside it (guided runs)."""
+    record = view.record
+    goal = view.goal
+    panel: dict[str, Any] = {
+        "kind": goal.kind if goal else None,
+        "words": rendering_of(goal.kind).describe(goal) if goal else None,
+        "json": goal.model_dump_json(indent=1, exclude={"paraphrases"}) if goal else None,
+        "fired": f"after step {record.steps - 1} (frame {record.steps})"
+        if record.success and record.steps
+        else ("before the first step" if record.success else "never"),
+        "reading": None,
+    }
+    grounding = record.grounding
+    if grounding is not None:
+        reading = grounding.reading
+        panel["reading"] = {
+            "outcome": grounding.outcome,
+            "correct": record.grounding_correct,
+            "words": rendering_of(reading.kind).describe(reading) if reading else None,
+            "json": reading.model_dump_json(indent=1) if reading else None,
+            "reason": grounding.reason,
+        }
+    return panel
+
+
+def _count_chart(view: EpisodeView, checker: dict[str, Any]) -> dict[str, Any]:
+    """An inline chart of a conditional-placing goal's two counts over the frames: the item
+    held (its threshold to spend past) and the blocks standing (the count to reach)."""
+    goal: Any = view.goal
+    width, height, left, top = 520, 150, 36, 10
+    frames = len(checker["held"])
+    series = [
+        (goal.collect, checker["held"], goal.collect_count, "held"),
+        (
+            f"{block_words(goal.place, 2)} on the map",
+            checker["standing"],
+            goal.place_count,
+            "standing",
+        ),
+    ]
+    top_value = max(
+        [1, goal.collect_count, goal.place_count, *checker["held"], *checker["standing"]]
+    )
+
+    def x(frame: int) -> float:
+        return left + (frame / max(1, frames - 1)) * (width - left - 10)
+
+    def y(value: float) -> float:
+        return top + (1 - value / top_value) * (height - top - 24)
+
+    lines = [
+        {
+            "label": label,
+            "css": css,
+            "points": " ".join(f"{x(i):.1f},{y(v):.1f}" for i, v in enumerate(values)),
+            "threshold": round(y(threshold), 1),
+            "value": threshold,
+        }
+        for label, values, threshold, css in series
+    ]
+    fired = view.record.steps if view.record.success else None
+    return {
+        "width": width,
+        "height": height,
+        "left": left,
+        "bottom": height - 24,
+        "right": width - 10,
+        "top_value": top_value,
+        "top": top,
+        "lines": lines,
+        "fired": None if fired is None else round(x(fired), 1),
+        "frames": frames,
     }

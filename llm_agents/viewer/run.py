@@ -11,6 +11,7 @@ import numpy as np
 from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import DIFFICULTIES, AnyGoal, run_category
+from env.open_ended import open_ended_dataset
 from llm_agents.evaluation.report import scheduled_episodes
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import (
@@ -101,7 +102,11 @@ def load_run(run_dir: str | Path) -> LoadedRun:
     finished = {record.episode_id for record in records}
     steps, errors, stages, latencies = _read_steps(path / STEPS_FILE, finished)
     try:
-        goals = _goals(results.config.get("dataset"), results.config.get("difficulty"))
+        goals = _goals(
+            results.config.get("dataset"),
+            results.config.get("difficulty"),
+            results.config.get("task"),
+        )
         no_dataset = None
     except UserError as exc:
         # The pages are still worth having; only the replays need the goals.
@@ -147,8 +152,12 @@ def _read_steps(
     return steps, errors, stages, latencies
 
 
-def _goals(dataset: Any, difficulty: Any) -> dict[tuple[str, str], AnyGoal]:
-    data = load_dataset(dataset if isinstance(dataset, str) else None)
+def _goals(dataset: Any, difficulty: Any, task: Any = None) -> dict[tuple[str, str], AnyGoal]:
+    # The open-ended task's one goal is ours, in no dataset.
+    if task == "open_ended":
+        data = open_ended_dataset()
+    else:
+        data = load_dataset(dataset if isinstance(dataset, str) else None)
     # Runs recorded before the difficulty was a setting played EASY.
     level = difficulty if difficulty in DIFFICULTIES else "easy"
     return {(run_category(goal), goal.id): goal for goal in data.goals if goal.difficulty == level}

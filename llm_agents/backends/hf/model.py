@@ -9,7 +9,10 @@ once (left padding). Choices follow the `loglik` rule only (`guided` is refused)
 candidate is scored by its log-likelihood after the prompt (`scoring.py`), with one prompt pass per batch: all
 candidates then go through a single pass over the prompt's cached keys and values, side by side
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
-attention mask). The answer is always one of the choices.
+attention mask). Each candidate is scored with and without the chat template's end-of-turn
+token after it (one trie: the two share their tokens), and `ranked_choices` makes the run's
+`--choice-scoring` rule of them (`pmi` also scores the content-free prompt, once per run). The
+answer is always one of the choices.
 
 `loglik` scores equal a plain forward pass over prompt + option in float32 (to float rounding)
 and in float16 (to hundredths of a nat: the split path's attention runs in float32 and rounds
@@ -45,14 +48,19 @@ from llm_agents.backends.base import (
     ChatMessage,
     ChoiceRule,
     ChoiceSet,
+    ContentFreeScores,
     Conversation,
     FinishReason,
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    OptionLoglik,
     bad_options,
+    content_free_conversation,
+    end_of_turn_id,
     local_model_path,
     ranked_choices,
+    scored_choices,
 )
 from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME
 from llm_agents.backends.hf.scoring import (
@@ -69,7 +77,6 @@ from llm_agents.backends.reasoning import (
     with_reasoning_split,
 )
 
-ChoiceScoring = Literal["sum", "mean"]
 DtypeName = Literal["float32", "bfloat16", "float16"]
 
 logger = logging.getLogger(__name__)
@@ -99,8 +106,6 @@ class HFOptions(BaseModel):
     """Torch CPU threads; None: torch's own choice."""
     rows_per_forward: int = Field(16, ge=1)
     """Conversations per forward pass."""
-    choice_scoring: ChoiceScoring = "sum"
-    """sum: a choice's total log-likelihood; mean: per token, which favours long choices less."""
 
     @field_validator("device")
     @classmethod
@@ -113,6 +118,24 @@ class HFOptions(BaseModel):
                     f"{device!r} is not a torch device (cpu, cuda, cuda:1, ...)"
                 ) from None
         return device
+
+
+class ContextLengthError(ValueError):
+    """A prompt longer than the model's context (`max_position_embeddings`)."""
+
+
+#: How the allocators word running out of memory where they raise a plain RuntimeError (the
+#: CPU's, cuBLAS's, Apple's MPS); CUDA's own is `torch.OutOfMemoryError`.
+_OUT_OF_MEMORY = ("out of memory", "can't allocate memory", "CUBLAS_STATUS_ALLOC_FAILED")
+
+
+def backend_failure(err: BaseException) -> bool:
+    """Whether an error of a forward pass is the backend's failure (out of memory, or a prompt
+    over the context length: the batch failed, the run goes on and retries it on resume)
+    rather than a bug, which must surface."""
+    if isinstance(err, ContextLengthError | torch.OutOfMemoryError):
+        return True
+    return isinstance(err, RuntimeError) and any(words in str(err) for words in _OUT_OF_MEMORY)
 
 
 class HFModel(ModelAPI):
@@ -138,7 +161,6 @@ class HFModel(ModelAPI):
         if self.settings.threads is not None:
             torch.set_num_threads(self.settings.threads)
         self.rows_per_forward = self.settings.rows_per_forward
-        self.choice_scoring: ChoiceScoring = self.settings.choice_scoring
         default_device = "cuda" if torch.cuda.is_available() else "cpu"
         self.device = torch.device(self.settings.device or default_device)
         self.dtype = _torch_dtype(self.settings.dtype, self.device)
@@ -170,6 +192,11 @@ class HFModel(ModelAPI):
         self.scorer = LoglikScorer(
             self.tokenizer.pad_token_id, split_attention=supports_split_attention(model_config)
         )
+        self._end_of_turn = end_of_turn_id(self.tokenizer)
+        self._content_free = ContentFreeScores()
+        # A longer prompt is a backend failure (`ContextLengthError`), read before the weights.
+        positions = getattr(model_config, "max_position_embeddings", None)
+        self.context_length: int | None = positions if isinstance(positions, int) else None
 
     @property
     def model(self) -> Any:
@@ -213,7 +240,6 @@ class HFModel(ModelAPI):
             "torch": torch.__version__,
             "device": str(self.device),
             "dtype": str(self.dtype).removeprefix("torch."),
-            "choice_scoring": self.choice_scoring,
         }
 
     def generate(
@@ -223,14 +249,9 @@ class HFModel(ModelAPI):
     ) -> list[ModelOutput]:
         if choices is not None:
             self.check_choice_rule(choices.rule)
-            options = list(choices.options)
-            candidates = [self._encode(option) for option in options]
-            if empty := [
-                option for option, ids in zip(options, candidates, strict=True) if not ids
-            ]:
-                raise UserError(f"choices {empty!r} encode to no tokens; every choice needs text")
+            candidates = self._candidate_ids(choices.options)
             return self._in_batches(
-                conversations, lambda batch: self._choose(batch, options, candidates)
+                conversations, lambda batch: self._choose(batch, choices, candidates)
             )
         outputs = self._in_batches(conversations, self._generate_split)
         return resolve_truncated(
@@ -238,13 +259,16 @@ class HFModel(ModelAPI):
         )
 
     def choice_scores(
-        self, conversations: Sequence[Conversation], choices: Sequence[str]
+        self, conversations: Sequence[Conversation], choices: ChoiceSet
     ) -> list[list[float]]:
-        """Log-likelihood (summed over tokens) of each choice after each conversation's prompt."""
+        """Each option's score after each conversation's prompt, under `choices.scoring`."""
         self.check_choice_rule("loglik")
         prompts = self._prompt_ids(conversations)
-        candidates = [self._encode(choice) for choice in choices]
-        return self.scorer.log_likelihoods(self.model, prompts, candidates)
+        candidates = self._candidate_ids(choices.options)
+        scores = self._option_logliks(prompts, candidates)
+        return scored_choices(
+            choices, candidates, scores, self._content_free_rows(conversations, choices, candidates)
+        )
 
     # -- free generation ----------------------------------------------------------------------
 
@@ -320,17 +344,49 @@ class HFModel(ModelAPI):
     # -- choice mode --------------------------------------------------------------------------
 
     def _choose(
-        self, conversations: Sequence[Conversation], choices: list[str], candidates: list[list[int]]
+        self, conversations: Sequence[Conversation], choices: ChoiceSet, candidates: list[list[int]]
     ) -> list[ModelOutput]:
         start = time.perf_counter()
         prompts = self._prompt_ids(conversations)
-        scores = self.scorer.log_likelihoods(self.model, prompts, candidates)
-        if self.choice_scoring == "mean":
-            scores = [
-                [score / len(ids) for score, ids in zip(row, candidates, strict=True)]
-                for row in scores
+        scores = self._option_logliks(prompts, candidates)
+        content_free = self._content_free_rows(conversations, choices, candidates)
+        return ranked_choices(
+            choices, prompts, candidates, scores, time.perf_counter() - start, content_free
+        )
+
+    def _candidate_ids(self, options: Sequence[str]) -> list[list[int]]:
+        candidates = [self._encode(option) for option in options]
+        if empty := [option for option, ids in zip(options, candidates, strict=True) if not ids]:
+            raise UserError(f"choices {empty!r} encode to no tokens; every choice needs text")
+        return candidates
+
+    def _option_logliks(
+        self, prompts: Sequence[np.ndarray | Sequence[int]], candidates: list[list[int]]
+    ) -> list[list[OptionLoglik]]:
+        """Each option's log-probability after each prompt, and its end of turn's after it:
+        the options with and without the end token in one trie, which shares their tokens."""
+        ended = [[*ids, self._end_of_turn] for ids in candidates]
+        rows = self.scorer.log_likelihoods(self.model, prompts, candidates + ended)
+        width = len(candidates)
+        return [
+            [
+                OptionLoglik(option=own, end=whole - own)
+                for own, whole in zip(row[:width], row[width:], strict=True)
             ]
-        return ranked_choices(choices, prompts, candidates, scores, time.perf_counter() - start)
+            for row in rows
+        ]
+
+    def _content_free_rows(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet, candidates: list[list[int]]
+    ) -> list[list[OptionLoglik]] | None:
+        if choices.scoring != "pmi":
+            return None
+        prompts = self._prompt_ids([content_free_conversation(c) for c in conversations])
+        return self._content_free.rows(
+            [list(prompt) for prompt in prompts],
+            choices.options,
+            lambda missing: self._option_logliks(missing, candidates),
+        )
 
     # -- helpers ------------------------------------------------------------------------------
 
@@ -345,7 +401,10 @@ class HFModel(ModelAPI):
             try:
                 outputs.extend(run(batch))
             except (RuntimeError, ValueError) as err:
-                # Out of memory or a prompt over the context length fails this batch only.
+                # Out of memory or a prompt over the context length fails this batch only, as
+                # a backend failure; any other error is a bug, and raised.
+                if not backend_failure(err):
+                    raise
                 outputs.extend(
                     ModelOutput(
                         text="", finish_reason="error", error=f"{type(err).__name__}: {err}"
@@ -372,7 +431,8 @@ class HFModel(ModelAPI):
     def _encode_prompts(
         self, conversations: Sequence[Conversation], texts: list[str]
     ) -> list[np.ndarray]:
-        """The token ids of each conversation's rendered `texts`, equal to encoding each whole.
+        """The token ids of each conversation's rendered `texts`, equal to encoding each whole
+        (a `ContextLengthError` when one is longer than the model's context).
 
         A system message (an agent's is the same every step, and most of every prompt) is
         encoded once and its tokens kept (`_head`); each call encodes only the rest of every
@@ -386,12 +446,19 @@ class HFModel(ModelAPI):
             text[len(head[0]) :] if head else text for head, text in zip(heads, texts, strict=True)
         ]
         encoded = self.tokenizer(rests, add_special_tokens=False).input_ids
-        return [
+        prompts = [
             np.concatenate([head[1], np.asarray(ids, dtype=np.int64)])
             if head
             else np.asarray(ids, dtype=np.int64)
             for head, ids in zip(heads, encoded, strict=True)
         ]
+        longest = max((len(prompt) for prompt in prompts), default=0)
+        if self.context_length is not None and longest > self.context_length:
+            raise ContextLengthError(
+                f"a prompt of {longest} tokens is longer than the model's context "
+                f"({self.context_length})"
+            )
+        return prompts
 
     def _head(self, conversation: Conversation, text: str) -> tuple[str, np.ndarray] | None:
         """The start of `text` whose tokens are kept for its system message, with the tokens.
