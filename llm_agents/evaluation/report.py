@@ -755,6 +755,8 @@ class ComparedRun:
     label: str
     summary: Summary
     results: RunResults
+    episodes: Sequence[EpisodeRecord]
+    """The run's scheduled episodes, as read for the summary (the scores come from them too)."""
 
     def cells(self, columns: Sequence[str]) -> list[str]:
         """The row's cells under `columns`, label first."""
@@ -777,7 +779,7 @@ def compared_run(run_dir: str | Path) -> ComparedRun:
     summary = run_summary(
         results, episodes, recorded_rule(results), run_actions(run_dir, results, episodes)
     )
-    return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results)
+    return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results, episodes)
 
 
 def comparison_columns(runs: Sequence[ComparedRun]) -> list[str]:
@@ -852,7 +854,7 @@ def compare_runs(run_dir: str | Path, *others: str | Path) -> str:
         ),
     ]
     lines = _render(rows) + notes + comparison_notes(runs)
-    scores = compare_scores([run_dir, *others], [run.label for run in runs])
+    scores = compare_scores(runs)
     return "\n".join([*lines, "", scores])
 
 
@@ -927,13 +929,12 @@ def format_scores(scores: RunScores) -> str:
     return "\n".join(lines)
 
 
-def compare_scores(run_dirs: Sequence[str | Path], labels: Sequence[str]) -> str:
+def compare_scores(runs: Sequence[ComparedRun]) -> str:
     """The achievement scores of compared runs, a row each (`report --compare`)."""
     rows = [["Run", "Achievements", *SCORES_HEADER]]
-    for run_dir, label in zip(run_dirs, labels, strict=True):
-        results = read_results(Path(run_dir) / RESULTS_FILE)
-        overall = run_scores(results, scheduled_episodes(Path(run_dir), results)).overall
-        rows.append([label, overall.achievement_list, *scores_cells(overall)])
+    for run in runs:
+        overall = run_scores(run.results, run.episodes).overall
+        rows.append([run.label, overall.achievement_list, *scores_cells(overall)])
     return "\n".join(
         ["Achievement scores (classic: Crafter's 22; full: Craftax's 67):", *_render(rows)]
     )

@@ -51,11 +51,9 @@ from llm_agents.evaluation.report import (
     run_scores,
     run_summary,
     scenario_rows,
-    scheduled_episodes,
     table_columns,
 )
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
-from llm_agents.run_data.store import RESULTS_FILE, read_results
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.goals import block_words, rendering_of
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
@@ -181,9 +179,7 @@ def build_view(
     except OSError as exc:
         raise UserError(f"cannot create {pages}: {exc.strerror}") from exc
     try:
-        outcome = _write_report(
-            run, rendered, out, progress, batch_size, compare, compared, flagged
-        )
+        outcome = _write_report(run, rendered, out, progress, batch_size, compared, flagged)
         _move_into_place(out, final)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
@@ -209,7 +205,6 @@ def _write_report(
     out: Path,
     progress: bool,
     batch_size: int,
-    compare: Sequence[str | Path],
     compared: Sequence[ComparedRun],
     flagged: GoalStatusTables | None,
 ) -> ViewOutcome:
@@ -244,7 +239,7 @@ def _write_report(
         templates.get_template("index.html.j2").render(
             **_run_context(run, statuses, compared),
             goal_status=flagged,
-            **_scores_context(run, compare, compared),
+            **_scores_context(run, compared),
         ),
     )
     size = sum(path.stat().st_size for path in out.rglob("*") if path.is_file())
@@ -530,7 +525,9 @@ def _run_context(
     differences = paper_differences(results, recorded_rule(results))
     difficulty = difficulty_of_run(results)
     published = published_for(difficulty)
-    ours = ComparedRun(f"{model} (this run{', partial' if partial else ''})", summary, results)
+    ours = ComparedRun(
+        f"{model} (this run{', partial' if partial else ''})", summary, results, records
+    )
     # With runs to compare, the columns are the comparison's (`report --compare`'s).
     columns = (
         comparison_columns([ours, *compared]) if compared else table_columns(summary, difficulty)
@@ -632,17 +629,13 @@ def _goal_status(run: LoadedRun, worlds: int) -> GoalStatusTables:
     )
 
 
-def _scores_context(
-    run: LoadedRun, compare: Sequence[str | Path], compared: Sequence[ComparedRun]
-) -> dict[str, Any]:
+def _scores_context(run: LoadedRun, compared: Sequence[ComparedRun]) -> dict[str, Any]:
     """The field's achievement scores of the run (overall, per category, per episode, the
     unlock table) and of each compared run, from their records, as `report` prints them."""
     scores = run_scores(run.results, [view.record for view in run.episodes])
-    others = []
-    for path, other in zip(compare, compared, strict=True):
-        results = read_results(Path(path) / RESULTS_FILE)
-        overall = run_scores(results, scheduled_episodes(Path(path), results)).overall
-        others.append((other.label, overall))
+    others = [
+        (other.label, run_scores(other.results, other.episodes).overall) for other in compared
+    ]
     return {"scores": scores, "compared_scores": others}
 
 
