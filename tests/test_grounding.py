@@ -19,7 +19,7 @@ from llm_agents.agents.grounding import parse_grounding, reading_json
 from llm_agents.backends.base import ChatMessage
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.evaluation.config import build_config, build_settings
+from llm_agents.evaluation.config import EvalConfig, build_config, build_settings
 from llm_agents.evaluation.grounding_run import (
     GroundConfig,
     execute_grounding,
@@ -399,6 +399,65 @@ def test_ground_answers_picked_from_the_goals_are_read_by_the_same_parser(
     assert results.summary is not None and results.summary.overall.exact.rate == 1.0
 
 
+@pytest.mark.parametrize("scoring", ["mean", None])
+def test_ground_loglik_records_and_honours_its_scoring_rule(
+    tmp_path: Path, dataset_file: Path, scoring: str | None
+) -> None:
+    given = {"choice_scoring": scoring} if scoring else {}
+    cfg = ground_config(tmp_path / "run", dataset_file, choice="loglik", **given)
+    model = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    results = execute_grounding(prepare_grounding(cfg), model)
+    # Unset, the rule is eval's default: the one declaration both commands share.
+    rule = scoring or EvalConfig.model_fields["choice_scoring"].default
+    assert {choices.scoring for _, choices in model.requests if choices} == {rule}
+    assert len(model.requests) == 6
+    assert results.config["choice_scoring"] == rule
+    assert results.identity.settings["choice_scoring"] == rule
+
+
+def test_ground_resumes_only_under_the_same_scoring_rule(
+    tmp_path: Path, dataset_file: Path
+) -> None:
+    out = tmp_path / "run"
+    first = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    played = ground_config(out, dataset_file, choice="loglik", choice_scoring="mean", limit=2)
+    execute_grounding(prepare_grounding(played), first)
+    with pytest.raises(UserError, match=r'choice_scoring \("mean" before, "bytes" now\)'):
+        prepare_grounding(ground_config(out, dataset_file, choice="loglik", choice_scoring="bytes"))
+    # Free answers never read the rule, so it is no part of their identity.
+    free = ground_config(tmp_path / "free", dataset_file, limit=2)
+    execute_grounding(prepare_grounding(free), first)
+    assert (
+        read_ground_results(tmp_path / "free" / "results.json").identity.settings["choice_scoring"]
+        is None
+    )
+
+
+@pytest.mark.parametrize("choice", ["loglik", None])
+def test_a_grounding_recorded_before_choice_scoring_resumes_under_the_rule_it_played(
+    tmp_path: Path, dataset_file: Path, choice: str | None
+) -> None:
+    out = tmp_path / "run"
+    chosen = {"choice": choice, "choice_scoring": "sum"} if choice else {}
+    answer = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    execute_grounding(
+        prepare_grounding(ground_config(out, dataset_file, limit=2, **chosen)), answer
+    )
+
+    def predate(results: dict[str, Any]) -> None:
+        del results["identity"]["settings"]["choice_scoring"]
+        del results["config"]["choice_scoring"]
+
+    edit_results(out, predate)
+    if choice:
+        # Before the setting, loglik summed the options' tokens: the default now is another rule.
+        with pytest.raises(UserError, match=r'choice_scoring \("sum" before, "pmi" now\)'):
+            prepare_grounding(ground_config(out, dataset_file, choice=choice))
+    again = MockModel(outputs=lambda c: right_answer(instruction_of(c)))
+    done = execute_grounding(prepare_grounding(ground_config(out, dataset_file, **chosen)), again)
+    assert done.status == "complete" and len(again.requests) == 4
+
+
 def test_cli_ground_garbage_gives_invalid_rows_and_report_prints_them(
     tmp_path: Path, dataset_file: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -423,6 +482,7 @@ def test_cli_ground_garbage_gives_invalid_rows_and_report_prints_them(
         ["--categories", "paraphrased"],  # no goals there
         ["--model", "mock:other"],  # another run is in the directory
         ["--grounding-shots", "17"],  # more than a prompt is given
+        ["--choice-scoring", "mean"],  # scores --choice loglik only
     ],
 )
 def test_cli_ground_bad_input_is_one_line_exit_2_nothing_written(

@@ -185,23 +185,61 @@ class FailureSettings(BaseModel):
     """Stop the run (keeping what finished) after this many failed model answers in a row."""
 
 
-class EvalConfig(ModelSettings, GroundingSettings, FailureSettings):
+class ChoiceSettings(ModelSettings):
+    """How an answer is picked among given options: `eval` (an action name) and `ground` (one
+    of the dataset's goals, as JSON) share it."""
+
+    predated_settings: ClassVar[dict[str, Any]] = {"choice_scoring": "sum"}
+    """Settings added after runs were recorded whose default is not how those runs played:
+    the value such a run played with (`predated`; eval's `recorded`)."""
+
+    choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
+    """Answer with one option (eval: an action name; ground: one of the chosen categories'
+    goals, as JSON), picked by this rule: loglik (the option the model finds likeliest after
+    the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai); unset: free
+    text."""
+    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "pmi"
+    """--choice loglik: how an option's log-probabilities make its score: sum (its tokens'
+    total, no end of turn: favours the shortest option; runs recorded before this setting
+    played it), mean (per token, the end of turn included), bytes (per byte,
+    lm-evaluation-harness's acc_norm) or pmi (minus the same after a content-free prompt). See
+    the README's Choices."""
+
+    @model_validator(mode="after")
+    def _scoring_with_loglik(self) -> ChoiceSettings:
+        if (
+            "choice_scoring" in self.model_fields_set
+            and self.choice != "loglik"
+            and self.choice_scoring != type(self).model_fields["choice_scoring"].default
+        ):
+            raise ValueError(
+                f"choice_scoring {self.choice_scoring!r} scores --choice loglik only; this run's "
+                f"choice is {self.choice or 'free text'} (leave --choice-scoring out)"
+            )
+        return self
+
+    def result_settings(self) -> dict[str, Any]:
+        """As `ModelSettings.result_settings`; the choice scoring only where it scores
+        (`--choice loglik`), so other runs never differ by it."""
+        settings = super().result_settings()
+        if self.choice != "loglik":
+            settings["choice_scoring"] = None
+        return settings
+
+    @classmethod
+    def predated(cls, recorded: dict[str, Any]) -> dict[str, Any]:
+        """The result settings a run that recorded `recorded` (its identity's settings) played
+        with: the defaults, except `predated_settings` where it predates them."""
+        return cls.model_construct(
+            **{**cls.predated_settings, "choice": recorded.get("choice")}
+        ).result_settings()
+
+
+class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
-    predated_settings: ClassVar[dict[str, Any]] = {"choice_scoring": "sum"}
-    """Settings added after runs were recorded whose default is not how those runs played:
-    the value such a run played with (`recorded`, `predated`)."""
 
-    choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
-    """Answer with one action name, picked by this rule: loglik (the name the model finds
-    likeliest after the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai);
-    unset: free text."""
-    choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "pmi"
-    """--choice loglik: how a name's log-probabilities make its score: sum (its tokens' total,
-    no end of turn: favours the shortest name; runs recorded before this setting played it),
-    mean (per token, the end of turn included), bytes (per byte, lm-evaluation-harness's
-    acc_norm) or pmi (minus the same after a content-free prompt). See the README's Choices."""
     difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
     """CrafText difficulty: easy, medium (Craftax-Classic in the official configs) or hard
     (full Craftax); --categories then picks its splits."""
@@ -339,35 +377,6 @@ class EvalConfig(ModelSettings, GroundingSettings, FailureSettings):
             hint = f"; did you mean {close[0]}?" if close else ""
             raise ValueError(f"unknown action {value!r}{hint}")
         return value
-
-    @model_validator(mode="after")
-    def _scoring_with_loglik(self) -> EvalConfig:
-        if (
-            "choice_scoring" in self.model_fields_set
-            and self.choice != "loglik"
-            and self.choice_scoring != type(self).model_fields["choice_scoring"].default
-        ):
-            raise ValueError(
-                f"choice_scoring {self.choice_scoring!r} scores --choice loglik only; this run's "
-                f"choice is {self.choice or 'free text'} (leave --choice-scoring out)"
-            )
-        return self
-
-    def result_settings(self) -> dict[str, Any]:
-        """As `ModelSettings.result_settings`; the choice scoring only where it scores
-        (`--choice loglik`), so other runs never differ by it."""
-        settings = super().result_settings()
-        if self.choice != "loglik":
-            settings["choice_scoring"] = None
-        return settings
-
-    @classmethod
-    def predated(cls, recorded: dict[str, Any]) -> dict[str, Any]:
-        """The result settings a run that recorded `recorded` (its identity's settings) played
-        with: the defaults, except `predated_settings` where it predates them."""
-        return cls.model_construct(
-            **{**cls.predated_settings, "choice": recorded.get("choice")}
-        ).result_settings()
 
     @classmethod
     def recorded(cls, settings: dict[str, Any]) -> EvalConfig:

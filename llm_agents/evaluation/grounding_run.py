@@ -44,11 +44,15 @@ from llm_agents.agents.grounding import (
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
     ChatMessage,
-    ChoiceRule,
     ChoiceSet,
     ModelAPI,
 )
-from llm_agents.evaluation.config import FailureSettings, GroundingSettings, TextSelection
+from llm_agents.evaluation.config import (
+    ChoiceSettings,
+    FailureSettings,
+    GroundingSettings,
+    TextSelection,
+)
 from llm_agents.evaluation.runner import BackendFailure
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.provenance import code_version, note_other_code
@@ -71,15 +75,12 @@ from prompts import template_digests
 GROUNDINGS_FILE = "groundings.jsonl"
 
 
-class GroundConfig(TextSelection, GroundingSettings, FailureSettings):
+class GroundConfig(TextSelection, ChoiceSettings, GroundingSettings, FailureSettings):
     """What `craftext-llm ground` does (its `--difficulty` also picks the goal kinds the prompt
-    offers)."""
+    offers; `--choice` picks among the chosen categories' distinct goals)."""
 
     paraphrases: Annotated[bool, CHANGES_RESULTS] = True
     """Ground every paraphrase of each goal as well as its original instruction."""
-    choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
-    """Answer by picking one of the dataset's distinct goals (as JSON) by this rule: loglik
-    (hf, vllm) or guided (vllm, openai); unset: free JSON."""
     output_dir: str = "runs/ground"
     """Where groundings and results are written; rerunning on it resumes the run."""
     requests_per_call: int = Field(16, ge=1)
@@ -238,7 +239,11 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
         instructions=instructions,
         # The options are every goal of the chosen categories, so a text can be misread as
         # any goal of the run, never only as its own.
-        choices=ChoiceSet(options=reading_options(truths, difficulty), rule=config.choice)
+        choices=ChoiceSet(
+            options=reading_options(truths, difficulty),
+            rule=config.choice,
+            scoring=config.choice_scoring,
+        )
         if config.choice
         else None,
         identity=identity,
@@ -267,7 +272,7 @@ def _previous(out: Path, identity: RunIdentity) -> GroundResults | None:
     previous = read_ground_results(path)
     changed = identity.differences(
         previous.identity,
-        added=GroundConfig.model_construct().result_settings(),
+        added=GroundConfig.predated(previous.identity.settings),
         recorded_goals=previous.dataset.get("split_sha256"),
     )
     if changed:
