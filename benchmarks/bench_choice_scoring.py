@@ -2,7 +2,8 @@
 
 The zero-shot agent plays the same episodes (Classic, the first `--limit` goals of each
 category, original instructions, one world each) under each rule of `--play`: success with its
-95% Wilson interval, and the commonest action's share of the steps. Every step of every run is
+95% interval clustered by goal (`clustered_rate`; one world per goal, so it equals the plain
+Wilson interval here), and the commonest action's share of the steps. Every step of every run is
 also scored under every other rule from the same log-probabilities (one scoring pass gives them
 all), so each rule's commonest action is also measured on the very states the played rule
 reached ("on the same states"), at no extra model cost: the bias of a rule shows there even
@@ -103,11 +104,12 @@ def _play(argv: list[str], shadow: Path) -> None:
         sys.exit(f"craftext-llm eval failed (exit {code})")
 
 
-def _rate(successes: int, total: int) -> str:
-    from llm_agents.run_data.metrics import wilson_interval
+def _rate(outcomes: Sequence[tuple[str, bool]]) -> str:
+    """Successes of (goal, success) episodes, with the 95% interval clustered by goal."""
+    from llm_agents.run_data.metrics import clustered_rate
 
-    low, high = wilson_interval(successes, total)
-    return f"{successes}/{total} = {successes / total:.2f} [{low:.2f}, {high:.2f}]"
+    rate = clustered_rate((goal, int(success), 1) for goal, success in outcomes)
+    return f"{rate.successes}/{rate.episodes} = {rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}]"
 
 
 def _commonest(actions: Counter[str]) -> str:
@@ -186,7 +188,7 @@ def main() -> None:
     print(f"{'played rule':<12}{header}  {'all':>26}  commonest action (played)")
     for rule in args.play:
         cells, played = [], Counter[str]()
-        won = started = 0
+        outcomes: list[tuple[str, bool]] = []
         for category in args.categories:
             target = played_dir(rule, category)
             if not (target / "steps.jsonl").exists():
@@ -195,12 +197,14 @@ def main() -> None:
             steps = list(read_steps(target / "steps.jsonl"))
             played.update(step.action_name for step in steps)
             # An interrupted run counts its unfinished episodes as not (yet) successful.
-            episodes = {step.episode_id for step in steps}
-            wins = sum(e.success for e in read_episodes(target / "episodes.jsonl"))
+            won = {e.episode_id for e in read_episodes(target / "episodes.jsonl") if e.success}
+            # An episode id is `category/goal/variant/episode`: its goal is the cluster.
+            goals = {step.episode_id: "/".join(step.episode_id.split("/")[:2]) for step in steps}
+            mine = [(goal, episode in won) for episode, goal in goals.items()]
+            outcomes += mine
             deepest = 1 + max(step.step for step in steps)
-            won, started = won + wins, started + len(episodes)
-            cells.append(f"{_rate(wins, len(episodes))} ({deepest} st)")
-        total = _rate(won, started) if started else "-"
+            cells.append(f"{_rate(mine)} ({deepest} st)")
+        total = _rate(outcomes) if outcomes else "-"
         row = "  ".join(f"{c:>32}" for c in cells)
         print(f"{rule:<12}{row}  {total:>26}  {_commonest(played)}")
 
