@@ -85,8 +85,9 @@ class LadderSettings:
     extra: dict[str, Any] = field(default_factory=dict)  # settings every run shares
 
     def per_category_limit(self, rung: Rung) -> dict[str, int | None]:
-        """The episodes each category's run of `rung` plays: the zero-shot subset is spread
-        evenly over the categories (the first ones get the remainder)."""
+        """The episodes each category's run of `rung` plays (None: all): the zero-shot subset
+        is spread evenly over the categories (the first ones get the remainder; a category
+        left 0 is not played)."""
         limits: dict[str, int | None] = dict.fromkeys(self.categories, self.limit)
         if rung.key == "acts" and self.zero_shot_episodes:
             share, extra = divmod(self.zero_shot_episodes, len(self.categories))
@@ -145,6 +146,8 @@ def rung_configs(settings: LadderSettings, rung: Rung) -> list[tuple[str, Any]]:
 
     configs: list[tuple[str, Any]] = []
     for category, limit in settings.per_category_limit(rung).items():
+        if limit == 0:
+            continue
         chosen = {
             **_common(settings, category, limit),
             **_model_settings(settings, rung),
@@ -377,6 +380,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--out", help="default: runs/ladder-<model name>")
     parser.add_argument("--no-play", action="store_true", help="only print what the runs hold")
     args = parser.parse_args(argv)
+    if args.limit is not None and args.limit < 1:
+        parser.error("--limit must be at least 1")
+    if args.zero_shot_episodes < 0:
+        parser.error("--zero-shot-episodes must be 0 (all) or more")
 
     from env.errors import UserError
 

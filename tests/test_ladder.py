@@ -132,3 +132,8 @@ def test_the_zero_shot_subset_is_spread_over_the_categories(tmp_path: Path) -> N
     assert capped.per_category_limit(acts) == {"one": 4, "combo": 4, "new_objects": 4}
     full = ladder.LadderSettings(model=MODEL, out=tmp_path, zero_shot_episodes=0)
     assert full.per_category_limit(acts) == dict.fromkeys(ladder.DEFAULT_CATEGORIES)
+    # Fewer episodes than categories: the categories left none are not played at all.
+    one = ladder.LadderSettings(model=MODEL, out=tmp_path, zero_shot_episodes=1)
+    assert one.per_category_limit(acts) == {"one": 1, "combo": 0, "new_objects": 0}
+    [(category, config)] = ladder.rung_configs(one, acts)
+    assert (category, config.limit, tuple(config.categories)) == ("one", 1, ("one",))
