@@ -322,7 +322,8 @@ def format_ladder(settings: LadderSettings, rows: Sequence[LadderRow]) -> str:
         if row.subset:
             spread = ", ".join(f"{n} {c}" for c, n in row.subset.items())
             notes.append(
-                f"* {row.rung.key}: a subset of {rate.episodes} episodes ({spread}), "
+                f"* {row.rung.key}: a subset of {rate.episodes} "
+                f"episode{'s' if rate.episodes != 1 else ''} ({spread}), "
                 "a model call per step makes the full set too slow"
             )
     lines += notes
