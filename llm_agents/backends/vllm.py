@@ -1,6 +1,7 @@
 """Backend running vLLM's offline engine in this process: one `LLM.chat` call per batch.
 
-Spec: `vllm:<model>`, where the model is a local folder, `smollm2-135m` (the embedded model), or
+Spec: `vllm:<model>`, where the model is a local folder, a named model (`smollm2-135m`, the embedded one, or a
+Qwen2.5-Coder one: `embedded.NAMED_MODELS`), or
 a hub id already in the local hub cache. Keyword options go to the engine (`max_model_len`,
 `dtype`, `enforce_eager`, ...; anything else through `engine_args`).
 

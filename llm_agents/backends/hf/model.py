@@ -1,6 +1,7 @@
 """The transformers backend: local models on CPU or GPU, no server.
 
-Model names (`hf:<name>`): `smollm2-135m` is the embedded default (see `embedded.py`); a path
+Model names (`hf:<name>`): a named model (`smollm2-135m`, the embedded default,
+`qwen2.5-coder-0.5b`, `qwen2.5-coder-1.5b`; see `embedded.py`) is fetched on first use; a path
 loads any local model folder; any other name is a hub id, loaded only from the local hub cache
 (the hub is never contacted, so nothing hangs offline).
 
@@ -62,7 +63,7 @@ from llm_agents.backends.base import (
     ranked_choices,
     scored_choices,
 )
-from llm_agents.backends.embedded import EMBEDDED_MODEL_NAME
+from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     padded,
@@ -521,10 +522,11 @@ def _cut_at_stop(text: str, stops: list[str]) -> tuple[bool, str]:
 
 
 def _load_error(model_name: str, err: OSError) -> UserError:
+    names = ", ".join(f"hf:{name}" for name in NAMED_MODELS)
     return UserError(
         f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
-        f"(hf:/path/to/model), hf:{EMBEDDED_MODEL_NAME}, or a hub id already in the local hub "
-        "cache"
+        f"(hf:/path/to/model), a named model ({names}), or a hub id already in the local "
+        "hub cache"
     )
 
 
