@@ -243,7 +243,11 @@ class SkillsAgent:
         result: str | Finished = Finished("failed", why) if why else run.advance(prompt.observation)
         if isinstance(result, Finished):
             record = base.model_copy(
-                update={"outcome": result.outcome, "reason": result.reason, "steps": 0}
+                update={
+                    "outcome": result.outcome,
+                    "reason": result.reason,
+                    "prerequisite": bool(why),
+                }
             )
             episode.history.append(record)
             return self._decision(prompt, output, "NOOP", parsed.stage, (*earlier, record))

@@ -116,6 +116,8 @@ class SkillRecord(BaseModel):
     outcome: SkillOutcome
     reason: str | None = None
     """Why it failed, was invalid, ran out of steps or was interrupted (what the model is told)."""
+    prerequisite: bool = False
+    """It failed before its first step: a material, tool or station it needs was missing."""
     steps: int = Field(0, ge=0)
     """Environment steps the skill took."""
     parse_stage: str
