@@ -12,7 +12,7 @@ import pytest
 
 from env import CrafTextEnv, EnvConfig, Variant
 from env.dataset import Dataset, DatasetSource, Goal
-from env.goals import AnyGoal, BuildLineGoal, LocalizationGoal
+from env.goals import AnyGoal, BuildLineGoal, BuildSquareGoal, LocalizationGoal
 from llm_agents.agents.expert_navigation import ExpertEpisode
 from llm_agents.agents.skill_catalogue import Build, Collect, Place, parse_skill, skill_offer
 from llm_agents.agents.skill_runner import SkillRun, valid_now
@@ -266,7 +266,12 @@ def short_env() -> CrafTextEnv:
 
 
 def play(
-    tmp_path: Path, env: CrafTextEnv, the_goal: AnyGoal, answers: list[str], difficulty: str
+    tmp_path: Path,
+    env: CrafTextEnv,
+    the_goal: AnyGoal,
+    answers: list[str],
+    difficulty: str,
+    variant: str = "classic",
 ) -> tuple[EpisodeRecord, Path]:
     """The one episode of a skills run on `the_goal`, the model answering `answers` in turn."""
     path = Dataset(
@@ -274,9 +279,10 @@ def play(
     ).save_json(tmp_path / "goals.json")
     out = tmp_path / "run"
     settings = {
-        "agent": "skills", "model": "mock:", "dataset": str(path), "variant": "classic",
+        "agent": "skills", "model": "mock:", "dataset": str(path), "variant": variant,
         "difficulty": difficulty, "categories": ["one" if difficulty == "easy" else "train"],
-        "paraphrases": False, "max_steps": MAX_STEPS, "batch_size": 1, "output_dir": str(out),
+        "paraphrases": False, "max_steps": env.config.max_steps, "batch_size": 1,
+        "output_dir": str(out),
     }  # fmt: skip
     run_eval(build_config(settings), MockModel(outputs=answers, cycle=False), env=env)
     (record,) = read_episodes(out / "episodes.jsonl")
@@ -339,3 +345,21 @@ def test_a_missing_prerequisite_and_garbage_end_as_a_recorded_failure(
     assert "no more skills are asked" in (invalid[-1].reason or "")
     assert record.invalid_actions == GIVE_UP
     assert skill_error(record, pickaxe, CLASSIC, "easy") == "invalid_answers"
+
+
+@pytest.mark.slow
+def test_a_hard_goal_on_full_craftax_plays_the_full_catalogue(tmp_path: Path) -> None:
+    env = CrafTextEnv(EnvConfig(variant=FULL, max_steps=6))
+    square = BuildSquareGoal(
+        id="INSTRUCTION_CRAFTING_TABLE_3", scenario="hard", split="hard_train",
+        instruction="A square of tables.", paraphrases=(), block="CRAFTING_TABLE", size=3,
+    )  # fmt: skip
+    answers = ["build square crafting_table 3", "go to fountain"]
+    record, _ = play(tmp_path, env, square, answers, "hard", variant="full")
+    assert record.skills is not None and not record.success
+    first, second = record.skills
+    assert (first.outcome, first.reason) == (
+        "failed",
+        "build square crafting_table 3 needs 18 wood (have 0)",
+    )
+    assert (second.skill, second.outcome) == ("go to fountain", "unfinished")
