@@ -17,9 +17,11 @@ from llm_agents.agents.expert_navigation import ExpertEpisode
 from llm_agents.agents.skill_catalogue import Build, Collect, Place, parse_skill, skill_offer
 from llm_agents.agents.skill_runner import SkillRun, valid_now
 from llm_agents.agents.skills import GIVE_UP, SkillsAgent
-from llm_agents.backends.base import ModelOutput
+from llm_agents.agents.types import StepPrompt
+from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.dispatch import Dispatcher
 from llm_agents.evaluation.report import format_table
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.evaluation.skill_errors import skill_error
@@ -124,7 +126,7 @@ def observation(
 
 
 def why_not(text: str, obs: Observation, difficulty: str = "medium") -> str | None:
-    skill = parse_skill(text, skill_offer(CLASSIC, difficulty)).skill  # type: ignore[arg-type]
+    skill = parse_skill(text, skill_offer(CLASSIC, difficulty)).skill
     assert skill is not None, text
     episode = ExpertEpisode((), ())
     episode.world.update(obs)
@@ -179,12 +181,33 @@ def test_a_choice_request_carries_the_skills_valid_now_and_lists_them() -> None:
     assert decision.name in ("LEFT", "RIGHT", "UP", "DOWN", "PLACE_TABLE")
 
 
+def test_the_dispatcher_asks_each_prompt_with_its_own_options() -> None:
+    model = MockModel(outputs=["collect wood", "drink"])
+    dispatcher = Dispatcher(model, None)
+    own = [ChoiceSet(options=(name, "noop"), rule="loglik") for name in ("collect wood", "drink")]
+    prompts = [
+        StepPrompt(slot=slot, observation=None, messages=[ChatMessage(role="user", content="?")],
+                   text="", choices=choices)
+        for slot, choices in enumerate(own)
+    ]  # fmt: skip
+    dispatcher.submit(prompts)
+    answers: list[Any] = []
+    while dispatcher.in_flight:
+        answers += dispatcher.wait()
+    dispatcher.close()
+    assert [choices for _, choices in model.requests] in (own, own[::-1])
+    assert {prompt.slot: output.text for prompt, output in answers} == {
+        0: "collect wood",
+        1: "drink",
+    }
+
+
 # ----------------------------------------------------------------------------- records
 
 
 def skill_record(index: int, skill: str | None, outcome: str, **extra: Any) -> SkillRecord:
     return SkillRecord(
-        index=index, step=index, skill=skill, label=skill or "invalid", outcome=outcome,  # type: ignore[arg-type]
+        index=index, step=index, skill=skill, label=skill or "invalid", outcome=outcome,
         parse_stage="exact" if skill else "invalid", prompt="the request", answer=skill or "?",
         **extra,
     )  # fmt: skip
