@@ -76,6 +76,10 @@ def test_the_parser_reads_the_answer_field_lines_and_aliases() -> None:
         "exact",
     )
     assert parse_skill("craft wood pickaxe", offer).skill is not None
+    # Qwen2.5-Coder-0.5B copies the history's line format after the field.
+    copied = parse_skill("SKILL: place stone: failed (needs 1 stone (have 0)), 0 steps", offer)
+    assert (copied.skill, copied.stage) == (Place(block="stone"), "field")
+    assert parse_skill("collect wood, then a table", offer).skill == Collect(material="wood")
 
 
 @pytest.mark.parametrize(

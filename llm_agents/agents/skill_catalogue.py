@@ -12,6 +12,8 @@ Parser stages, first match wins (reasoning blocks dropped first, as for actions)
 1. `field`: the last `SKILL: <skill>` line decides;
 2. `exact`: the whole answer, else its last line that is a skill (lines copied from the prompt
    skipped), reads as a skill;
+in both, a value that is no skill as a whole is read up to its first `:`, `(`, `,` or `;` (a
+skill followed by a comment, such as a copied history line);
 otherwise `invalid`, with the reason of the line that came closest (an unknown skill word, or the
 parameter that is not in the catalogue). The parser never raises on any text.
 """
@@ -437,8 +439,19 @@ def parse_skill(
     return whole
 
 
+_TAIL = re.compile(r"[:(,;]")
+
+
 def _attempt(line: str, offer: SkillOffer, stage: SkillStage, raw: str) -> SkillParse:
+    """`line` read as a skill; failing that, its part before a `:`, `(`, `,` or `;` (a skill
+    followed by a comment, as when a history line `place stone: failed (...)` is copied)."""
     try:
         return SkillParse(skill=_read(_words(line), offer), stage=stage, raw=raw)
     except _Bad as bad:
+        head = _TAIL.split(line, maxsplit=1)[0]
+        if head != line and _words(head):
+            try:
+                return SkillParse(skill=_read(_words(head), offer), stage=stage, raw=raw)
+            except _Bad:
+                pass
         return SkillParse(skill=None, stage="invalid", reason=str(bad), raw=raw)
