@@ -19,6 +19,7 @@ from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
 from llm_agents.agents.guided import GuidedAgent
 from llm_agents.agents.noop import NoopAgent
+from llm_agents.agents.skills import SkillsAgent
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
@@ -94,13 +95,14 @@ def conversation_text(messages: list) -> str:
 
 
 def test_registry_names_every_strategy_and_whether_it_needs_a_model() -> None:
-    assert set(AGENTS) == {"zero-shot", "cot", "few-shot", "expert", "guided", "noop"}
+    assert set(AGENTS) == {"zero-shot", "cot", "few-shot", "expert", "guided", "noop", "skills"}
     assert agent_class("zero-shot") is ZeroShotAgent
     assert agent_class("cot") is ChainOfThoughtAgent
     assert agent_class("few-shot") is FewShotAgent
     assert agent_class("expert") is ExpertAgent
     assert agent_class("guided") is GuidedAgent
     assert agent_class("noop") is NoopAgent
+    assert agent_class("skills") is SkillsAgent
     needs_model = {name: agent_class(name).needs_model for name in AGENTS}
     assert needs_model == {
         "zero-shot": True,
@@ -109,6 +111,7 @@ def test_registry_names_every_strategy_and_whether_it_needs_a_model() -> None:
         "expert": False,
         "guided": True,
         "noop": False,
+        "skills": True,
     }
 
 

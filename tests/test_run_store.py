@@ -241,6 +241,7 @@ OTHER_VALUES: dict[str, object] = {
     "cot_max_tokens": 100,
     "few_shot_steps": 2,
     "demos": "expert-run",
+    "skill_steps": 20,
     "grounding_shots": 4,
 }
 OTHER_GENERATION: dict[str, object] = {

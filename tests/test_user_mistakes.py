@@ -100,6 +100,15 @@ MISTAKES: dict[str, Mistake] = {
     "missing mock file": Mistake([*EVAL, "--model", "mock:file:{tmp}/nope.json"], "nope.json"),
     "unknown backend option": Mistake([*EVAL, "--backend-option", "thread=2"], "thread"),
     "model that does not answer": Mistake([*EVAL, "--model", "mock:error:down"], "down"),
+    "skills with a model that does not answer": Mistake(
+        [*EVAL, "--agent", "skills", "--model", "mock:error:down"], "down"
+    ),
+    "skills without a backend": Mistake(
+        [*EVAL, "--agent", "skills", "--model", "gpt4"], "no backend"
+    ),
+    "skills with no step budget": Mistake(
+        [*EVAL, "--agent", "skills", "--skill-steps", "0"], "skill"
+    ),
     "dead server": Mistake(
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1"], "connection refused"
     ),

@@ -35,7 +35,9 @@ from env.variant import Variant, as_variant
 from llm_agents.agents.actions import action_names
 from llm_agents.backends.reasoning import split_reasoning
 
-ParseStage = Literal["field", "exact", "alias", "mention", "fuzzy", "invalid"]
+ParseStage = Literal["field", "exact", "alias", "mention", "fuzzy", "invalid", "skill"]
+"""The parser's stages; `skill` is none of its own: the `skills` agent marks with it the steps
+whose action a running skill chose, where no answer was read."""
 
 #: Lowest rapidfuzz ratio (0-100) at which a short answer counts as a misspelt name.
 FUZZY_THRESHOLD = 85.0

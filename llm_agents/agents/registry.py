@@ -19,6 +19,7 @@ AGENTS: dict[str, str] = {
     "expert": "llm_agents.agents.expert:ExpertAgent",
     "guided": "llm_agents.agents.guided:GuidedAgent",
     "noop": "llm_agents.agents.noop:NoopAgent",
+    "skills": "llm_agents.agents.skills:SkillsAgent",
 }
 
 
@@ -58,3 +59,5 @@ class AgentSettings(Protocol):
     def grounding_shots(self) -> int: ...
     @property
     def dataset(self) -> str | None: ...
+    @property
+    def skill_steps(self) -> int: ...

@@ -12,8 +12,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict
 
 from llm_agents.agents.parser import ParseResult
-from llm_agents.backends.base import ChatMessage, ModelOutput
+from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.run_data.readings import Grounding
+from llm_agents.run_data.records import SkillRecord
 
 
 @dataclass(frozen=True)
@@ -26,6 +27,9 @@ class StepPrompt:
     messages: list[ChatMessage]
     text: str
     """The rendered observation."""
+    choices: ChoiceSet | None = None
+    """The options this prompt's answer must be one of, when they differ from the agent's
+    (`skills --choice`: the skills valid now); None: the agent's `choices`."""
     deferred: bool = False
     """The slot waits on another slot's request (the same question, asked once): it is sent
     nowhere, and the play loop prepares it again once that answer has been decided."""
@@ -55,9 +59,17 @@ class Decision(BaseModel):
     grounding: Grounding | None = None
     """Set on an episode's first decision by agents that read the instruction into a goal
     first (`guided`); an invalid one means the episode could not start."""
+    skills: tuple[SkillRecord, ...] = ()
+    """`skills`: the decisions this step touched, as they stand after it is chosen: the one
+    it closed (a skill that finished or failed on this observation), then the one it belongs
+    to."""
 
 
 def messages_hash(messages: Sequence[ChatMessage]) -> str:
     """sha256 over the messages' roles and contents, stable across processes."""
     payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
     return hashlib.sha256(payload.encode("utf-8")).hexdigest()
+
+
+#: `messages_hash` of no messages: the prompt of a step the model was not asked about.
+NO_PROMPT_HASH = messages_hash([])

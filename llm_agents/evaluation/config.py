@@ -330,6 +330,9 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     demos: Annotated[str | None, CHANGES_RESULTS] = None
     """few-shot: a run directory of the `expert` agent on training goals (`one`, `combo`) with
     the same renderer, whose successful episodes give the demonstrations."""
+    skill_steps: Annotated[int, CHANGES_RESULTS] = Field(60, ge=1, le=250)
+    """skills: the step budget of one skill; one that has not finished by then ends
+    `out_of_steps` and the model chooses again."""
 
     @field_validator("agent")
     @classmethod

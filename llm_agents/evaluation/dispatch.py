@@ -92,14 +92,22 @@ class Dispatcher:
                 return
 
     def _answer(self, prompts: list[StepPrompt]) -> None:
+        # Prompts with options of their own (the skills valid now) go in a call per option set.
+        groups: dict[ChoiceSet | None, list[StepPrompt]] = {}
+        for prompt in prompts:
+            key = prompt.choices if prompt.choices is not None else self.choices
+            groups.setdefault(key, []).append(prompt)
+        answers: list[Answer] = []
         try:
-            outputs = self.model.generate([p.messages for p in prompts], choices=self.choices)
-            if len(outputs) != len(prompts):
-                raise RuntimeError(
-                    f"backend {self.model.backend_name} returned {len(outputs)} outputs "
-                    f"for {len(prompts)} conversations"
-                )
+            for choices, group in groups.items():
+                outputs = self.model.generate([p.messages for p in group], choices=choices)
+                if len(outputs) != len(group):
+                    raise RuntimeError(
+                        f"backend {self.model.backend_name} returned {len(outputs)} outputs "
+                        f"for {len(group)} conversations"
+                    )
+                answers.extend(zip(group, outputs, strict=True))
         except BaseException as err:  # handed to the scheduler thread, which raises it
             self._answers.put(err)
             return
-        self._answers.put(list(zip(prompts, outputs, strict=True)))
+        self._answers.put(answers)

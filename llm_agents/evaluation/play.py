@@ -16,14 +16,20 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from llm_agents.agents import Agent, build_agent
-from llm_agents.agents.types import Decision, StepPrompt
+from llm_agents.agents.types import NO_PROMPT_HASH, Decision, StepPrompt
 from llm_agents.backends.base import ModelAPI
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.dispatch import Dispatcher
 from llm_agents.evaluation.schedule import ScheduledEpisode
 from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.readings import Grounding, reading_of
-from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
+from llm_agents.run_data.records import (
+    NOT_STARTED,
+    SKILL_STAGE,
+    EpisodeRecord,
+    SkillRecord,
+    StepRecord,
+)
 
 GameOver = Literal["death", "timeout"] | None
 
@@ -85,9 +91,15 @@ class _Tally:
     completion_tokens: int = 0
     achievements: list[str] = field(default_factory=list)
     grounding: Grounding | None = None
+    model_calls: int = 0
+    skills: dict[int, SkillRecord] = field(default_factory=dict)
+    """`skills`: each decision as it last stood, by its index."""
 
     def add(self, decision: Decision, reward: float, new: list[str]) -> None:
         self.grounding = decision.grounding or self.grounding
+        self.model_calls += decision.prompt_hash != NO_PROMPT_HASH
+        for record in decision.skills:
+            self.skills[record.index] = record
         self.episode_return += reward
         self.invalid += int(decision.fallback_used)
         self.prompt_tokens += decision.output.prompt_tokens
@@ -260,6 +272,9 @@ def _step_record(
         error=decision.output.error,
         cached=decision.output.cached,
         followups=decision.output.followups,
+        skill=decision.skills[-1].label
+        if decision.skills and decision.parse.stage != SKILL_STAGE
+        else None,
     )
 
 
@@ -303,4 +318,13 @@ def _episode_record(
             seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
         ).tolist(),
         code=code_version(),
+        model_calls=tally.model_calls,
+        skills=[
+            record
+            if record.outcome != "running"
+            else record.model_copy(update={"outcome": "unfinished"})
+            for _, record in sorted(tally.skills.items())
+        ]
+        if tally.skills
+        else None,
     )

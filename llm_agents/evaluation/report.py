@@ -312,6 +312,11 @@ def format_table(
         f"Invalid-action rate: {summary.invalid_action_rate:.3f}. Steps to success: {steps}.",
         f"Tokens per step: {summary.prompt_tokens_per_step:.0f} prompt, "
         f"{summary.completion_tokens_per_step:.0f} completion.",
+        *(
+            [f"Model calls per episode: {summary.model_calls_per_episode:.1f}."]
+            if summary.model_calls_per_episode is not None
+            else []
+        ),
         *action_lines(summary),
         *notes,
     ]

@@ -34,7 +34,7 @@ from pydantic import BaseModel, Field, computed_field
 from env.errors import UserError
 from env.goals import ALL_CATEGORIES, SCENARIO_CLASSES
 from env.termination import TERMINATIONS
-from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
+from llm_agents.run_data.records import NOT_STARTED, SKILL_STAGE, EpisodeRecord, StepRecord
 
 __all__ = [
     "CLUSTERED_LABEL",
@@ -210,10 +210,14 @@ def action_histogram(counts: Mapping[str, int]) -> ActionHistogram:
 
 
 def action_counts(steps: Iterable[StepRecord]) -> dict[str, Counter[str]]:
-    """Episode id -> action name -> steps, from step records (`store.read_steps`)."""
+    """Episode id -> action name -> steps, from step records (`store.read_steps`); for the
+    `skills` agent, skill -> decisions (the steps a chosen skill carries on count nothing)."""
     counts: dict[str, Counter[str]] = defaultdict(Counter)
     for step in steps:
-        counts[step.episode_id][step.action_name] += 1
+        if step.skill is not None:
+            counts[step.episode_id][step.skill] += 1
+        elif step.parse_stage != SKILL_STAGE:
+            counts[step.episode_id][step.action_name] += 1
     return dict(counts)
 
 
@@ -283,6 +287,9 @@ class Summary(BaseModel):
     """Generated tokens (reasoning included) per agent step, over all episodes."""
     understanding: Understanding | None = None
     """The goals read before playing against the dataset's (`guided`); None for other agents."""
+    model_calls_per_episode: float | None = None
+    """Mean prompts sent to the model per episode; None when some episode's record predates
+    the count."""
     actions: ActionHistogram | None = None
     """The actions taken over every step of these episodes; None when the steps were not at
     hand (no step log, or a summary written before histograms)."""
@@ -351,5 +358,9 @@ def summarize(
         prompt_tokens_per_step=per_step(sum(episode.prompt_tokens for episode in episodes)),
         completion_tokens_per_step=per_step(sum(episode.completion_tokens for episode in episodes)),
         understanding=understanding(episodes),
+        model_calls_per_episode=statistics.fmean(calls)
+        if (calls := [e.model_calls for e in episodes if e.model_calls is not None])
+        and len(calls) == len(episodes)
+        else None,
         actions=action_histogram(pooled) if actions is not None else None,
     )

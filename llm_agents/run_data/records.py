@@ -1,5 +1,5 @@
 """Typed records of an evaluation run: one `StepRecord` per agent step, one `EpisodeRecord` per
-finished episode. `llm_agents.run_data.store` owns the files they live in.
+finished episode (with a `SkillRecord` per decision of the `skills` agent). `llm_agents.run_data.store` owns the files they live in.
 """
 
 from __future__ import annotations
@@ -15,7 +15,10 @@ from llm_agents.run_data.readings import Grounding
 __all__ = [
     "EPISODE_ENDS",
     "NOT_STARTED",
+    "SKILL_STAGE",
     "EpisodeRecord",
+    "SkillOutcome",
+    "SkillRecord",
     "StepRecord",
 ]
 
@@ -24,6 +27,18 @@ NOT_STARTED = "not_started"
 never played, counted as a failure."""
 EPISODE_ENDS: tuple[str, ...] = (*TERMINATIONS, NOT_STARTED)
 """Every way a recorded episode ends."""
+
+
+SKILL_STAGE = "skill"
+"""The `parse_stage` of a step whose action a running skill's controller chose (`skills`): no
+answer was read at that step."""
+SkillOutcome = Literal[
+    "running", "succeeded", "failed", "out_of_steps", "interrupted", "invalid", "unfinished"
+]
+"""How a decision of the `skills` agent ended: still `running`; its skill did what it says;
+`failed` (could not start or go on, the reason says why); `out_of_steps` (its step budget ran
+out); `interrupted` (a creature attacked); `invalid` (the answer named no skill of the
+catalogue, the reason says why); `unfinished` (the episode ended while it ran)."""
 
 
 def _finished(label: str) -> str:
@@ -80,6 +95,37 @@ class StepRecord(BaseModel):
     """True when the answer came from the response cache."""
     followups: int = Field(0, ge=0)
     """Extra requests made for this answer (e.g. an answer-only follow-up after long reasoning)."""
+    skill: str | None = None
+    """`skills`: the skill chosen at this step, without counts and places (`collect wood`,
+    `invalid`); None on the steps a chosen skill carries on (`parse_stage` `skill`) and for
+    other agents."""
+
+
+class SkillRecord(BaseModel):
+    """One decision of the `skills` agent: the skill the model chose, what became of it, and
+    the model's input and output."""
+
+    index: int = Field(ge=0)
+    """The decision's place in its episode, from 0."""
+    step: int = Field(ge=0)
+    """The episode step it was made at."""
+    skill: str | None
+    """The skill as the catalogue writes it (`collect wood 3`); None when the answer named none."""
+    label: str
+    """The skill without its counts and places (`collect wood`), `invalid` when none."""
+    outcome: SkillOutcome
+    reason: str | None = None
+    """Why it failed, was invalid, ran out of steps or was interrupted (what the model is told)."""
+    prerequisite: bool = False
+    """It failed before its first step: a material, tool or station it needs was missing."""
+    steps: int = Field(0, ge=0)
+    """Environment steps the skill took."""
+    parse_stage: str
+    """The skill parser's stage (`field`, `exact`, `invalid`)."""
+    prompt: str
+    """The model's input: the decision's user message."""
+    answer: str
+    """The model's output as returned."""
 
 
 class EpisodeRecord(BaseModel):
@@ -141,6 +187,11 @@ class EpisodeRecord(BaseModel):
     code: str | None = None
     """The version of the code that played the episode (`code_version`); None in records
     written before it was stored."""
+    model_calls: int | None = Field(None, ge=0)
+    """Steps whose prompt was sent to the model (zero-shot: every step; skills: one per
+    decision; the expert: none); None in records written before it was counted."""
+    skills: list[SkillRecord] | None = None
+    """`skills`: every decision of the episode, in order; None for other agents."""
 
     # A computed field is written to JSON but ignored on reading, so the rate can never
     # disagree with the count it comes from.
