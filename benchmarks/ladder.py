@@ -1,7 +1,7 @@
 """The read / plan / act ladder: one model on one set of episodes, side by side.
 
     reads   grounding exact match   `ground`: the model reads each text as a typed goal
-    plans   skills success          `eval --agent skills` (taken only once that agent exists)
+    plans   skills success          `eval --agent skills`: the model picks a skill per subgoal
     acts    zero-shot success       `eval --agent zero-shot --choice loglik`: a call per step
     guided  guided success          the model reads, the expert acts (a ceiling on planning)
     expert  expert success          the true goal, the expert acts (the ceiling)
@@ -13,7 +13,8 @@ model (a text, for `reads`); CPU seconds per episode are this process's CPU time
 rung's runs played, loading the model and compiling included, over the episodes they played
 (kept in `cpu.json`, so a resumed rung keeps its first measurement). Zero-shot, a call per step,
 plays a subset by default (`--zero-shot-episodes`, spread over the categories), and the table
-says so.
+says so. Below the table, what the skills agent got wrong in each failed episode, from its
+records (`evaluation.skill_errors`): the address of a failure between reading and acting.
 
     python benchmarks/ladder.py --model hf:qwen2.5-coder-0.5b
         [--categories one combo new_objects] [--limit N] [--zero-shot-episodes 16]
@@ -98,7 +99,7 @@ class LadderSettings:
 
 
 def taken(rung: Rung) -> bool:
-    """A rung is played only when its agent is registered (`skills` arrives on its own branch)."""
+    """A rung is played only when its agent is registered."""
     return rung.agent is None or rung.agent in AGENTS
 
 
@@ -335,6 +336,35 @@ def format_ladder(settings: LadderSettings, rows: Sequence[LadderRow]) -> str:
     return "\n".join(lines)
 
 
+def skill_errors(settings: LadderSettings) -> dict[str, int] | None:
+    """Failed `plans` episodes per label of `evaluation.skill_errors`; None before any ran."""
+    from env.dataset import load_dataset
+    from llm_agents.evaluation.skill_errors import skill_error_table
+    from llm_agents.run_data.store import read_episodes
+
+    [plans] = [rung for rung in RUNGS if rung.key == "plans"]
+    episodes = [
+        episode
+        for category in settings.categories
+        if (run_dir(settings, plans, category) / "episodes.jsonl").exists()
+        for episode in read_episodes(run_dir(settings, plans, category) / "episodes.jsonl")
+    ]
+    if not episodes:
+        return None
+    instructions = load_dataset(settings.dataset).instructions(
+        settings.categories, include_paraphrases=False, difficulty="easy"
+    )
+    goals = {(i.goal.category, i.goal.id): i.goal for i in instructions}
+    return dict(skill_error_table(episodes, goals, "classic", "easy"))
+
+
+def format_skill_errors(errors: dict[str, int]) -> str:
+    failed = sum(errors.values())
+    lines = [f"What the skills agent got wrong ({failed} failed episodes):"]
+    lines += [f"  {label:<22} {count:>4}" for label, count in errors.items()]
+    return "\n".join(lines)
+
+
 def ladder(settings: LadderSettings, *, play: bool = True) -> str:
     """Run or resume every chosen rung (when `play`), then the table of all of them."""
     chosen = [rung for rung in RUNGS if rung.key in settings.rungs]
@@ -344,7 +374,9 @@ def ladder(settings: LadderSettings, *, play: bool = True) -> str:
             if taken(rung):
                 print(f"ladder: {rung.key} ({rung.label})", file=sys.stderr)
                 env = play_rung(settings, rung, env)
-    return format_ladder(settings, [ladder_row(settings, rung) for rung in chosen])
+    table = format_ladder(settings, [ladder_row(settings, rung) for rung in chosen])
+    errors = skill_errors(settings) if "plans" in settings.rungs else None
+    return table if errors is None else f"{table}\n\n{format_skill_errors(errors)}"
 
 
 # ------------------------------------------------------------------------------------- command

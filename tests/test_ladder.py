@@ -34,11 +34,7 @@ def played(
         dataset=str(official_repository),
         batch_size=2,
     )
-    with pytest.MonkeyPatch.context() as patch:
-        # The skills agent arrives on its own branch; any registered agent shows the rung plugs in.
-        patch.setitem(AGENTS, "skills", AGENTS["noop"])
-        table = ladder.ladder(settings)
-    return settings, table
+    return settings, ladder.ladder(settings)
 
 
 def _row(settings: ladder.LadderSettings, key: str) -> ladder.LadderRow:
@@ -64,39 +60,44 @@ def test_each_rung_reports_its_runs_rate_interval_and_cost(
     played: tuple[ladder.LadderSettings, str],
 ) -> None:
     settings, table = played
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setitem(AGENTS, "skills", AGENTS["noop"])
-        for key, agent_calls in (("expert", 0.0), ("guided", 1.0), ("plans", 0.0)):
-            episodes = _episodes(settings, key)
-            assert len(episodes) == 2 * len(CATEGORIES)
-            row = _row(settings, key)
-            expected = clustered_rate((goal_cluster(e), int(e.success), 1) for e in episodes)
-            assert row.rate == expected
-            # The expert and a no-model agent never ask; guided asks once per text it reads.
-            assert row.calls_per_item == agent_calls
-            assert row.cpu_s_per_item is not None and row.cpu_s_per_item > 0
-            assert f"{expected.rate:.2f}" in _line(table, key)
+    for key in ("expert", "guided", "plans"):
+        episodes = _episodes(settings, key)
+        assert len(episodes) == 2 * len(CATEGORIES)
+        row = _row(settings, key)
+        expected = clustered_rate((goal_cluster(e), int(e.success), 1) for e in episodes)
+        assert row.rate == expected
+        # The expert never asks; guided asks once per text it reads; skills once per decision.
+        calls = {"expert": 0.0, "guided": 1.0}.get(key, sum(e.model_calls for e in episodes) / 4)
+        assert row.calls_per_item == calls
+        assert row.cpu_s_per_item is not None and row.cpu_s_per_item > 0
+        assert f"{expected.rate:.2f}" in _line(table, key)
+    # The mock answers no skill: every skills episode asks, fails, and is labelled.
+    plans = _episodes(settings, "plans")
+    assert all(e.model_calls > 0 and not e.success for e in plans)
+    errors = ladder.skill_errors(settings)
+    assert errors is not None and sum(errors.values()) == len(plans)
+    assert f"What the skills agent got wrong ({len(plans)} failed episodes):" in table
 
-        # Zero-shot asks at every step, on the 3-episode subset (2 of `one`, 1 of new objects).
-        acts = _episodes(settings, "acts")
-        assert len(acts) == 3
-        row = _row(settings, "acts")
-        assert row.subset == {"one": 2, "new_objects": 1}
-        assert row.calls_per_item == pytest.approx(sum(e.steps for e in acts) / 3)
-        assert "* acts: a subset of 3 episodes (2 one, 1 new_objects)" in table
-        assert _line(table, "acts").split()[3] == "3*"
+    # Zero-shot asks at every step, on the 3-episode subset (2 of `one`, 1 of new objects).
+    acts = _episodes(settings, "acts")
+    assert len(acts) == 3
+    row = _row(settings, "acts")
+    assert row.subset == {"one": 2, "new_objects": 1}
+    assert row.calls_per_item == pytest.approx(sum(e.steps for e in acts) / 3)
+    assert "* acts: a subset of 3 episodes (2 one, 1 new_objects)" in table
+    assert _line(table, "acts").split()[3] == "3*"
 
-        # Reads: one call per text, exact match from the groundings (none: no JSON answered).
-        records = [
-            record
-            for category in CATEGORIES
-            for record in read_groundings(settings.out / f"reads-{category}")
-        ]
-        assert len(records) == 4 and not any(record.correct for record in records)
-        reads = _row(settings, "reads")
-        assert reads.rate is not None and (reads.rate.episodes, reads.rate.successes) == (4, 0)
-        assert reads.calls_per_item == 1.0
-        assert reads.by_category.keys() == set(CATEGORIES)
+    # Reads: one call per text, exact match from the groundings (none: no JSON answered).
+    records = [
+        record
+        for category in CATEGORIES
+        for record in read_groundings(settings.out / f"reads-{category}")
+    ]
+    assert len(records) == 4 and not any(record.correct for record in records)
+    reads = _row(settings, "reads")
+    assert reads.rate is not None and (reads.rate.episodes, reads.rate.successes) == (4, 0)
+    assert reads.calls_per_item == 1.0
+    assert reads.by_category.keys() == set(CATEGORIES)
 
 
 @pytest.mark.slow
@@ -105,16 +106,15 @@ def test_a_rerun_resumes_plays_nothing_and_prints_the_same_table(
 ) -> None:
     settings, table = played
     ledger = (settings.out / ladder.CPU_LEDGER).read_text()
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setitem(AGENTS, "skills", AGENTS["noop"])
-        assert ladder.ladder(settings) == table
+    assert ladder.ladder(settings) == table
     assert (settings.out / ladder.CPU_LEDGER).read_text() == ledger
     assert len(_episodes(settings, "expert")) == 4
 
 
-def test_the_skills_rung_waits_for_its_agent(tmp_path: Path) -> None:
-    if "skills" in AGENTS:
-        pytest.skip("the skills agent is registered")
+def test_a_rung_without_its_agent_is_skipped(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delitem(AGENTS, "skills")
     settings = ladder.LadderSettings(model=MODEL, out=tmp_path, rungs=("plans", "expert"))
     # Nothing is played for a rung without its agent; the table says why.
     table = ladder.format_ladder(settings, [_row(settings, "plans"), _row(settings, "expert")])
