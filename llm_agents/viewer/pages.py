@@ -345,7 +345,8 @@ def _replay_input(view: EpisodeView, variant: Any) -> Any:
 def _checker_data(view: EpisodeView, replay: Any, variant: Any) -> dict[str, Any]:
     """What the goal's checker read over the replay: the player's cell on every frame, the
     tracked counts (conditional placing), and its marks on the last map it read."""
-    from env.replay import BLOCK_SIZES, VIEW_CELLS
+    from env.frames import VIEW_CELLS
+    from env.replay import BLOCK_SIZES
 
     assert view.goal is not None
     rendering = rendering_of(view.goal.kind)
@@ -663,6 +664,16 @@ def _flatten(config: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
 # ---------------------------------------------------------------- episode page
 
 
+def _sent_frames(view: EpisodeView, frame_history: int) -> dict[int, list[int]]:
+    """`--observation image|both`: per step, the steps whose recorded frames its message
+    carried, oldest first (its own last): exactly the PNGs the model was sent."""
+    recorded = {step.step for step in view.steps if step.frame_png}
+    return {
+        step: [earlier for earlier in range(max(0, step - frame_history), step + 1)]
+        for step in sorted(recorded)
+    }
+
+
 def _episode_context(
     run: LoadedRun,
     view: EpisodeView,
@@ -674,6 +685,7 @@ def _episode_context(
     record = view.record
     previous, following = neighbours[record.episode_id]
     scale = max(1, round(_FRAME_DISPLAY_HEIGHT / sheet.frame_height)) if sheet else 1
+    sent = _sent_frames(view, int(run.config.get("frame_history") or 0))
     steps = [
         {
             "step": step.step,
@@ -686,12 +698,19 @@ def _episode_context(
             "new": step.new_achievements,
             "done": step.done,
             "latency": round(step.latency_s, 3),
+            "sent": sent.get(step.step, []),
         }
         for step in view.steps
     ]
     checker = status.checker
     data = {
         "steps": steps,
+        # Each step's recorded PNG once; a step's `sent` lists the frames its message carried.
+        "frames": {
+            step.step: f"data:image/png;base64,{step.frame_png}"
+            for step in view.steps
+            if step.frame_png
+        },
         "checker": checker,
         "termination": record.termination,
         "sheet": None
