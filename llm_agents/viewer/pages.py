@@ -54,6 +54,7 @@ from llm_agents.evaluation.report import (
     table_columns,
 )
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
+from llm_agents.run_data.records import StepRecord
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.goals import block_words, rendering_of
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
@@ -664,14 +665,17 @@ def _flatten(config: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
 # ---------------------------------------------------------------- episode page
 
 
-def _sent_frames(view: EpisodeView, frame_history: int) -> dict[int, list[int]]:
-    """`--observation image|both`: per step, the steps whose recorded frames its message
-    carried, oldest first (its own last): exactly the PNGs the model was sent."""
-    recorded = {step.step for step in view.steps if step.frame_png}
-    return {
-        step: [earlier for earlier in range(max(0, step - frame_history), step + 1)]
-        for step in sorted(recorded)
+def sent_images(
+    steps: Sequence[StepRecord], frame_history: int
+) -> tuple[dict[int, str], dict[int, list[int]]]:
+    """`--observation image|both`: each step's recorded frame as the data URL of its very PNG,
+    and per step the steps whose frames its message carried, oldest first (its own last):
+    exactly the images the model was sent, as the episode page shows them."""
+    frames = {
+        step.step: f"data:image/png;base64,{step.frame_png}" for step in steps if step.frame_png
     }
+    sent = {step: list(range(max(0, step - frame_history), step + 1)) for step in sorted(frames)}
+    return frames, sent
 
 
 def _episode_context(
@@ -685,7 +689,7 @@ def _episode_context(
     record = view.record
     previous, following = neighbours[record.episode_id]
     scale = max(1, round(_FRAME_DISPLAY_HEIGHT / sheet.frame_height)) if sheet else 1
-    sent = _sent_frames(view, int(run.config.get("frame_history") or 0))
+    frames, sent = sent_images(view.steps, int(run.config.get("frame_history") or 0))
     steps = [
         {
             "step": step.step,
@@ -706,11 +710,7 @@ def _episode_context(
     data = {
         "steps": steps,
         # Each step's recorded PNG once; a step's `sent` lists the frames its message carried.
-        "frames": {
-            step.step: f"data:image/png;base64,{step.frame_png}"
-            for step in view.steps
-            if step.frame_png
-        },
+        "frames": frames,
         "checker": checker,
         "termination": record.termination,
         "sheet": None
