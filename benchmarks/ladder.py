@@ -339,6 +339,8 @@ def format_ladder(settings: LadderSettings, rows: Sequence[LadderRow]) -> str:
 def skill_errors(settings: LadderSettings) -> dict[str, int] | None:
     """Failed `plans` episodes per label of `evaluation.skill_errors`; None before any ran."""
     from env.dataset import load_dataset
+    from env.goals import AnyGoal, run_category
+    from env.variant import Variant
     from llm_agents.evaluation.skill_errors import skill_error_table
     from llm_agents.run_data.store import read_episodes
 
@@ -354,8 +356,11 @@ def skill_errors(settings: LadderSettings) -> dict[str, int] | None:
     instructions = load_dataset(settings.dataset).instructions(
         settings.categories, include_paraphrases=False, difficulty="easy"
     )
-    goals = {(i.goal.category, i.goal.id): i.goal for i in instructions}
-    return dict(skill_error_table(episodes, goals, "classic", "easy"))
+    goals: dict[tuple[str, str], AnyGoal] = {
+        (run_category(i.goal), i.goal.id): i.goal for i in instructions
+    }
+    table = skill_error_table(episodes, goals, Variant.CLASSIC, "easy")
+    return {str(label): count for label, count in table.items()}
 
 
 def format_skill_errors(errors: dict[str, int]) -> str:

@@ -484,6 +484,26 @@ class VectorEnv:
                 output[group] = row_values[: len(group)]
         return _host_batch(game, termination, steps, outputs)
 
+    def frames(self, slots: Sequence[int]) -> np.ndarray:
+        """uint8 frames (`env.frames`: what the variant's Pixels env shows) of the listed
+        slots' current worlds, in their order."""
+        from env.frames import frame_renderer
+
+        state = self._require_state()
+        renderer = frame_renderer(self.variant)
+        rows = np.asarray(slots, np.int32)
+        drawn = []
+        # Groups of a fixed size (the last padded with its own first slot), so the renderer
+        # compiles once whatever the number of ready slots.
+        for start in range(0, len(rows), self._group):
+            group = rows[start : start + self._group]
+            padded = jnp.asarray(
+                np.concatenate([group, np.full(self._group - len(group), group[0])])
+            )
+            games = jax.tree.map(lambda leaf, rows=padded: leaf[rows], state.game)
+            drawn.append(renderer.render(games)[: len(group)])
+        return np.concatenate(drawn)
+
     def step_terminations(self, actions: np.ndarray, active: np.ndarray) -> np.ndarray:
         """`step` every slot where `active` is true, pulling only each slot's termination code
         to the host, not its world: for players that never look (the do-nothing agent)."""

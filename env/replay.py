@@ -31,9 +31,6 @@ from env.variant import Variant
 #: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for
 #: the full game, only at 16 for Classic; 10 makes a full-game report 2.5x smaller.
 BLOCK_SIZES = {Variant.FULL: 10, Variant.CLASSIC: 16}
-#: Map rows and columns a frame shows above the inventory, the player in the middle (craftax's
-#: `OBS_DIM` of each game).
-VIEW_CELLS = {Variant.FULL: (9, 11), Variant.CLASSIC: (7, 9)}
 
 
 Carry = tuple[EpisodeState, jax.Array]

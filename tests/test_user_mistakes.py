@@ -276,6 +276,22 @@ MISTAKES: dict[str, Mistake] = {
         files={"plan.toml": 'generation = "x"'},
     ),
     "plan without output": Mistake(["plan", "--model", "mock:", "--no-progress"], "output"),
+    # image observations
+    "images for a backend that takes none": Mistake(
+        [*EVAL, "--observation", "image"], "the mock backend takes no images"
+    ),
+    "frame history below 0": Mistake(
+        [*EVAL, "--observation", "both", "--frame-history", "-1"], "frame_history"
+    ),
+    "frame history of a text observation": Mistake(
+        [*EVAL, "--frame-history", "2"], "frame_history counts the frames"
+    ),
+    "images for the expert": Mistake(
+        [*EVAL, "--agent", "expert", "--observation", "image"], "the expert agent shows"
+    ),
+    "images scored by loglik": Mistake(
+        [*EVAL, "--observation", "image", "--choice", "loglik"], "scores text prompts only"
+    ),
 }
 
 for name, fragment in {

@@ -6,7 +6,7 @@ agents need nothing from the evaluation room above them, and `llm_agents.agents.
 imports only the one a run uses.
 """
 
-from typing import Protocol
+from typing import Literal, Protocol
 
 from env.goals import Difficulty
 from env.variant import Variant
@@ -21,6 +21,12 @@ AGENTS: dict[str, str] = {
     "noop": "llm_agents.agents.noop:NoopAgent",
     "skills": "llm_agents.agents.skills:SkillsAgent",
 }
+
+#: What the model is shown of the world each step (`--observation`).
+ObservationMode = Literal["text", "image", "both"]
+#: The strategies whose step message can carry the frames (the others ask no step question of
+#: a model, or ask it about the instruction alone).
+IMAGE_AGENTS = ("zero-shot", "cot", "few-shot")
 
 
 class AgentSettings(Protocol):
@@ -45,6 +51,10 @@ class AgentSettings(Protocol):
     def history_length(self) -> int: ...
     @property
     def report_invalid_answers(self) -> bool: ...
+    @property
+    def observation(self) -> ObservationMode: ...
+    @property
+    def frame_history(self) -> int: ...
     @property
     def templates_dir(self) -> str | None: ...
     @property

@@ -66,8 +66,12 @@ class Decision(BaseModel):
 
 
 def messages_hash(messages: Sequence[ChatMessage]) -> str:
-    """sha256 over the messages' roles and contents, stable across processes."""
-    payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
+    """sha256 over the messages' roles, contents and images (their PNGs' digests), stable across
+    processes; a text message hashes as before images existed."""
+    payload = json.dumps(
+        [[m.role, m.content, *(image.sha256 for image in m.images)] for m in messages],
+        ensure_ascii=False,
+    )
     return hashlib.sha256(payload.encode("utf-8")).hexdigest()
 
 

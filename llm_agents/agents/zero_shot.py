@@ -21,6 +21,7 @@ from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
 from llm_agents.agents.parser import parse_action
+from llm_agents.agents.registry import ObservationMode
 from llm_agents.agents.types import Decision, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
 from prompts import render_template
@@ -31,6 +32,8 @@ if TYPE_CHECKING:
 
 SYSTEM_TEMPLATE = "system"
 STEP_TEMPLATE = "step"
+#: What the frames attached to a step message show (`--observation image|both`).
+FRAMES_TEMPLATE = "frames"
 # The template check plays a step in a slot no run uses, with a stand-in observation text.
 _CHECK_SLOT = -1
 _PLACEHOLDER = "(observation)"
@@ -152,6 +155,8 @@ class ZeroShotAgent:
         choice_rule: ChoiceRule | None = None,
         choice_scoring: ChoiceScoring = "sum",
         report_invalid: bool = False,
+        observation: ObservationMode = "text",
+        frame_history: int = 0,
     ):
         """`renderer`: a textualizer style name or a function observation -> text.
 
@@ -160,9 +165,13 @@ class ZeroShotAgent:
         `loglik` scores an option (`llm_agents.backends.base.choice_score`). `report_invalid`
         tells the model, in the next step's history, that an answer named no valid action and the
         fallback was played in its place (BALROG's harness does; by default the history shows the
-        fallback action alone).
+        fallback action alone). `observation`: `image` or `both` say, in the observation's
+        place, what the frames the play loop attaches to the step message show (`frames.j2`;
+        `both` after the text); `frame_history`: how many past frames come before the current.
         """
         self.report_invalid = report_invalid
+        self.observation_mode: ObservationMode = observation
+        self.frame_history = frame_history
         self.variant = as_variant(variant)
         if history_length < 0:
             raise UserError(f"history_length must be >= 0, got {history_length}")
@@ -199,6 +208,8 @@ class ZeroShotAgent:
             choice_rule=config.choice,
             choice_scoring=config.choice_scoring,
             report_invalid=config.report_invalid_answers,
+            observation=config.observation,
+            frame_history=config.frame_history,
             **cls.strategy_settings(config),
         )
 
@@ -244,6 +255,8 @@ class ZeroShotAgent:
             self.decide(first, ModelOutput(text=self.fallback_name))
             self._close_step(self._episode(slot), "no visible effect")
             self.messages_for(slot, _PLACEHOLDER)
+            if self.observation_mode != "text":
+                self.frames_text(self._episode(slot))
         finally:
             self.end_episode(slot)
 
@@ -279,8 +292,26 @@ class ZeroShotAgent:
         if episode.pending is not None:
             action, before = episode.pending
             self._close_step(episode, describe_outcome(action, before, observation))
-        text = self.render_observation(observation)
+        text = self.shown_observation(episode, observation)
         return self.messages_for(slot, text), text
+
+    def shown_observation(self, episode: _Episode, observation: Any) -> str:
+        """The observation's text in the step message: the renderer's, and for an image
+        observation what the attached frames show (as many as the play loop sends now)."""
+        if self.observation_mode == "text":
+            return self.render_observation(observation)
+        frames = self.frames_text(episode)
+        if self.observation_mode == "image":
+            return frames
+        return f"{self.render_observation(observation)}\n\n{frames}"
+
+    def frames_text(self, episode: _Episode) -> str:
+        """`frames.j2` for the frames sent at the episode's current step."""
+        context = {
+            "variant": self.variant.value,
+            "frames": min(episode.step, self.frame_history) + 1,
+        }
+        return render_template(FRAMES_TEMPLATE, context, self.templates_dir).strip()
 
     @staticmethod
     def _close_step(episode: _Episode, outcome: str) -> None:

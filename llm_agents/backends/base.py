@@ -8,13 +8,17 @@ in order. Backends never raise for a single bad generation: they return an outpu
 from __future__ import annotations
 
 import abc
+import base64
 import difflib
+import hashlib
 import inspect
+import io
 import logging
 from collections.abc import Callable, Sequence, Sized
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, NamedTuple, Self
 
+import numpy as np
 from jinja2 import TemplateError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -38,6 +42,47 @@ ChoiceScoring = Literal["sum", "mean", "bytes", "pmi"]
 CONTENT_FREE_TEXT = "N/A"
 
 
+class ImagePart(BaseModel):
+    """One image of a message, as the PNG file every backend is handed."""
+
+    model_config = ConfigDict(frozen=True)
+
+    png_base64: str
+    """The image as a PNG file, base64-encoded (what a data URL carries)."""
+
+    @classmethod
+    def from_frame(cls, frame: np.ndarray) -> ImagePart:
+        """The PNG of a uint8 (height, width, 3) RGB frame, lossless."""
+        from PIL import Image
+
+        buffer = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(frame, dtype=np.uint8), "RGB").save(buffer, "PNG")
+        return cls(png_base64=base64.b64encode(buffer.getvalue()).decode("ascii"))
+
+    @property
+    def png(self) -> bytes:
+        return base64.b64decode(self.png_base64)
+
+    @property
+    def data_url(self) -> str:
+        """The image as an OpenAI-style `data:` URL."""
+        return f"data:image/png;base64,{self.png_base64}"
+
+    @property
+    def sha256(self) -> str:
+        return hashlib.sha256(self.png).hexdigest()
+
+    def pil(self) -> Any:
+        """The image as a PIL RGB image (what processors of image-text models take)."""
+        from PIL import Image
+
+        return Image.open(io.BytesIO(self.png)).convert("RGB")
+
+    def array(self) -> np.ndarray:
+        """The decoded uint8 (height, width, 3) pixels."""
+        return np.asarray(self.pil(), dtype=np.uint8)
+
+
 class ChatMessage(BaseModel):
     """One message of a chat conversation."""
 
@@ -47,9 +92,34 @@ class ChatMessage(BaseModel):
     """Who speaks: `system`, `user` or `assistant`."""
     content: str
     """The message text."""
+    images: tuple[ImagePart, ...] = ()
+    """Images sent with the text, shown before it, oldest first (`--observation image|both`)."""
+
+    def key_data(self) -> dict[str, Any]:
+        """The message as data for digests: a text message as it was before images existed,
+        so the digests of text-only requests (cache keys) never change."""
+        return self.model_dump(exclude=set() if self.images else {"images"})
+
+
+def openai_message(message: ChatMessage) -> dict[str, Any]:
+    """A message in the OpenAI chat format: its text alone, or with images, content parts (each
+    image a PNG `data:` URL, then the text), as OpenAI-compatible servers and vLLM's `chat`
+    take them."""
+    if not message.images:
+        return {"role": message.role, "content": message.content}
+    parts: list[dict[str, Any]] = [
+        {"type": "image_url", "image_url": {"url": image.data_url}} for image in message.images
+    ]
+    parts.append({"type": "text", "text": message.content})
+    return {"role": message.role, "content": parts}
 
 
 Conversation = Sequence[ChatMessage]
+
+
+def carries_images(conversations: Sequence[Conversation]) -> bool:
+    """Whether any message of the conversations has an image."""
+    return any(message.images for conversation in conversations for message in conversation)
 
 
 class ChoiceSet(BaseModel):
@@ -451,6 +521,14 @@ class ModelAPI(abc.ABC):
                 getattr(config, field),
             )
 
+    def check_images(self) -> None:
+        """Raise `UserError` unless this backend and model take images (`--observation image`
+        or `both`); called before anything runs."""
+        raise UserError(
+            f"the {self.backend_name} backend takes no images; use --observation text, or an "
+            "image-text model through hf, vllm or an openai-compatible server"
+        )
+
     def probe(self) -> None:
         """Check that the model answers at all, cheaply, before a run starts.
 
@@ -458,6 +536,13 @@ class ModelAPI(abc.ABC):
         backend that cannot answer fails in seconds with a `UserError` naming the cause.
         Backends with a cheaper check override this.
         """
+        self.answers_quickly(
+            [ChatMessage(role="user", content="Say OK.")], "does not answer a one-token request"
+        )
+
+    def answers_quickly(self, conversation: Conversation, failure: str) -> None:
+        """Generate a one-token answer with no retries and a short timeout; a `UserError`
+        saying the model `failure` where it fails (probes)."""
         quick = self.config.model_copy(
             update={
                 "max_tokens": 1,
@@ -468,12 +553,12 @@ class ModelAPI(abc.ABC):
         )
         saved, self.config = self.config, quick
         try:
-            [output] = self.generate([[ChatMessage(role="user", content="Say OK.")]])
+            [output] = self.generate([conversation])
         finally:
             self.config = saved
         if output.finish_reason == "error":
             raise UserError(
-                f"{self.backend_name}:{self.model_name} does not answer a one-token request: "
+                f"{self.backend_name}:{self.model_name} {failure}: "
                 f"{output.error or 'no error given'}"
             )
 

@@ -117,7 +117,7 @@ class CachedModel(ModelAPI):
         payload: dict[str, Any] = {
             "model": self.model.info(),
             "config": self.model.config.model_dump(exclude=set(TRANSPORT_FIELDS)),
-            "messages": [message.model_dump() for message in conversation],
+            "messages": [message.key_data() for message in conversation],
             "choices": choices.model_dump(mode="json") if choices else None,
         }
         encoded = json.dumps(payload, sort_keys=True, ensure_ascii=False).encode()
@@ -125,6 +125,9 @@ class CachedModel(ModelAPI):
 
     def probe(self) -> None:
         self.model.probe()
+
+    def check_images(self) -> None:
+        self.model.check_images()
 
     def endpoint_stats(self) -> list[EndpointStats]:
         return self.model.endpoint_stats()

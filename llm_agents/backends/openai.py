@@ -29,6 +29,7 @@ from typing import Any, ClassVar, TypeVar, TypeVarTuple
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
+import numpy as np
 from anyio.from_thread import BlockingPortal, start_blocking_portal
 from pydantic import ConfigDict, Field, SecretStr, ValidationError
 from tenacity import RetryError
@@ -36,13 +37,16 @@ from tenacity import RetryError
 from env.errors import UserError
 from llm_agents.backends.base import (
     PROBE_TIMEOUT_S,
+    ChatMessage,
     ChoiceRule,
     ChoiceSet,
     Conversation,
     GenerateConfig,
+    ImagePart,
     ModelAPI,
     ModelOutput,
     bad_options,
+    openai_message,
 )
 from llm_agents.backends.endpoints import Endpoint, EndpointPool, EndpointStats, takes_out
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
@@ -201,6 +205,15 @@ class OpenAIModel(ModelAPI):
         """
         self._portal.run(self._probe)
 
+    def check_images(self) -> None:
+        """One one-token request carrying a small image: a server or model that takes no
+        images refuses it, and the run stops before anything is written."""
+        blank = ImagePart.from_frame(np.zeros((8, 8, 3), np.uint8))
+        self.answers_quickly(
+            [ChatMessage(role="user", content="Say OK.", images=(blank,))],
+            "refuses a request with an image (a text-only model?)",
+        )
+
     def _run(
         self, conversations: Sequence[Conversation], choices: list[str] | None
     ) -> list[ModelOutput]:
@@ -280,7 +293,7 @@ class OpenAIModel(ModelAPI):
         config = self.config
         body: dict[str, Any] = {
             "model": self.model_name,
-            "messages": [{"role": m.role, "content": m.content} for m in conversation],
+            "messages": [openai_message(m) for m in conversation],
             "max_tokens": config.max_tokens,
             "temperature": config.temperature,
             "top_p": config.top_p,

@@ -48,6 +48,7 @@ from llm_agents.backends.base import (
     content_free_conversation,
     end_of_turn_id,
     local_model_path,
+    openai_message,
     ranked_choices,
     scored_choices,
 )
@@ -112,6 +113,15 @@ class VLLMModel(ModelAPI):
         self._end_of_turn = end_of_turn_id(self.llm.get_tokenizer())
         self._content_free = ContentFreeScores()
 
+    def check_images(self) -> None:
+        """A model vLLM runs as multimodal takes images (as `data:` URLs in `chat`, which its
+        processor turns into the model's multimodal input); any other is refused."""
+        if not self.llm.llm_engine.model_config.is_multimodal_model:
+            raise UserError(
+                f"vllm model {self.model_name!r} is a text-only model: it takes no images "
+                "(use --observation text, or an image-text model)"
+            )
+
     def info(self) -> dict[str, str]:
         return {**super().info(), "model_path": self.model_path, "vllm": vllm.__version__}
 
@@ -158,7 +168,7 @@ class VLLMModel(ModelAPI):
     def _chat(
         self, conversations: Sequence[Conversation], choices: list[str] | None
     ) -> list[ModelOutput]:
-        messages = [[m.model_dump() for m in conversation] for conversation in conversations]
+        messages = [[openai_message(m) for m in conversation] for conversation in conversations]
         sampling = self._sampling(choices)
         start = time.perf_counter()
         try:
@@ -229,7 +239,7 @@ class VLLMModel(ModelAPI):
     def _prompt_ids(self, conversation: Conversation) -> list[int]:
         tokenizer = self.llm.get_tokenizer()
         text = tokenizer.apply_chat_template(
-            [m.model_dump() for m in conversation],
+            [openai_message(m) for m in conversation],
             add_generation_prompt=True,
             tokenize=False,
             **self.settings.chat_template_kwargs,

@@ -32,7 +32,7 @@ from env.placement import EnvDevice
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
-from llm_agents.agents.registry import AGENTS
+from llm_agents.agents.registry import AGENTS, IMAGE_AGENTS, ObservationMode
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
@@ -262,6 +262,13 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     """Observation text format: objects, grid or table (the official baseline's)."""
     history_length: Annotated[int, CHANGES_RESULTS] = Field(5, ge=0)
     """Recent actions (with outcomes) shown in each prompt."""
+    observation: Annotated[ObservationMode, CHANGES_RESULTS] = "text"
+    """What the model is shown of the world each step: text (the renderer's), image (the frame
+    Craftax's pixel renderer draws, as its Pixels environment shows it, sent as a PNG image) or
+    both (the text, and the image)."""
+    frame_history: Annotated[int, CHANGES_RESULTS] = Field(0, ge=0)
+    """--observation image|both: frames of past steps sent before the current one, oldest
+    first (0: the current frame alone)."""
     report_invalid_answers: Annotated[bool, CHANGES_RESULTS] = False
     """Say in the next prompt's history that an answer named no valid action and the fallback
     action was played instead (BALROG's harness does; `--protocol balrog` sets it)."""
@@ -349,6 +356,27 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
             raise ValueError(
                 f"grounding_shots are shown to the guided agent's grounding request; the "
                 f"{self.agent} agent asks for none (leave --grounding-shots out)"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _images_where_they_go(self) -> EvalConfig:
+        if self.observation == "text":
+            if self.frame_history:
+                raise ValueError(
+                    "frame_history counts the frames of an image observation; this run's "
+                    "observation is text (add --observation image or both)"
+                )
+            return self
+        if self.agent not in IMAGE_AGENTS:
+            raise ValueError(
+                f"the {self.agent} agent shows a model no observation image; --observation "
+                f"{self.observation} needs one of: {', '.join(IMAGE_AGENTS)}"
+            )
+        if self.choice == "loglik":
+            raise ValueError(
+                "--choice loglik scores text prompts only; with --observation "
+                f"{self.observation} answer in free text or with --choice guided"
             )
         return self
 

@@ -9,15 +9,16 @@ trajectory), hands their records to the sink, refills finished slots and sends t
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
 import numpy as np
 
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.types import NO_PROMPT_HASH, Decision, StepPrompt
-from llm_agents.backends.base import ModelAPI
+from llm_agents.backends.base import ImagePart, ModelAPI
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.dispatch import Dispatcher
 from llm_agents.evaluation.schedule import ScheduledEpisode
@@ -134,6 +135,9 @@ class _Slots:
         self.host = self.vector.reset(*self._task_rows(first))
         self.live: dict[int, _Tally] = {}
         self.deferred: set[int] = set()
+        #: Per slot, the frames its episode's model was last sent (`--observation image|both`):
+        #: the current one last, after up to `frame_history` of the steps before.
+        self.frames: dict[int, deque[ImagePart]] = {}
         self._start(list(range(self.size)), first)
 
     def _task_rows(
@@ -155,6 +159,7 @@ class _Slots:
     def _start(self, slots: list[int], specs: Sequence[ScheduledEpisode]) -> None:
         for slot, spec in zip(slots, specs, strict=True):
             self.live[slot] = _Tally(spec)
+            self.frames[slot] = deque(maxlen=self.config.frame_history + 1)
             self.agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
 
     def prompts(self, ready: list[int]) -> list[StepPrompt]:
@@ -167,7 +172,26 @@ class _Slots:
         observations = observe_batch(self.host.game, self.config.variant, indices=ready)
         prompts = [self.agent.prepare(s, o) for s, o in zip(ready, observations, strict=True)]
         self.deferred.update(prompt.slot for prompt in prompts if prompt.deferred)
-        return [prompt for prompt in prompts if not prompt.deferred]
+        sent = [prompt for prompt in prompts if not prompt.deferred]
+        if self.config.observation == "text" or not sent:
+            return sent
+        return self._with_frames(sent)
+
+    def _with_frames(self, prompts: list[StepPrompt]) -> list[StepPrompt]:
+        """The prompts with their slots' frames on the last message: each slot's current frame
+        (drawn now, for every listed slot at once) after those of its previous steps."""
+        drawn = self.vector.frames([prompt.slot for prompt in prompts])
+        framed = []
+        for prompt, frame in zip(prompts, drawn, strict=True):
+            frames = self.frames[prompt.slot]
+            frames.append(ImagePart.from_frame(frame))
+            *earlier, last = prompt.messages
+            framed.append(
+                replace(
+                    prompt, messages=[*earlier, last.model_copy(update={"images": tuple(frames)})]
+                )
+            )
+        return framed
 
     def take_deferred(self) -> list[int]:
         """The slots whose prompts were deferred (to prepare again now that a round's answers
@@ -196,7 +220,8 @@ class _Slots:
             reward = float(host.reward[slot]) if started else 0.0
             tally.add(decision, reward, new)
             if self.config.record_steps and started:
-                settled.steps.append(_step_record(tally, decision, host, slot, reward, new))
+                frame = self.frames[slot][-1] if self.frames[slot] else None
+                settled.steps.append(_step_record(tally, decision, host, slot, reward, new, frame))
             if decision.output.finish_reason == "error":
                 # The backend failed, not the agent: not scored; a rerun plays it again.
                 settled.aborted.append(tally.spec.episode_id)
@@ -209,6 +234,7 @@ class _Slots:
                 continue
             self.agent.end_episode(slot)
             del self.live[slot]
+            del self.frames[slot]
         settled.continuing.sort()
         return settled
 
@@ -249,12 +275,19 @@ def _not_started(decision: Decision) -> bool:
 
 
 def _step_record(
-    tally: _Tally, decision: Decision, host: Any, slot: int, reward: float, new: list[str]
+    tally: _Tally,
+    decision: Decision,
+    host: Any,
+    slot: int,
+    reward: float,
+    new: list[str],
+    frame: ImagePart | None,
 ) -> StepRecord:
     return StepRecord(
         episode_id=tally.spec.episode_id,
         step=int(host.steps[slot]) - 1,
         observation=decision.observation_text,
+        frame_png=frame.png_base64 if frame is not None else None,
         prompt_hash=decision.prompt_hash,
         raw_output=decision.output.text,
         reasoning=decision.output.reasoning,

@@ -39,6 +39,7 @@ from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.grounding import examples_digest, training_examples
+from llm_agents.agents.zero_shot import FRAMES_TEMPLATE
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
@@ -116,12 +117,16 @@ def versions(model: ModelAPI) -> dict[str, str]:
     return found
 
 
-def _template_hashes(agent: Agent, templates_dir: str | None) -> dict[str, str]:
+def _template_hashes(config: EvalConfig, agent: Agent) -> dict[str, str]:
     """The templates whose text reaches the model: the agent's own (through the override
-    folder) and, for an agent calling a model, the backends' answer-only follow-up (packaged)."""
+    folder), what an image observation's frames show, and, for an agent calling a model, the
+    backends' answer-only follow-up (packaged)."""
     from prompts import template_digests
 
+    templates_dir = config.templates_dir
     rendered = template_digests(agent.templates, templates_dir)
+    if config.observation != "text":
+        rendered |= template_digests([FRAMES_TEMPLATE], templates_dir)
     if agent.needs_model:
         rendered |= template_digests([ANSWER_ONLY_TEMPLATE])
     return rendered
@@ -168,7 +173,7 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     agent.check_templates(first.instruction.text, first.plan, first.instruction.goal)
     identity = RunIdentity(
         settings=config.result_settings(),
-        templates=_template_hashes(agent, config.templates_dir),
+        templates=_template_hashes(config, agent),
         plans=file_sha256(Path(config.plans), "plans file") if config.plans else None,
         dataset=dataset.source.sha256,
         goals=split_digests(dataset, config.categories, config.difficulty),
@@ -243,6 +248,12 @@ def open_model(settings: ModelSettings) -> ModelAPI:
     choice = getattr(settings, "choice", None)
     if choice is not None:
         model.check_choice_rule(choice)
+    if getattr(settings, "observation", "text") != "text":
+        try:
+            model.check_images()
+        except BaseException:
+            model.close()
+            raise
     if settings.cache:
         from llm_agents.backends.cache import CachedModel
 
@@ -306,6 +317,8 @@ def execute_run(
     check_model(config, model)
     if probe:
         model.probe()
+        if config.observation != "text":
+            model.check_images()
     env_config = config.env_config()
     if env is None:
         env = CrafTextEnv(env_config)

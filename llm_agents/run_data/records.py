@@ -60,6 +60,10 @@ class StepRecord(BaseModel):
     """Index of the step within its episode, from 0."""
     observation: str
     """The observation text the agent was shown."""
+    frame_png: str | None = None
+    """`--observation image|both`: the frame the model was sent at this step, the PNG file
+    exactly as sent, base64-encoded; the message carried it after the frames of up to
+    `frame_history` steps before (theirs, recorded on those steps)."""
     prompt_hash: str
     """Hash of the full prompt, to spot identical prompts without storing each one."""
     raw_output: str

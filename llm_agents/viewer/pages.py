@@ -54,6 +54,7 @@ from llm_agents.evaluation.report import (
     table_columns,
 )
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
+from llm_agents.run_data.records import StepRecord
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
 from llm_agents.viewer.goals import block_words, rendering_of
 from llm_agents.viewer.run import EpisodeView, LoadedRun, load_run
@@ -345,7 +346,8 @@ def _replay_input(view: EpisodeView, variant: Any) -> Any:
 def _checker_data(view: EpisodeView, replay: Any, variant: Any) -> dict[str, Any]:
     """What the goal's checker read over the replay: the player's cell on every frame, the
     tracked counts (conditional placing), and its marks on the last map it read."""
-    from env.replay import BLOCK_SIZES, VIEW_CELLS
+    from env.frames import VIEW_CELLS
+    from env.replay import BLOCK_SIZES
 
     assert view.goal is not None
     rendering = rendering_of(view.goal.kind)
@@ -663,6 +665,19 @@ def _flatten(config: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
 # ---------------------------------------------------------------- episode page
 
 
+def sent_images(
+    steps: Sequence[StepRecord], frame_history: int
+) -> tuple[dict[int, str], dict[int, list[int]]]:
+    """`--observation image|both`: each step's recorded frame as the data URL of its very PNG,
+    and per step the steps whose frames its message carried, oldest first (its own last):
+    exactly the images the model was sent, as the episode page shows them."""
+    frames = {
+        step.step: f"data:image/png;base64,{step.frame_png}" for step in steps if step.frame_png
+    }
+    sent = {step: list(range(max(0, step - frame_history), step + 1)) for step in sorted(frames)}
+    return frames, sent
+
+
 def _episode_context(
     run: LoadedRun,
     view: EpisodeView,
@@ -674,6 +689,7 @@ def _episode_context(
     record = view.record
     previous, following = neighbours[record.episode_id]
     scale = max(1, round(_FRAME_DISPLAY_HEIGHT / sheet.frame_height)) if sheet else 1
+    frames, sent = sent_images(view.steps, int(run.config.get("frame_history") or 0))
     steps = [
         {
             "step": step.step,
@@ -686,12 +702,15 @@ def _episode_context(
             "new": step.new_achievements,
             "done": step.done,
             "latency": round(step.latency_s, 3),
+            "sent": sent.get(step.step, []),
         }
         for step in view.steps
     ]
     checker = status.checker
     data = {
         "steps": steps,
+        # Each step's recorded PNG once; a step's `sent` lists the frames its message carried.
+        "frames": frames,
         "checker": checker,
         "termination": record.termination,
         "sheet": None

@@ -64,6 +64,7 @@ from llm_agents.backends.base import (
     scored_choices,
 )
 from llm_agents.backends.embedded import NAMED_MODELS
+from llm_agents.backends.hf import vision
 from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     padded,
@@ -173,6 +174,16 @@ class HFModel(ModelAPI):
             model_config = AutoConfig.from_pretrained(self._source, local_files_only=True)
         except OSError as err:
             raise _load_error(model_name, err) from err
+        #: An image-text model (`vision.py`): every answer goes through its processor.
+        self.processor: Any = None
+        if vision.is_image_text(model_config):
+            try:
+                self.processor = vision.load_processor(self._source)
+            except OSError as err:
+                raise _load_error(model_name, err) from err
+            self.tokenizer.chat_template = (
+                self.tokenizer.chat_template or self.processor.chat_template
+            )
         if not self.tokenizer.chat_template:
             raise UserError(f"hf model {model_name!r} has no chat template in its tokenizer")
         self.tokenizer.padding_side = "left"
@@ -205,8 +216,12 @@ class HFModel(ModelAPI):
         only after construction (`check_choice_rule`), may still change the default dtype."""
         if self._model is None:
             try:
-                model: Any = AutoModelForCausalLM.from_pretrained(
-                    self._source, local_files_only=True, dtype=self.dtype
+                model: Any = (
+                    vision.load_model(self._source, self.dtype)
+                    if self.processor is not None
+                    else AutoModelForCausalLM.from_pretrained(
+                        self._source, local_files_only=True, dtype=self.dtype
+                    )
                 )
             except OSError as err:
                 raise _load_error(self.model_name, err) from err
@@ -230,6 +245,13 @@ class HFModel(ModelAPI):
             self.scorer.forget_prefix()
             if self.device.type == "cuda":
                 torch.cuda.empty_cache()
+
+    def check_images(self) -> None:
+        if self.processor is None:
+            raise UserError(
+                f"hf model {self.model_name!r} is a text-only model (its config has no vision "
+                "tower): it takes no images; use --observation text, or an image-text model"
+            )
 
     def info(self) -> dict[str, str]:
         import transformers
@@ -274,6 +296,10 @@ class HFModel(ModelAPI):
     # -- free generation ----------------------------------------------------------------------
 
     def _generate_split(self, conversations: Sequence[Conversation]) -> list[ModelOutput]:
+        if self.processor is not None:
+            return vision.generate(
+                self.model, self.processor, conversations, self.config, self.device, self.dtype
+            )
         texts = [self._render(conversation) for conversation in conversations]
         # Templates that open the thinking block themselves make the completion start inside it.
         opened = [text.rstrip().endswith(THINK_OPEN) for text in texts]
