@@ -12,7 +12,7 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import DIFFICULTIES, AnyGoal, run_category
 from env.open_ended import open_ended_dataset
-from llm_agents.evaluation.report import scheduled_episodes
+from llm_agents.evaluation.rescoring import scheduled_episodes
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import (
     EPISODES_FILE,
