@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from env.craftax_names import FULL_BLOCKS
-from env.goals import GoalKind, Split
+from env.goals import GOAL_KINDS, GoalKind, Split
 
 # Where each split lives, relative to the `scenarious` package, under each spelling the released
 # wheel and the official repository use ("parafrased", "paramets"). The official loader reads a
@@ -133,13 +133,11 @@ STATE_FIELDS: dict[str, dict[str, Any]] = {
     "BuildSquareState": {"block_type": 0, "size": 3, "radius": 5},
     "BuildStarState": {"block_type": 0, "size": 3, "radius": 3, "cross_type": -1},
 }
+#: The official checkers the data uses, by `Scenarios` member: `GOAL_KINDS` is in the official
+#: `Scenarios` order (the checker's kind index too, `env.scenario_tasks`); the later members
+#: (time-constrained placement, explore) have no goal kind.
 SCENARIO_KINDS: dict[str, GoalKind] = {
-    "CONDITIONAL_ACHIEVEMENTS": "achievements",
-    "CONDITIONAL_PLACING": "conditional_placing",
-    "LOCALIZATION_PLACE": "localization_placing",
-    "BUILD_LINE": "build_line",
-    "BUILD_SQUARE": "build_square",
-    "BUILD_STAR": "build_star",
+    name: GOAL_KINDS[code] for name, code in ENUMS["Scenarios"].items() if code < len(GOAL_KINDS)
 }
 STATE_KINDS: dict[str, GoalKind] = {
     "ConditionalPlacingState": "conditional_placing",
