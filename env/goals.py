@@ -64,6 +64,9 @@ Side = Literal["right", "left", "up", "down"]
 CrossType = Literal["straight", "diagonal", "combined"]
 """The official `CrossType` codes 0-2, in order."""
 
+#: The difficulty a run, a grounding run and every function that takes one play unless told
+#: otherwise.
+DEFAULT_DIFFICULTY: Difficulty = "easy"
 SPLITS: tuple[Split, ...] = get_args(Split)
 DIFFICULTIES: tuple[Difficulty, ...] = get_args(Difficulty)
 GOAL_KINDS: tuple[GoalKind, ...] = get_args(GoalKind)
@@ -533,7 +536,7 @@ class Dataset(BaseModel):
         ]
 
     def select_goals(
-        self, categories: str | Iterable[str], difficulty: Difficulty = "easy"
+        self, categories: str | Iterable[str], difficulty: Difficulty = DEFAULT_DIFFICULTY
     ) -> list[AnyGoal]:
         """The goals of `difficulty` in the given categories (see `run_category`), in dataset
         order; a `UserError` for a category the difficulty has not or a selected split this
@@ -554,7 +557,7 @@ class Dataset(BaseModel):
         self,
         categories: str | Iterable[str],
         include_paraphrases: bool = True,
-        difficulty: Difficulty = "easy",
+        difficulty: Difficulty = DEFAULT_DIFFICULTY,
     ) -> list[Instruction]:
         """Every instruction text of the selected goals: the original, then the paraphrases."""
         return [

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from env.errors import UserError
-from env.goals import Difficulty
+from env.goals import DEFAULT_DIFFICULTY, Difficulty
 from llm_agents.evaluation.published import PublishedResult, published_for
 from llm_agents.evaluation.report_tables import CATEGORY_LABELS, chart_categories, our_rate
 from llm_agents.run_data.metrics import SuccessRate, Summary
@@ -31,7 +31,7 @@ def plot_success(
     path: Path,
     *,
     with_published: bool = True,
-    difficulty: Difficulty = "easy",
+    difficulty: Difficulty = DEFAULT_DIFFICULTY,
 ) -> None:
     """Save a PNG bar chart of success per category: our run with its intervals, and the paper's
     (left out with `with_published=False`, for a run not comparable with it)."""

@@ -10,7 +10,7 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 from env.dataset import PAPER_CATEGORIES
-from env.goals import DIFFICULTY_CATEGORIES, Difficulty
+from env.goals import DEFAULT_DIFFICULTY, DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SuccessRule
 from llm_agents.evaluation.goal_flags import EXPERT_PLAYED, GoalStatus
 from llm_agents.evaluation.published import (
@@ -45,14 +45,14 @@ CATEGORY_LABELS = {
 }
 
 
-def chart_categories(summary: Summary, difficulty: Difficulty = "easy") -> list[str]:
+def chart_categories(summary: Summary, difficulty: Difficulty = DEFAULT_DIFFICULTY) -> list[str]:
     if difficulty != "easy":
         return list(DIFFICULTY_CATEGORIES[difficulty])
     extra = ["paraphrased"] if "paraphrased" in summary.by_category else []
     return [*PAPER_CATEGORIES, *extra]
 
 
-def table_columns(summary: Summary, difficulty: Difficulty = "easy") -> list[str]:
+def table_columns(summary: Summary, difficulty: Difficulty = DEFAULT_DIFFICULTY) -> list[str]:
     # With a single category the overall column would only repeat it.
     overall = ["overall"] if len(summary.by_category) > 1 else []
     return [*chart_categories(summary, difficulty), *overall]
@@ -144,7 +144,7 @@ def format_table(
     differences: Sequence[str] = (),
     absent: Collection[str] = (),
     notes: Sequence[str] = (),
-    difficulty: Difficulty = "easy",
+    difficulty: Difficulty = DEFAULT_DIFFICULTY,
 ) -> str:
     """Our success rates (95% interval, clustered by goal, episodes) beside the published ones,
     as text;

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from env.goals import DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SUCCESS_RULES, SuccessRule
@@ -26,10 +27,17 @@ _RECORDED_DIFFICULTY_BEFORE_SETTING: Difficulty = "easy"
 _RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
 
 
+def recorded_difficulty(config: Mapping[str, Any]) -> Difficulty:
+    """The difficulty a run whose results record `config` played."""
+    difficulty = config.get("difficulty", _RECORDED_DIFFICULTY_BEFORE_SETTING)
+    return (
+        difficulty if difficulty in DIFFICULTY_CATEGORIES else _RECORDED_DIFFICULTY_BEFORE_SETTING
+    )
+
+
 def difficulty_of_run(results: RunResults) -> Difficulty:
     """The difficulty a run played."""
-    difficulty = results.config.get("difficulty", _RECORDED_DIFFICULTY_BEFORE_SETTING)
-    return difficulty if difficulty in DIFFICULTY_CATEGORIES else "easy"
+    return recorded_difficulty(results.config)
 
 
 def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:
