@@ -30,6 +30,8 @@ from collections import Counter
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from env.checker_geometry import LOCAL_RADIUS as _LOCAL_REACH
+from env.checker_geometry import WINDOW_RADIUS as _LINE_APART
 from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import action_id
@@ -79,10 +81,6 @@ _MATERIALS = {"tree": "wood", "stone": "stone", "coal": "coal", "iron": "iron"}
 _DEEP = frozenset({"iron", "diamond"})
 _MOUNTAIN = frozenset({"stone", "coal", "iron", "diamond", "path", "lava"})
 _UNREACHABLE = 10**9
-#: The official line check's radius: no other block of the line's kind may stand that close.
-_LINE_APART = 10
-#: The official localization check's radius: both blocks within it of the player (Chebyshev).
-_LOCAL_REACH = 5
 _ORES = frozenset({"coal", "iron", "diamond"})
 
 
