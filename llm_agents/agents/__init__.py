@@ -83,8 +83,8 @@ class NoModel(ModelAPI):
     def __init__(self) -> None:
         super().__init__("none")
 
-    def generate(
-        self, conversations: Sequence[Any], choices: ChoiceSet | None = None
+    def _generate(
+        self, conversations: Sequence[Any], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
         """An empty answer per conversation: an agent without a model decides by itself."""
         return [ModelOutput(text="") for _ in conversations]
