@@ -1,4 +1,5 @@
-"""Agent strategies by name: `zero-shot`, `cot`, `few-shot` and the scripted `expert`.
+"""Agent strategies by name: `zero-shot`, `cot`, `few-shot`, the scripted `expert`, `guided` (the
+model reads the goal, the expert plays it) and `noop`.
 
 Like the backends, the registry (`registry.AGENTS`) maps a name to `"module:Class"` and
 imports lazily. Every agent plays many episodes (slots) at once, each stepping on its own, and

@@ -25,7 +25,7 @@ from pydantic import (
 )
 
 from env.dataset import CATEGORIES, PAPER_CATEGORIES, parse_categories
-from env.placement import EnvDevice
+from env.device import EnvDevice
 from env.errors import UserError
 from env.goals import DEFAULT_DIFFICULTY, DIFFICULTIES, Difficulty, check_categories
 from env.open_ended import Task
