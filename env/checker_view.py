@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from env.scenario_checker import (
+from env.checker_geometry import (
     LOCAL_RADIUS,
     REACH,
     STAR_FILTER,

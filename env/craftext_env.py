@@ -1,4 +1,4 @@
-"""The CrafText environment: Craftax plus the conditional-achievements success checker.
+"""The CrafText environment: Craftax plus every scenario's success checker.
 
 `CrafTextEnv` is functional and JAX-pure (`reset`, `step`), so it can be jitted and vmapped like a
 gymnax env. `VectorEnv` drives a fixed-size batch of episodes from the host: one compiled step
@@ -28,8 +28,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import goal_reached, scored_success
+from env.device import EnvDevice, place_env
 from env.jax_cache import enable_compilation_cache
-from env.placement import EnvDevice, place_env
 from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP, SuccessRule
 from env.scenario_checker import goal_met
 from env.scenario_tasks import KIND_INDEX, NUM_PARAMS
@@ -57,7 +57,7 @@ class EnvConfig(BaseModel):
     official loop uses 1) instead of its episode key; steps still draw from the episode key."""
     device: EnvDevice = "cpu"
     """Where JAX steps the worlds: `cpu` (the default: the accelerator stays the model's) or
-    `default` (JAX's default device); see `env.placement`."""
+    `default` (JAX's default device); see `env.device`."""
 
 
 @struct.dataclass

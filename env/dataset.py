@@ -1,4 +1,5 @@
-"""The CrafText EASY instruction sets: typed goals, read from the official dataset sources.
+"""The CrafText instruction sets (EASY, Medium, Hard): typed goals, read from the official dataset
+sources.
 
 `load_dataset(source)` dispatches on what `source` is:
 

@@ -64,6 +64,9 @@ Side = Literal["right", "left", "up", "down"]
 CrossType = Literal["straight", "diagonal", "combined"]
 """The official `CrossType` codes 0-2, in order."""
 
+#: The difficulty a run, a grounding run and every function that takes one play unless told
+#: otherwise.
+DEFAULT_DIFFICULTY: Difficulty = "easy"
 SPLITS: tuple[Split, ...] = get_args(Split)
 DIFFICULTIES: tuple[Difficulty, ...] = get_args(Difficulty)
 GOAL_KINDS: tuple[GoalKind, ...] = get_args(GoalKind)
@@ -242,13 +245,19 @@ class _GoalText(BaseModel):
         return [getattr(self, name) for name in type(self).model_fields if name not in common]
 
 
-class Goal(_GoalText):
-    """A conditional-achievements goal: achievements to reach and to avoid (all of EASY, and part
-    of Medium)."""
+# Each goal kind's parameters, declared once: the dataset's goals below add where they are in
+# the dataset and their texts; the readings of `llm_agents.run_data.readings` add nothing but
+# how they are scored.
+
+
+class _Parameters(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class AchievementsParameters(_Parameters):
+    """An achievements goal's parameters: achievements to reach and to avoid."""
 
     kind: Literal["achievements"] = "achievements"
-    category: Category
-    """`one` or `combo` (train), `paraphrased` or `new_objects` (test); see `category_of`."""
     required: tuple[str, ...]
     """Achievement names that must all be reached, in achievement-id order."""
     forbidden: tuple[str, ...] = ()
@@ -262,6 +271,70 @@ class Goal(_GoalText):
             raise ValueError(f"unknown achievements {unknown}; known: {', '.join(ACHIEVEMENTS)}")
         # The official goals are masks, so order and repetition carry no meaning: keep id order.
         return tuple(sorted(set(names), key=ACHIEVEMENT_IDS.__getitem__))
+
+
+class ConditionalPlacingParameters(_Parameters):
+    """Collect an item, then have blocks of a kind on the map (official `conditional_placing`)."""
+
+    kind: Literal["conditional_placing"] = "conditional_placing"
+    collect: str
+    """The inventory field the official checker counts (e.g. `iron`; its enum codes 6-11, 14 and
+    15 all count `diamond`)."""
+    collect_count: int = Field(ge=0)
+    place: str
+    """The block that must stand on the map (Craftax block name)."""
+    place_count: int = Field(ge=0)
+
+
+class LocalizationParameters(_Parameters):
+    """Place a block at a side and distance from another (official `localization_placing`)."""
+
+    kind: Literal["localization_placing"] = "localization_placing"
+    place: str
+    """The block to place (Craftax block name)."""
+    target: str
+    """The block it is placed relative to."""
+    side: Side
+    distance: int = Field(ge=0)
+
+
+class BuildLineParameters(_Parameters):
+    """A straight or diagonal line of blocks (official `build_line`)."""
+
+    kind: Literal["build_line"] = "build_line"
+    block: str
+    size: int = Field(ge=1)
+    diagonal: bool
+
+
+class BuildSquareParameters(_Parameters):
+    """A filled square of blocks (official `build_square`)."""
+
+    kind: Literal["build_square"] = "build_square"
+    block: str
+    size: int = Field(ge=1)
+
+
+class BuildStarParameters(_Parameters):
+    """A cross of blocks (official `build_star`)."""
+
+    kind: Literal["build_star"] = "build_star"
+    block: str
+    size: int = Field(ge=1)
+    cross: CrossType
+
+
+class _CategorizedText(_GoalText):
+    # `kind` again only so that an achievements goal's fields (and its JSON) keep their order:
+    # kind, category, required, forbidden.
+    kind: Literal["achievements"] = "achievements"
+    category: Category
+    """`one` or `combo` (train), `paraphrased` or `new_objects` (test); see `category_of`."""
+
+
+class Goal(AchievementsParameters, _CategorizedText):
+    """A conditional-achievements goal: achievements to reach and to avoid (all of EASY, and part
+    of Medium)."""
 
     @model_validator(mode="after")
     def _consistent(self) -> Goal:
@@ -289,71 +362,40 @@ class Goal(_GoalText):
         return _mask(self.forbidden)
 
 
-class ConditionalPlacingGoal(_GoalText):
-    """Collect an item, then have blocks of a kind on the map (official `conditional_placing`)."""
-
-    kind: Literal["conditional_placing"] = "conditional_placing"
-    collect: str
-    """The inventory field the official checker counts (e.g. `iron`; its enum codes 6-11, 14 and
-    15 all count `diamond`)."""
-    collect_count: int = Field(ge=0)
-    place: str
-    """The block that must stand on the map (Craftax block name)."""
-    place_count: int = Field(ge=0)
+class ConditionalPlacingGoal(ConditionalPlacingParameters, _GoalText):
+    __doc__ = ConditionalPlacingParameters.__doc__
 
     @property
     def scenario_class(self) -> ScenarioClass:
         return "Conditional"
 
 
-class LocalizationGoal(_GoalText):
-    """Place a block at a side and distance from another (official `localization_placing`)."""
-
-    kind: Literal["localization_placing"] = "localization_placing"
-    place: str
-    """The block to place (Craftax block name)."""
-    target: str
-    """The block it is placed relative to."""
-    side: Side
-    distance: int = Field(ge=0)
+class LocalizationGoal(LocalizationParameters, _GoalText):
+    __doc__ = LocalizationParameters.__doc__
 
     @property
     def scenario_class(self) -> ScenarioClass:
         return "Localization"
 
 
-class BuildLineGoal(_GoalText):
-    """A straight or diagonal line of blocks (official `build_line`)."""
-
-    kind: Literal["build_line"] = "build_line"
-    block: str
-    size: int = Field(ge=1)
-    diagonal: bool
+class BuildLineGoal(BuildLineParameters, _GoalText):
+    __doc__ = BuildLineParameters.__doc__
 
     @property
     def scenario_class(self) -> ScenarioClass:
         return "Build"
 
 
-class BuildSquareGoal(_GoalText):
-    """A filled square of blocks (official `build_square`)."""
-
-    kind: Literal["build_square"] = "build_square"
-    block: str
-    size: int = Field(ge=1)
+class BuildSquareGoal(BuildSquareParameters, _GoalText):
+    __doc__ = BuildSquareParameters.__doc__
 
     @property
     def scenario_class(self) -> ScenarioClass:
         return "Build"
 
 
-class BuildStarGoal(_GoalText):
-    """A cross of blocks (official `build_star`)."""
-
-    kind: Literal["build_star"] = "build_star"
-    block: str
-    size: int = Field(ge=1)
-    cross: CrossType
+class BuildStarGoal(BuildStarParameters, _GoalText):
+    __doc__ = BuildStarParameters.__doc__
 
     @property
     def scenario_class(self) -> ScenarioClass:
@@ -494,7 +536,7 @@ class Dataset(BaseModel):
         ]
 
     def select_goals(
-        self, categories: str | Iterable[str], difficulty: Difficulty = "easy"
+        self, categories: str | Iterable[str], difficulty: Difficulty = DEFAULT_DIFFICULTY
     ) -> list[AnyGoal]:
         """The goals of `difficulty` in the given categories (see `run_category`), in dataset
         order; a `UserError` for a category the difficulty has not or a selected split this
@@ -515,7 +557,7 @@ class Dataset(BaseModel):
         self,
         categories: str | Iterable[str],
         include_paraphrases: bool = True,
-        difficulty: Difficulty = "easy",
+        difficulty: Difficulty = DEFAULT_DIFFICULTY,
     ) -> list[Instruction]:
         """Every instruction text of the selected goals: the original, then the paraphrases."""
         return [

@@ -32,14 +32,17 @@ import jax.numpy as jnp
 
 from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import goal_reached
+from env.checker_geometry import (
+    LOCAL,
+    LOCAL_RADIUS,
+    REACH,
+    STAR_FILTER,
+    WINDOW,
+    WINDOW_RADIUS,
+    square_offsets,
+)
 from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS, KIND_INDEX
 from env.variant import Variant
-
-WINDOW_RADIUS = 10
-WINDOW = 2 * WINDOW_RADIUS + 1
-LOCAL_RADIUS = 5
-LOCAL = 2 * LOCAL_RADIUS + 1
-STAR_FILTER = 7
 
 
 def overworld(game: Any, variant: Variant) -> jax.Array:
@@ -84,10 +87,6 @@ def _window(game: Any, block: jax.Array, variant: Variant) -> jax.Array:
     return jax.lax.dynamic_slice(
         found, (row - WINDOW_RADIUS, column - WINDOW_RADIUS), (WINDOW, WINDOW)
     )
-
-
-REACH = 4
-"""The farthest neighbour offset any line or square looks at, in rows or columns."""
 
 
 def _extended(window: jax.Array) -> jax.Array:
@@ -142,20 +141,6 @@ def _line(game: Any, params: jax.Array, variant: Variant) -> jax.Array:
     extended = _extended(window)
     found = jnp.stack([_line_found(window, extended, length, diagonal) for length in (2, 3, 4)])
     return found[jnp.clip(params[1] - 2, 0, 2)]
-
-
-def square_offsets(side: int) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
-    """The filled cells and the border ring of a square of `side`, relative to the checked
-    center (the top-left cell for even sides, the middle for 3)."""
-    first = -1 if side == 3 else 0
-    filled = [(r, c) for r in range(first, first + side) for c in range(first, first + side)]
-    ring = [
-        (r, c)
-        for r in range(first - 1, first + side + 1)
-        for c in range(first - 1, first + side + 1)
-        if (r, c) not in filled
-    ]
-    return filled, ring
 
 
 def _square(game: Any, params: jax.Array, variant: Variant) -> jax.Array:

@@ -316,7 +316,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     _check_goal_status_flags(args)
     if args.compare:
-        from llm_agents.evaluation.report import compare_runs
+        from llm_agents.evaluation.comparison import compare_runs
 
         if args.success_rule:
             raise UserError(

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs Debian's Chromium for the browser test of `craftext-llm view` (tests/test_view_browser.py),
+# Installs Debian's Chromium for the browser tests of `craftext-llm view` (in tests/test_view.py),
 # which drives it with Playwright. Idempotent: does nothing when a Chromium is already on PATH.
 # Playwright's own browser download (`playwright install`) is never used: the test points
 # Playwright at the system executable.

@@ -87,7 +87,7 @@ class Recorder(ModelAPI):
     def __init__(self, model_name: str, config: GenerateConfig | None = None, **options: Any):
         super().__init__(model_name, config, **options)
 
-    def generate(self, conversations: Any, choices: Any = None) -> list[ModelOutput]:
+    def _generate(self, conversations: Any, choices: Any) -> list[ModelOutput]:
         return []
 
 
@@ -164,3 +164,22 @@ def test_a_choice_set_needs_options_and_a_known_rule() -> None:
         ChoiceSet(options=(), rule="loglik")
     with pytest.raises(ValidationError):
         ChoiceSet(options=("DO",), rule="best")  # type: ignore[arg-type]
+
+
+def test_the_base_refuses_a_choice_rule_before_the_backend_answers() -> None:
+    class GuidedOnly(Recorder):
+        backend_name = "guided-only"
+        choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"guided"})
+        answered = 0
+
+        def _generate(self, conversations: Any, choices: Any) -> list[ModelOutput]:
+            GuidedOnly.answered += 1
+            return [ModelOutput(text="DO") for _ in conversations]
+
+    model = GuidedOnly("m")
+    conversation = [ChatMessage(role="user", content="go")]
+    with pytest.raises(UserError, match="cannot choose by 'loglik'"):
+        model.generate([conversation], ChoiceSet(options=("DO",), rule="loglik"))
+    assert GuidedOnly.answered == 0
+    assert model.generate([conversation], ChoiceSet(options=("DO",), rule="guided"))[0].text == "DO"
+    assert GuidedOnly.answered == 1

@@ -132,7 +132,8 @@ def test_an_overridden_protocol_or_a_used_folder_is_refused(
 def test_an_open_ended_run_is_reported_beside_balrogs_published_rows(
     tmp_path: Path, shared_data: Path
 ) -> None:
-    from llm_agents.evaluation.report import BALROG_PUBLISHED, report_run
+    from llm_agents.evaluation.published import BALROG_PUBLISHED
+    from llm_agents.evaluation.report import report_run
 
     text = report_run(_balrog_run(tmp_path / "run"))
     ours = score_run([_episode(i, n) for i, n in enumerate((3, 9, 0, 14, 5, 5, 22, 1, 8, 11))])

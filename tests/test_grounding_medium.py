@@ -5,6 +5,7 @@ the `guided` agent playing a grounded Medium goal, on the mock backend and the o
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -13,7 +14,7 @@ import pytest
 from env import CrafTextEnv, EnvConfig, Variant
 from env.dataset import Dataset, DatasetSource
 from env.dataset import Goal as AchievementsGoal
-from env.goals import DIFFICULTY_KINDS, SPLITS, AnyGoal
+from env.goals import DIFFICULTY_KINDS, GOAL_KINDS, SPLITS, AnyGoal, Goal, LocalizationGoal
 from env.official_source import parse_directory
 from llm_agents.agents.grounding import grounding_messages, parse_grounding, reading_json
 from llm_agents.backends.base import ChatMessage
@@ -37,6 +38,7 @@ from llm_agents.run_data.grounding_metrics import (
     score,
 )
 from llm_agents.run_data.readings import (
+    READING_CLASSES,
     AchievementsReading,
     BuildLineReading,
     BuildSquareReading,
@@ -50,6 +52,21 @@ CLASSIC = Variant.CLASSIC
 STONE_LEFT_OF_FURNACE = LocalizationReading(
     place="STONE", target="FURNACE", side="left", distance=1
 )
+
+
+def test_every_goal_kind_is_read_with_the_goals_own_parameters() -> None:
+    assert set(READING_CLASSES) == set(GOAL_KINDS)
+    goal = LocalizationGoal(
+        id="G", scenario="medium", split="medium_train", instruction="put it", paraphrases=(),
+        place="STONE", target="FURNACE", side="left", distance=1,
+    )  # fmt: skip
+    assert reading_of(goal) == STONE_LEFT_OF_FURNACE
+    # The kind's validators are the goal's: a reading sorts achievements as a goal does.
+    names = ("COLLECT_WOOD", "PLACE_TABLE")
+    assert AchievementsReading(required=names[::-1]).required == Goal(
+        id="A", split="easy_train", category="combo", instruction="x", paraphrases=(),
+        required=names[::-1],
+    ).required == names  # fmt: skip
 
 
 def test_a_right_medium_answer_is_read_as_its_typed_goal_and_scores_exact() -> None:
@@ -152,6 +169,21 @@ def test_the_prompt_offers_the_difficultys_kinds_and_the_variants_names() -> Non
     assert all(block in medium for block in CLASSIC.block_names)
     assert "ENCHANTMENT_TABLE_FIRE" in hard and "ENCHANTMENT_TABLE_FIRE" not in medium
     assert "sapphire" in hard and "sapphire" not in medium
+
+
+def test_the_prompt_shows_each_kind_with_exactly_its_declared_parameters() -> None:
+    # ground.j2 spells each kind's JSON out for the model: it must name the fields the kind's
+    # parameters declare (env.goals), no more and no fewer.
+    shown: dict[str, set[str]] = {}
+    for variant, difficulty in ((CLASSIC, "medium"), (Variant.FULL, "hard")):
+        prompt = grounding_messages("Do it.", variant, difficulty=difficulty)[0].content  # type: ignore[arg-type]
+        for line in prompt.splitlines():
+            if line.strip().startswith('{"kind": "'):
+                kind = line.split('"')[3]
+                shown[kind] = set(re.findall(r'"(\w+)":', line))
+    assert set(shown) == set(GOAL_KINDS)
+    for kind, fields in shown.items():
+        assert fields == set(READING_CLASSES[kind].model_fields), kind  # type: ignore[index]
 
 
 # ----------------------------------------------------------------------------- official goals

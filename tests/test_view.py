@@ -471,7 +471,7 @@ def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) 
 def test_run_page_shows_the_achievement_scores_report_prints(
     run_dir: Path, expert_dir: Path, viewed: Any
 ) -> None:
-    from llm_agents.evaluation.report import run_scores, scheduled_episodes
+    from llm_agents.evaluation.rescoring import run_scores, scheduled_episodes
     from llm_agents.run_data.store import read_results
 
     index = (run_dir / "report" / "index.html").read_text()

@@ -1,4 +1,5 @@
-"""Agent strategies by name: `zero-shot`, `cot`, `few-shot` and the scripted `expert`.
+"""Agent strategies by name: `zero-shot`, `cot`, `few-shot`, the scripted `expert`, `guided` (the
+model reads the goal, the expert plays it) and `noop`.
 
 Like the backends, the registry (`registry.AGENTS`) maps a name to `"module:Class"` and
 imports lazily. Every agent plays many episodes (slots) at once, each stepping on its own, and
@@ -83,8 +84,8 @@ class NoModel(ModelAPI):
     def __init__(self) -> None:
         super().__init__("none")
 
-    def generate(
-        self, conversations: Sequence[Any], choices: ChoiceSet | None = None
+    def _generate(
+        self, conversations: Sequence[Any], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
         """An empty answer per conversation: an agent without a model decides by itself."""
         return [ModelOutput(text="") for _ in conversations]

@@ -10,6 +10,8 @@ before it, keeping clear of other blocks of the kind where the official checks c
 
 from __future__ import annotations
 
+from env.checker_geometry import LOCAL_RADIUS as _LOCAL_REACH
+from env.checker_geometry import WINDOW_RADIUS as _LINE_APART
 from llm_agents.agents.expert_navigation import (
     MOVES,
     Navigator,
@@ -31,10 +33,6 @@ from llm_agents.agents.expert_plan import (
 
 _PREY_MEMORY = 12
 _PLACED_ON_CLEARED = frozenset({"PLACE_TABLE", "PLACE_FURNACE", "PLACE_STONE"})
-#: The official line check's radius: no other block of the line's kind may stand that close.
-_LINE_APART = 10
-#: The official localization check's radius: both blocks within it of the player (Chebyshev).
-_LOCAL_REACH = 5
 
 
 class Controller(Navigator):

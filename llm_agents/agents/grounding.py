@@ -38,6 +38,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from env.achievements import ACHIEVEMENT_IDS
 from env.goals import (
     CROSS_TYPES,
+    DEFAULT_DIFFICULTY,
     DIFFICULTY_KINDS,
     SIDES,
     AnyGoal,
@@ -159,7 +160,7 @@ def grounding_messages(
     instruction: str,
     variant: Variant,
     templates_dir: str | Path | None = None,
-    difficulty: Difficulty = "easy",
+    difficulty: Difficulty = DEFAULT_DIFFICULTY,
     examples: Sequence[GroundingExample] = (),
     shots: int = 0,
     answer: GoalReading | None = None,
@@ -205,7 +206,7 @@ def grounding_messages(
     return [*messages[:split], *turns, *messages[split:]]
 
 
-def reading_json(reading: GoalReading, difficulty: Difficulty = "easy") -> str:
+def reading_json(reading: GoalReading, difficulty: Difficulty = DEFAULT_DIFFICULTY) -> str:
     """The canonical JSON of a reading, as `difficulty`'s prompt asks for it: an achievements
     goal without its kind on EASY (whose prompt offers no other kind), every goal with its kind
     on Medium and Hard."""
@@ -217,7 +218,7 @@ def reading_json(reading: GoalReading, difficulty: Difficulty = "easy") -> str:
 
 
 def reading_options(
-    readings: Iterable[GoalReading], difficulty: Difficulty = "easy"
+    readings: Iterable[GoalReading], difficulty: Difficulty = DEFAULT_DIFFICULTY
 ) -> tuple[str, ...]:
     """The distinct readings' canonical JSON (`difficulty`'s), in first-seen order: the options
     of `--choice`."""
@@ -333,7 +334,9 @@ def _placing(kind: GoalKind, parsed: dict[str, object], variant: Variant) -> Goa
     return READING_CLASSES[kind].model_validate(fields)  # type: ignore[return-value]
 
 
-def parse_grounding(raw: str, variant: Variant, difficulty: Difficulty = "easy") -> Grounding:
+def parse_grounding(
+    raw: str, variant: Variant, difficulty: Difficulty = DEFAULT_DIFFICULTY
+) -> Grounding:
     """The goal an answer states, or `invalid` with the reason (never a guess). The goal kinds
     read are those the prompt of `difficulty` offers."""
     stage, parsed = _located(raw)

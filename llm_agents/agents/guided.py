@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.dataset import load_dataset
 from env.errors import UserError
+from env.goals import DEFAULT_DIFFICULTY
 from env.variant import Variant, as_variant
 from llm_agents.agents.expert import ExpertAgent
 from llm_agents.agents.grounding import (
@@ -55,7 +56,7 @@ class GuidedAgent:
         renderer: str = "objects",
         fallback_action: str = "NOOP",
         templates_dir: str | Path | None = None,
-        difficulty: Difficulty = "easy",
+        difficulty: Difficulty = DEFAULT_DIFFICULTY,
         examples: Sequence[GroundingExample] = (),
         shots: int = 0,
     ):

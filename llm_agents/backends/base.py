@@ -451,14 +451,23 @@ class ModelAPI(abc.ABC):
         self.config = config or GenerateConfig()
         self.options = options
 
-    @abc.abstractmethod
     def generate(
         self,
         conversations: Sequence[Conversation],
         choices: ChoiceSet | None = None,
     ) -> list[ModelOutput]:
         """Answer every conversation; with `choices`, each answer is exactly one of its options,
-        picked by its rule (a rule the backend lacks raises `UserError`)."""
+        picked by its rule (a rule the backend lacks raises `UserError`, checked here for every
+        backend before it answers)."""
+        if choices is not None:
+            self.check_choice_rule(choices.rule)
+        return self._generate(conversations, choices)
+
+    @abc.abstractmethod
+    def _generate(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
+    ) -> list[ModelOutput]:
+        """`generate` for this backend, `choices`' rule already checked."""
 
     def check_choice_rule(self, rule: ChoiceRule) -> None:
         """Raise `UserError` unless this backend can pick answers by `rule`."""

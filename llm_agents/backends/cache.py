@@ -79,13 +79,9 @@ class CachedModel(ModelAPI):
         """Whether the current generation settings are cached (see the module docstring)."""
         return self.model.config.temperature == 0 or self.cache_sampled
 
-    def generate(
-        self,
-        conversations: Sequence[Conversation],
-        choices: ChoiceSet | None = None,
+    def _generate(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
-        if choices is not None:
-            self.check_choice_rule(choices.rule)
         if not self.caching:
             return self.model.generate(conversations, choices)
         keys = [self.request_key(conversation, choices) for conversation in conversations]

@@ -77,13 +77,9 @@ class MockModel(ModelAPI):
         if self._mode == "error":
             raise UserError(f"mock:{self.model_name} does not answer: {self._error}")
 
-    def generate(
-        self,
-        conversations: Sequence[Conversation],
-        choices: ChoiceSet | None = None,
+    def _generate(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
-        if choices is not None:
-            self.check_choice_rule(choices.rule)
         if self.latency_s:
             time.sleep(self.latency_s)
         results = []

@@ -187,13 +187,9 @@ class OpenAIModel(ModelAPI):
             self._client = None
         self._portal.stop()
 
-    def generate(
-        self,
-        conversations: Sequence[Conversation],
-        choices: ChoiceSet | None = None,
+    def _generate(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
-        if choices is not None:
-            self.check_choice_rule(choices.rule)
         options = list(choices.options) if choices is not None else None
         return generate_with_followup(conversations, options, self._run)
 

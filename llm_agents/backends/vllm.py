@@ -125,14 +125,11 @@ class VLLMModel(ModelAPI):
     def info(self) -> dict[str, str]:
         return {**super().info(), "model_path": self.model_path, "vllm": vllm.__version__}
 
-    def generate(
-        self,
-        conversations: Sequence[Conversation],
-        choices: ChoiceSet | None = None,
+    def _generate(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
         if choices is None:
             return generate_with_followup(conversations, None, self._chat)
-        self.check_choice_rule(choices.rule)
         if choices.rule == "guided":
             return generate_with_followup(conversations, list(choices.options), self._chat)
         return self._choose(conversations, choices)

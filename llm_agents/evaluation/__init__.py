@@ -1,2 +1,3 @@
 """Evaluating a model: settings and protocols, the episode scheduler and runner (local or
-on Ray), and the report of a run."""
+on Ray), the report of a run (published numbers, rescoring, tables, chart, comparison), and
+grounding runs and their report."""

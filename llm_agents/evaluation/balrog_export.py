@@ -29,7 +29,7 @@ from pydantic import BaseModel
 
 from env.craftax_names import CLASSIC_ACHIEVEMENTS
 from env.errors import UserError
-from llm_agents.evaluation.report import model_name_of
+from llm_agents.evaluation.rescoring import model_name_of
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.scores import progression, score_episodes
 from llm_agents.run_data.store import RESULTS_FILE, RunResults, read_episodes, read_results

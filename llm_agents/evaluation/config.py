@@ -25,10 +25,10 @@ from pydantic import (
 )
 
 from env.dataset import CATEGORIES, PAPER_CATEGORIES, parse_categories
+from env.device import EnvDevice
 from env.errors import UserError
-from env.goals import DIFFICULTIES, Difficulty, check_categories
+from env.goals import DEFAULT_DIFFICULTY, DIFFICULTIES, Difficulty, check_categories
 from env.open_ended import Task
-from env.placement import EnvDevice
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
@@ -131,7 +131,7 @@ class TextSelection(ModelSettings):
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
 
-    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
+    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = DEFAULT_DIFFICULTY
     """CrafText difficulty: easy, medium or hard; --categories then picks its splits."""
     categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = CATEGORIES
     """Instruction categories whose texts are used: easy's one, combo, paraphrased,
@@ -142,7 +142,7 @@ class TextSelection(ModelSettings):
     @classmethod
     def with_presets(cls, settings: dict[str, Any]) -> dict[str, Any]:
         """Categories, when unset, from the difficulty (an unknown one is left to validation)."""
-        difficulty = settings.get("difficulty", "easy")
+        difficulty = settings.get("difficulty", DEFAULT_DIFFICULTY)
         if "categories" in settings or difficulty == "easy" or difficulty not in DIFFICULTIES:
             return settings
         default = protocol_for("default", difficulty).value("categories")
@@ -240,7 +240,7 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
 
-    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = "easy"
+    difficulty: Annotated[Difficulty, CHANGES_RESULTS] = DEFAULT_DIFFICULTY
     """CrafText difficulty: easy, medium (Craftax-Classic in the official configs) or hard
     (full Craftax); --categories then picks its splits."""
     categories: Annotated[tuple[str, ...], CHANGES_RESULTS] = PAPER_CATEGORIES

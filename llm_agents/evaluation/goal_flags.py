@@ -14,10 +14,11 @@ from pydantic import BaseModel, Field
 
 from env.dataset import load_dataset
 from env.goal_status import do_nothing_successes, goal_key, impossible_reason
-from env.goals import DIFFICULTIES, AnyGoal, Difficulty, run_category
+from env.goals import AnyGoal, run_category
 from env.rules import SuccessRule
 from llm_agents.agents.expert_plan import expert_cannot
 from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.rescoring import recorded_difficulty
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate
 from llm_agents.run_data.records import EpisodeRecord
 
@@ -135,9 +136,7 @@ def run_goal_status(
     config = EvalConfig.recorded(settings)
     if rule is not None:
         config = config.model_copy(update={"success_rule": rule})
-    difficulty: Difficulty = settings.get("difficulty", "easy")  # type: ignore[assignment]
-    if difficulty not in DIFFICULTIES:
-        difficulty = "easy"
+    difficulty = recorded_difficulty(settings)
     dataset = load_dataset(config.dataset)
     played = {(e.category, e.goal_id) for e in episodes}
     goals = [

@@ -11,6 +11,8 @@ from pathlib import Path
 
 from env.errors import UserError
 from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
+from llm_agents.evaluation.report_tables import render_rows
+from llm_agents.evaluation.rescoring import recorded_difficulty
 from llm_agents.run_data.grounding_metrics import GroundingScore
 from llm_agents.run_data.metrics import SuccessRate
 from llm_agents.run_data.provenance import code_note
@@ -63,16 +65,7 @@ def _parameters(overall: GroundingScore, by_split: dict[str, GroundingScore]) ->
                 *(f"{_rate(cell)} n={cell.episodes}" if cell else "-" for cell in cells),
             ]
         )
-    return ["Parameters read right:", "", *_render(rows), ""]
-
-
-def _render(rows: list[list[str]]) -> list[str]:
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    lines = [
-        " | ".join(cell.ljust(widths[i]) for i, cell in enumerate(row)).rstrip() for row in rows
-    ]
-    lines.insert(1, "-+-".join("-" * width for width in widths))
-    return lines
+    return ["Parameters read right:", "", *render_rows(rows), ""]
 
 
 def report_grounding(run_dir: str | Path) -> str:
@@ -82,7 +75,7 @@ def report_grounding(run_dir: str | Path) -> str:
         raise UserError(f"{out} holds no {RESULTS_FILE}: not a run directory")
     results = read_ground_results(out / RESULTS_FILE)
     config = results.config
-    difficulty = str(config.get("difficulty") or "easy")
+    difficulty = recorded_difficulty(config)
     later = difficulty != "easy"
     head = (
         f"Grounding{' of ' + difficulty + ' goals' if later else ''} by {config.get('model')} "
@@ -101,14 +94,14 @@ def report_grounding(run_dir: str | Path) -> str:
             "exact: read exactly as the dataset's goal; P / R: precision / recall of the "
             f"achievements read into each field; [{summary.overall.exact.label}]."
         )
-        lines = [head, "", *_render(rows), "", legend]
+        lines = [head, "", *render_rows(rows), "", legend]
     else:
         rows = [[*_HEADER[:4], "kind", *_HEADER[4:]], _row("all", summary.overall, kinds=True)]
         rows += [_row(split, score, kinds=True) for split, score in summary.by_split.items()]
-        lines = [head, "", *_render(rows), "", f"By scenario class ({difficulty}):", ""]
+        lines = [head, "", *render_rows(rows), "", f"By scenario class ({difficulty}):", ""]
         rows = [["Class", *rows[0][1:]]]
         rows += [_row(c, score, kinds=True) for c, score in summary.by_scenario_class.items()]
-        lines += [*_render(rows), ""]
+        lines += [*render_rows(rows), ""]
         lines += _parameters(summary.overall, summary.by_split)
         lines.append(
             "exact: read exactly as the dataset's goal (every field); kind: read as a goal of "

@@ -26,7 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import BaseModel, Field
 
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
@@ -55,20 +55,22 @@ from llm_agents.evaluation.config import (
 )
 from llm_agents.evaluation.runner import BackendFailure
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
-from llm_agents.run_data.provenance import code_version, note_other_code
+from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
 from llm_agents.run_data.store import (
     RESULTS_FILE,
+    ResultsBase,
     RunIdentity,
     RunStatus,
     append_records,
-    atomic_write_text,
     check_output_dir,
     make_output_dir,
     read_records,
+    read_results_as,
     results_kind,
     rewrite_lines,
     split_digests,
+    write_results,
 )
 from prompts import template_digests
 
@@ -123,19 +125,11 @@ class GroundingRecord(BaseModel):
     before it was stored."""
 
 
-class GroundResults(BaseModel):
+class GroundResults(ResultsBase):
     """What a grounding run was and how it went, in `results.json`."""
 
     kind: Literal["ground"] = "ground"
     """What made the run: instructions read as goals."""
-    config: dict[str, Any]
-    """The resolved configuration, every default filled in."""
-    identity: RunIdentity
-    """What a resumed run must match."""
-    versions: dict[str, str] = Field(default_factory=dict)
-    """Versions of the package and the backend."""
-    dataset: dict[str, Any] = Field(default_factory=dict)
-    """Where the instructions came from."""
     scheduled: int = 0
     """Instruction texts the run asks about (after `limit`)."""
     finished: int = 0
@@ -270,30 +264,15 @@ def _previous(out: Path, identity: RunIdentity) -> GroundResults | None:
             f"{out} holds an evaluation run, not a grounding run; use another --output-dir"
         )
     previous = read_ground_results(path)
-    changed = identity.differences(
-        previous.identity,
-        added=GroundConfig.predated(previous.identity.settings),
-        recorded_goals=previous.dataset.get("split_sha256"),
+    previous.check_resumed_by(
+        identity, out, GroundConfig.predated(previous.identity.settings), "a grounding run"
     )
-    if changed:
-        raise UserError(
-            f"{out} holds a grounding run with other settings: {'; '.join(changed)}; "
-            "use another --output-dir, or delete that directory to start over"
-        )
-    note_other_code(out, previous.versions)
     return previous
 
 
 def read_ground_results(path: Path) -> GroundResults:
     """Read a grounding run's `results.json`."""
-    try:
-        return GroundResults.model_validate_json(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise UserError(f"cannot read run results {path}: {err.strerror}") from err
-    except ValidationError as err:
-        raise UserError(
-            f"{path} is not a grounding results file: {err.errors()[0]['msg']}"
-        ) from err
+    return read_results_as(path, GroundResults, "a grounding results file")
 
 
 def read_groundings(out: Path) -> list[GroundingRecord]:
@@ -377,7 +356,7 @@ def execute_grounding(
             results.status = "complete" if results.finished == results.scheduled else "partial"
         results.finished_at = datetime.now(UTC) if results.status == "complete" else None
         results.seconds_per_instruction = round(elapsed / answered, 4) if answered else None
-        atomic_write_text(out / RESULTS_FILE, results.model_dump_json(indent=2) + "\n")
+        write_results(out / RESULTS_FILE, results)
 
     save(kept, 0.0, 0)
     bar = progress(len(prepared.instructions), len(kept)) if progress else None

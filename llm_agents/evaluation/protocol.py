@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict
 
 from env.dataset import PAPER_CATEGORIES, parse_categories
 from env.errors import UserError
-from env.goals import DIFFICULTY_CATEGORIES, Difficulty, check_difficulty
+from env.goals import DEFAULT_DIFFICULTY, DIFFICULTY_CATEGORIES, Difficulty, check_difficulty
 from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP
 from env.variant import DEFAULT_VARIANT
 
@@ -56,7 +56,7 @@ class Protocol(BaseModel):
 
     name: ProtocolName
     """The name `--protocol` takes."""
-    difficulty: Difficulty = "easy"
+    difficulty: Difficulty = DEFAULT_DIFFICULTY
     """The CrafText difficulty this version of the protocol is for."""
     summary: str
     """One line on what the protocol is for."""
@@ -302,7 +302,7 @@ def get_protocol(name: str) -> Protocol:
     return PROTOCOLS[name]
 
 
-def protocol_for(name: str, difficulty: str = "easy") -> Protocol:
+def protocol_for(name: str, difficulty: str = DEFAULT_DIFFICULTY) -> Protocol:
     """The version of protocol `name` for `difficulty`; a `UserError` for an unknown either."""
     protocol = get_protocol(name)
     level = check_difficulty(difficulty)
@@ -327,7 +327,8 @@ def apply_protocol(
     completed settings and the explicit settings whose values depart from the protocol's.
     """
     protocol = protocol_for(
-        str(settings.get("protocol") or "default"), str(settings.get("difficulty") or "easy")
+        str(settings.get("protocol") or "default"),
+        str(settings.get("difficulty") or DEFAULT_DIFFICULTY),
     )
     chosen = set(explicit)
     result = copy.deepcopy(dict(settings))

@@ -53,7 +53,7 @@ from llm_agents.evaluation.sink import (
     recorded_actions,
 )
 from llm_agents.run_data.metrics import Summary
-from llm_agents.run_data.provenance import code_version, note_other_code
+from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -210,17 +210,9 @@ def _previous_run(out: Path, identity: RunIdentity) -> RunResults | None:
             )
         return None
     previous = read_results(results_path)
-    changed = identity.differences(
-        previous.identity,
-        added=EvalConfig.predated(previous.identity.settings),
-        recorded_goals=previous.dataset.get("split_sha256"),
+    previous.check_resumed_by(
+        identity, out, EvalConfig.predated(previous.identity.settings), "a run"
     )
-    if changed:
-        raise UserError(
-            f"{out} holds a run with other settings: {'; '.join(changed)}; "
-            "use another --output-dir, or delete that directory to start over"
-        )
-    note_other_code(out, previous.versions)
     return previous
 
 

@@ -1,7 +1,8 @@
 """A model's reading of an instruction as a typed goal, and the outcome of asking for one.
 
-A reading has the shape of the dataset's goal of its kind (`env.goals`), without the dataset's
-bookkeeping (id, split, texts), so it can be scored against the record field by field.
+A reading is the dataset's goal of its kind without the dataset's bookkeeping (id, split,
+texts): both build on the kind's parameters, declared once in `env.goals`
+(`AchievementsParameters`, ...), so a reading is scored against the record field by field.
 Achievements goals (all of EASY, part of Medium) are sets of required and forbidden achievements
 (`AchievementsReading`); the placing goals of Medium and Hard are their typed parameters (block,
 side, distance, size, counts, ...). `GoalReading` is their union, told apart by `kind` as the
@@ -16,14 +17,21 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Discriminator,
-    Field,
     Tag,
-    field_validator,
     model_validator,
 )
 
-from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS
-from env.goals import AnyGoal, CrossType, GoalKind, Side, kind_of
+from env.goals import (
+    AchievementsParameters,
+    AnyGoal,
+    BuildLineParameters,
+    BuildSquareParameters,
+    BuildStarParameters,
+    ConditionalPlacingParameters,
+    GoalKind,
+    LocalizationParameters,
+    kind_of,
+)
 
 __all__ = [
     "AchievementsReading",
@@ -49,14 +57,8 @@ class _Reading(BaseModel):
         return {name: getattr(self, name) for name in type(self).model_fields if name != "kind"}
 
 
-class AchievementsReading(_Reading):
+class AchievementsReading(AchievementsParameters, _Reading):
     """An achievements goal as read: achievements to reach and achievements to avoid."""
-
-    kind: Literal["achievements"] = "achievements"
-    required: tuple[str, ...]
-    """Achievement names that must all be reached, in achievement-id order."""
-    forbidden: tuple[str, ...] = ()
-    """Achievement names that must not be reached, in achievement-id order."""
 
     @model_validator(mode="before")
     @classmethod
@@ -65,15 +67,6 @@ class AchievementsReading(_Reading):
         if isinstance(value, dict) and value.get("scenario") == "easy":
             return {key: item for key, item in value.items() if key != "scenario"}
         return value
-
-    @field_validator("required", "forbidden")
-    @classmethod
-    def _known(cls, names: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = [name for name in names if name not in ACHIEVEMENT_IDS]
-        if unknown:
-            raise ValueError(f"unknown achievements {unknown}; known: {', '.join(ACHIEVEMENTS)}")
-        # As in the dataset's goals: sets, kept in id order so equal readings compare equal.
-        return tuple(sorted(set(names), key=ACHIEVEMENT_IDS.__getitem__))
 
     @model_validator(mode="after")
     def _consistent(self) -> AchievementsReading:
@@ -95,52 +88,24 @@ EasyReading = AchievementsReading
 """The name of `AchievementsReading` while EASY's were the only goals typed."""
 
 
-class ConditionalPlacingReading(_Reading):
-    """Collect an item, then have blocks of a kind on the map."""
-
-    kind: Literal["conditional_placing"] = "conditional_placing"
-    collect: str
-    """The inventory item counted (lower case, e.g. `iron`)."""
-    collect_count: int = Field(ge=0)
-    place: str
-    """The block that must stand on the map (Craftax block name)."""
-    place_count: int = Field(ge=0)
+class ConditionalPlacingReading(ConditionalPlacingParameters, _Reading):
+    __doc__ = ConditionalPlacingParameters.__doc__
 
 
-class LocalizationReading(_Reading):
-    """Place a block at a side and distance from another."""
-
-    kind: Literal["localization_placing"] = "localization_placing"
-    place: str
-    target: str
-    side: Side
-    distance: int = Field(ge=0)
+class LocalizationReading(LocalizationParameters, _Reading):
+    __doc__ = LocalizationParameters.__doc__
 
 
-class BuildLineReading(_Reading):
-    """A straight or diagonal line of blocks."""
-
-    kind: Literal["build_line"] = "build_line"
-    block: str
-    size: int = Field(ge=1)
-    diagonal: bool
+class BuildLineReading(BuildLineParameters, _Reading):
+    __doc__ = BuildLineParameters.__doc__
 
 
-class BuildSquareReading(_Reading):
-    """A filled square of blocks."""
-
-    kind: Literal["build_square"] = "build_square"
-    block: str
-    size: int = Field(ge=1)
+class BuildSquareReading(BuildSquareParameters, _Reading):
+    __doc__ = BuildSquareParameters.__doc__
 
 
-class BuildStarReading(_Reading):
-    """A cross of blocks."""
-
-    kind: Literal["build_star"] = "build_star"
-    block: str
-    size: int = Field(ge=1)
-    cross: CrossType
+class BuildStarReading(BuildStarParameters, _Reading):
+    __doc__ = BuildStarParameters.__doc__
 
 
 PlacingReading = (
@@ -152,14 +117,18 @@ PlacingReading = (
 )
 """The readings of the goals that are not achievements goals."""
 
-#: Each goal kind's reading class (its fields are the goal's parameters, same names).
+#: Each goal kind's reading class (its fields are the goal's parameters, same names), keyed by
+#: the kind its parameters declare.
 READING_CLASSES: dict[GoalKind, type[_Reading]] = {
-    "achievements": AchievementsReading,
-    "conditional_placing": ConditionalPlacingReading,
-    "localization_placing": LocalizationReading,
-    "build_line": BuildLineReading,
-    "build_square": BuildSquareReading,
-    "build_star": BuildStarReading,
+    reading.model_fields["kind"].default: reading
+    for reading in (
+        AchievementsReading,
+        ConditionalPlacingReading,
+        LocalizationReading,
+        BuildLineReading,
+        BuildSquareReading,
+        BuildStarReading,
+    )
 }
 
 

@@ -39,6 +39,7 @@ from env.errors import UserError
 from env.goals import Dataset, Difficulty, category_split
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.run_data.metrics import ActionHistogram, Summary
+from llm_agents.run_data.provenance import note_other_code
 from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.scores import RunScores
@@ -326,12 +327,12 @@ def results_kind(path: Path) -> ResultsKind:
     return kind
 
 
-class RunResults(BaseModel):
-    """What a run was (config, identity, versions, data) and how it went, in `results.json`."""
+class ResultsBase(BaseModel):
+    """What every run's `results.json` starts with, `eval` and `ground` alike: what made the run,
+    its config, identity, versions and data source."""
 
-    kind: Literal["eval"] = "eval"
-    """What made the run: episodes played."""
-
+    kind: ResultsKind
+    """What made the run (each kind's results narrow it to its own)."""
     config: dict[str, Any]
     """The resolved run configuration, every default filled in."""
     identity: RunIdentity
@@ -340,6 +341,30 @@ class RunResults(BaseModel):
     """Versions of the packages and backend that produced the run."""
     dataset: dict[str, Any] = Field(default_factory=dict)
     """Where the instruction dataset came from (path or revision, checksum)."""
+
+    def check_resumed_by(
+        self, identity: RunIdentity, out: Path, added: Mapping[str, Any], what: str
+    ) -> None:
+        """Refuse (a `UserError` naming `what` the directory holds) to resume this run, found in
+        `out`, as a run of `identity`, unless they are the same run; a setting this run predates
+        counts as its value in `added`. Warns when other code recorded it."""
+        changed = identity.differences(
+            self.identity, added=added, recorded_goals=self.dataset.get("split_sha256")
+        )
+        if changed:
+            raise UserError(
+                f"{out} holds {what} with other settings: {'; '.join(changed)}; "
+                "use another --output-dir, or delete that directory to start over"
+            )
+        note_other_code(out, self.versions)
+
+
+class RunResults(ResultsBase):
+    """What an evaluation run was (config, identity, versions, data) and how it went, in
+    `results.json`."""
+
+    kind: Literal["eval"] = "eval"
+    """What made the run: episodes played."""
     schedule: list[str] = Field(default_factory=list)
     """Ids of the episodes this run's schedule holds (after `limit`), in schedule order."""
     finished: int = 0
@@ -376,19 +401,25 @@ class RunResults(BaseModel):
     """When the run completed; None until then."""
 
 
-def read_results(path: Path) -> RunResults:
-    """Read `results.json`."""
+_Results = TypeVar("_Results", bound=ResultsBase)
+
+
+def read_results_as(path: Path, model: type[_Results], what: str) -> _Results:
+    """Read a `results.json` as `model`; a `UserError` saying it is not `what` when it is not."""
     try:
-        return RunResults.model_validate_json(path.read_text(encoding="utf-8"))
+        return model.model_validate_json(path.read_text(encoding="utf-8"))
     except OSError as err:
         raise UserError(f"cannot read run results {path}: {err.strerror}") from err
     except ValidationError as err:
-        raise UserError(
-            f"{path} is not a results file of this version: {err.errors()[0]['msg']}"
-        ) from err
+        raise UserError(f"{path} is not {what}: {err.errors()[0]['msg']}") from err
 
 
-def write_results(path: Path, results: RunResults) -> None:
+def read_results(path: Path) -> RunResults:
+    """Read an evaluation run's `results.json`."""
+    return read_results_as(path, RunResults, "a results file of this version")
+
+
+def write_results(path: Path, results: ResultsBase) -> None:
     """Write `results.json` atomically."""
     atomic_write_text(path, results.model_dump_json(indent=2) + "\n")
 

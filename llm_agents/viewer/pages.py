@@ -27,31 +27,33 @@ import markupsafe
 import numpy as np
 
 from env.errors import UserError
-from llm_agents.evaluation.config import EvalConfig
-from llm_agents.evaluation.goal_flags import DEFAULT_WORLDS, run_goal_status
-from llm_agents.evaluation.report import (
-    CATEGORY_LABELS,
-    PUBLISHED_KIND,
+from llm_agents.evaluation.comparison import (
     ComparedRun,
-    GoalStatusTables,
-    chart_categories,
     compared_run,
     comparison_columns,
     comparison_notes,
-    difficulty_of_run,
+)
+from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.goal_flags import DEFAULT_WORLDS, run_goal_status
+from llm_agents.evaluation.published import PUBLISHED_KIND, paper_differences, published_for
+from llm_agents.evaluation.report_tables import (
+    CATEGORY_LABELS,
+    GoalStatusTables,
+    chart_categories,
     goal_status_tables,
-    model_name_of,
     our_rate,
-    paper_differences,
     published_cell,
-    published_for,
     rates_legend,
+    scenario_rows,
+    table_columns,
+)
+from llm_agents.evaluation.rescoring import (
+    difficulty_of_run,
+    model_name_of,
     recorded_rule,
     rescore,
     run_scores,
     run_summary,
-    scenario_rows,
-    table_columns,
 )
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
 from llm_agents.run_data.records import StepRecord
@@ -559,7 +561,7 @@ def _run_context(
         }
         for category, rate in rates.items()
     ]
-    # The y range of report.plot_success: the tallest interval or published bar, plus headroom.
+    # The y range of report_chart.plot_success: the tallest interval or published bar, plus headroom.
     tallest = max(
         [rate.high for rate in rates.values() if rate is not None]
         + [rate for result in published for rate in result.rates.values()]

@@ -10,9 +10,9 @@ import numpy as np
 
 from env.dataset import load_dataset
 from env.errors import UserError
-from env.goals import DIFFICULTIES, AnyGoal, run_category
+from env.goals import AnyGoal, Difficulty, run_category
 from env.open_ended import open_ended_dataset
-from llm_agents.evaluation.report import scheduled_episodes
+from llm_agents.evaluation.rescoring import recorded_difficulty, scheduled_episodes
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import (
     EPISODES_FILE,
@@ -104,7 +104,7 @@ def load_run(run_dir: str | Path) -> LoadedRun:
     try:
         goals = _goals(
             results.config.get("dataset"),
-            results.config.get("difficulty"),
+            recorded_difficulty(results.config),
             results.config.get("task"),
         )
         no_dataset = None
@@ -152,15 +152,17 @@ def _read_steps(
     return steps, errors, stages, latencies
 
 
-def _goals(dataset: Any, difficulty: Any, task: Any = None) -> dict[tuple[str, str], AnyGoal]:
+def _goals(
+    dataset: Any, difficulty: Difficulty, task: Any = None
+) -> dict[tuple[str, str], AnyGoal]:
     # The open-ended task's one goal is ours, in no dataset.
     if task == "open_ended":
         data = open_ended_dataset()
     else:
         data = load_dataset(dataset if isinstance(dataset, str) else None)
-    # Runs recorded before the difficulty was a setting played EASY.
-    level = difficulty if difficulty in DIFFICULTIES else "easy"
-    return {(run_category(goal), goal.id): goal for goal in data.goals if goal.difficulty == level}
+    return {
+        (run_category(goal), goal.id): goal for goal in data.goals if goal.difficulty == difficulty
+    }
 
 
 def _why_unreplayable(view: EpisodeView, *, has_steps: bool) -> str | None:

@@ -265,13 +265,10 @@ class HFModel(ModelAPI):
             "dtype": str(self.dtype).removeprefix("torch."),
         }
 
-    def generate(
-        self,
-        conversations: Sequence[Conversation],
-        choices: ChoiceSet | None = None,
+    def _generate(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
         if choices is not None:
-            self.check_choice_rule(choices.rule)
             candidates = self._candidate_ids(choices.options)
             return self._in_batches(
                 conversations, lambda batch: self._choose(batch, choices, candidates)

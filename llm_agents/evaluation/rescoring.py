@@ -1,0 +1,131 @@
+"""A recorded run read back for a report: the difficulty and success rule it was played under,
+its scheduled finished episodes, those episodes re-scored under either success rule (from the
+records alone), its summary and action counts, and its achievement scores."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from env.goals import DIFFICULTY_CATEGORIES, Difficulty
+from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.run_data.metrics import Summary, action_counts, summarize
+from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.scores import RunScores, achievement_list_of, score_run
+from llm_agents.run_data.store import (
+    EPISODES_FILE,
+    STEPS_FILE,
+    RunResults,
+    read_episodes,
+    read_steps,
+)
+
+# Runs recorded before the difficulty was a setting played EASY.
+_RECORDED_DIFFICULTY_BEFORE_SETTING: Difficulty = "easy"
+# Runs recorded before the success rule was a setting scored the game-over step as a success.
+_RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
+
+
+def recorded_difficulty(config: Mapping[str, Any]) -> Difficulty:
+    """The difficulty a run whose results record `config` played."""
+    difficulty = config.get("difficulty", _RECORDED_DIFFICULTY_BEFORE_SETTING)
+    return (
+        difficulty if difficulty in DIFFICULTY_CATEGORIES else _RECORDED_DIFFICULTY_BEFORE_SETTING
+    )
+
+
+def difficulty_of_run(results: RunResults) -> Difficulty:
+    """The difficulty a run played."""
+    return recorded_difficulty(results.config)
+
+
+def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[EpisodeRecord]:
+    """The episodes scored under `rule`. An episode whose game ended with its goal met, as the
+    game ended or in the new world, succeeds under `game_over_counts` when it was met as the
+    game ended and under `official` when it was met in the new world; otherwise it ends as the
+    game did."""
+    scored = []
+    for episode in episodes:
+        ending = episode.goal_at_game_over or episode.goal_in_new_world
+        if ending is None:
+            scored.append(episode)
+            continue
+        met = episode.goal_at_game_over if rule == "game_over_counts" else episode.goal_in_new_world
+        success = met is not None
+        bonus = float(success) - float(episode.success)
+        scored.append(
+            episode.model_copy(
+                update={
+                    "success": success,
+                    "termination": "success" if success else ending,
+                    "episode_return": episode.episode_return + bonus,
+                }
+            )
+        )
+    return scored
+
+
+def recorded_rule(results: RunResults) -> SuccessRule:
+    """The success rule a run was scored under when played."""
+    rule = results.config.get("success_rule")
+    return rule if rule in SUCCESS_RULES else _RECORDED_RULE_BEFORE_SETTING
+
+
+def run_summary(
+    results: RunResults,
+    episodes: Sequence[EpisodeRecord],
+    rule: SuccessRule,
+    actions: Mapping[str, Mapping[str, int]] | None = None,
+) -> Summary:
+    """The metrics of a run's finished `episodes` under `rule`: the summary the runner stored
+    with them when it covers exactly these under the rule they were played by, else (a re-score,
+    episodes written after the runner's last save, or a summary written before clustered
+    intervals and action histograms) computed from the episodes and `actions` (episode id ->
+    action -> steps)."""
+    stored = results.summary
+    if (
+        stored is not None
+        and rule == recorded_rule(results)
+        and results.finished == len(episodes)
+        and stored.overall.clusters is not None
+        and (stored.actions is not None or actions is None)
+    ):
+        return stored
+    return summarize(rescore(episodes, rule), actions)
+
+
+def run_actions(
+    run_dir: Path, results: RunResults, episodes: Sequence[EpisodeRecord]
+) -> dict[str, dict[str, int]] | None:
+    """Episode id -> action -> steps of `episodes`: from `results.json` when it holds every
+    one, else from the step log; None without one."""
+    if all(e.episode_id in results.actions for e in episodes):
+        return {e.episode_id: results.actions[e.episode_id].counts for e in episodes}
+    path = run_dir / STEPS_FILE
+    if not path.is_file():
+        return None
+    counts = action_counts(read_steps(path, {e.episode_id for e in episodes}))
+    return {episode_id: dict(actions) for episode_id, actions in counts.items()}
+
+
+def model_name_of(results: RunResults) -> str:
+    if results.config.get("agent") == "expert":
+        return "expert (scripted, no model)"
+    model = results.config.get("model")
+    return model if isinstance(model, str) and model else "this model"
+
+
+def scheduled_episodes(run_dir: Path, results: RunResults) -> list[EpisodeRecord]:
+    """The finished episodes of the run's current schedule (what its summary counts)."""
+    path = run_dir / EPISODES_FILE
+    if not path.is_file():
+        return []
+    wanted = set(results.schedule)
+    return [episode for episode in read_episodes(path) if episode.episode_id in wanted]
+
+
+def run_scores(results: RunResults, episodes: Sequence[EpisodeRecord]) -> RunScores:
+    """The field's achievement scores of a run's finished episodes, from their records (no
+    replay), over its variant's achievement list; the success rule does not touch them."""
+    return score_run(episodes, achievement_list_of(results.config.get("variant")))
