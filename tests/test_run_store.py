@@ -243,6 +243,8 @@ OTHER_VALUES: dict[str, object] = {
     "demos": "expert-run",
     "skill_steps": 20,
     "grounding_shots": 4,
+    "observation": "both",
+    "frame_history": 1,
 }
 OTHER_GENERATION: dict[str, object] = {
     "max_tokens": 9,
@@ -278,6 +280,9 @@ def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_change
         base = EvalConfig(difficulty="medium", categories=("train",))
     elif name == "grounding_shots":
         base = EvalConfig(agent="guided")
+    elif name == "frame_history":
+        # Past frames are counted for an image observation only.
+        base = EvalConfig(observation="image")
     elif name == "choice_scoring":
         # It scores loglik choices only, and is refused with any other.
         base = EvalConfig(choice="loglik")
