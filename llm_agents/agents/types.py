@@ -7,6 +7,7 @@ import hashlib
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict
@@ -58,6 +59,18 @@ class Decision(BaseModel):
 
 
 def messages_hash(messages: Sequence[ChatMessage]) -> str:
-    """sha256 over the messages' roles and contents, stable across processes."""
-    payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
-    return hashlib.sha256(payload.encode("utf-8")).hexdigest()
+    """sha256 over the messages' roles and contents, stable across processes: of the UTF-8 of
+    `json.dumps([[role, content], ...], ensure_ascii=False)`, built a message at a time so that
+    the system prompt every step repeats is encoded once."""
+    digest = hashlib.sha256(b"[")
+    for index, message in enumerate(messages):
+        if index:
+            digest.update(b", ")
+        digest.update(_encoded(message.role, message.content))
+    digest.update(b"]")
+    return digest.hexdigest()
+
+
+@lru_cache(maxsize=64)
+def _encoded(role: str, content: str) -> bytes:
+    return json.dumps([role, content], ensure_ascii=False).encode("utf-8")
