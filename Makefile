@@ -59,12 +59,19 @@ lint: $(VENV)/.stamp-dev
 
 # JAX_COMPILATION_CACHE_DIR is not set here: the env enables JAX's persistent cache itself
 # (in the user cache directory unless the variable is already set).
-test: lint
+# Lint runs beside pytest, not before it (its output held back and printed after the tests'):
+# the workers leave a core idle at times, mypy fills it. Either failing fails the target.
+test: $(VENV)/.stamp-dev
 	@if [ -f scripts/setup_vllm_cpu.sh ]; then bash scripts/setup_vllm_cpu.sh; \
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment"; fi
 	@# Debian's Chromium for the browser test of `craftext-llm view` (apt-get, only when missing).
 	bash scripts/setup_chromium.sh
-	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile
+	@lint_log=$$(mktemp); \
+	$(MAKE) --no-print-directory lint > "$$lint_log" 2>&1 & lint_pid=$$!; \
+	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile; tests=$$?; \
+	wait $$lint_pid; linted=$$?; \
+	echo "== make lint (ran beside the tests): exit $$linted"; cat "$$lint_log"; rm -f "$$lint_log"; \
+	[ $$tests -eq 0 ] && [ $$linted -eq 0 ]
 
 # compare_plans.py is a comparison tool that needs a plans file, not a benchmark: not run here.
 bench: $(VENV)/.stamp-dev

@@ -14,7 +14,7 @@ this package knows templates, not backends.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from functools import cache
 from pathlib import Path
 from typing import Any, Literal
@@ -31,6 +31,7 @@ __all__ = [
     "render_template",
     "template_digests",
     "template_path",
+    "template_renderer",
     "template_source",
 ]
 
@@ -128,11 +129,23 @@ def render_template(
     templates_dir: str | Path | None = None,
 ) -> str:
     """Render any template with any variables into text, without surrounding whitespace."""
+    return template_renderer(name, templates_dir)(context)
+
+
+def template_renderer(
+    name: str, templates_dir: str | Path | None = None
+) -> Callable[[Mapping[str, Any] | None], str]:
+    """`render_template` of one template, found and compiled now, not at every call: for a
+    template rendered at every step (finding it stats its files each time)."""
     template = load_template(name, templates_dir)
-    try:
-        return template.render(dict(context or {})).strip()
-    except jinja2.TemplateError as err:
-        raise _render_error(template, err) from err
+
+    def render(context: Mapping[str, Any] | None) -> str:
+        try:
+            return template.render(dict(context or {})).strip()
+        except jinja2.TemplateError as err:
+            raise _render_error(template, err) from err
+
+    return render
 
 
 def render_blocks(

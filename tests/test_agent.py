@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field
 
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.agents.types import Decision
+from llm_agents.agents.types import Decision, messages_hash
 from llm_agents.agents.zero_shot import ZeroShotAgent, describe_outcome
 from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, ChoiceRule
@@ -150,6 +150,18 @@ def test_prompt_hash_is_sha256_of_the_messages_sent() -> None:
     other = play_step(agent, model, [0], [FakeObservation(label="a cow 1 north")])[0]
     assert other.prompt_hash != same[0].prompt_hash
     assert other.observation_text == "You stand at (10, 10); a cow 1 north."
+
+
+@pytest.mark.parametrize("count", [0, 1, 3])
+def test_prompt_hash_is_of_the_json_of_the_messages_whatever_their_text(count: int) -> None:
+    # The hash encodes a message at a time (the shared system prompt once): it must still be
+    # the hash of the whole list's JSON, escapes and non-ASCII text included, at every call.
+    texts = ['Sé "quoted" \\ back\nslash\t\u2028 \U0001f600', "", "plain"]
+    roles = ["system", "user", "assistant"]
+    messages = [ChatMessage(role=roles[i], content=texts[i]) for i in range(count)]  # type: ignore[arg-type]
+    payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
+    for _ in range(2):
+        assert messages_hash(messages) == hashlib.sha256(payload.encode()).hexdigest()
 
 
 def test_history_records_outcomes_from_consecutive_observations() -> None:

@@ -45,39 +45,71 @@ pytestmark = [
 ]
 
 # Runs inside .venv-vllm; the spawn start method re-imports this file in the engine's children,
-# hence the __main__ guard.
+# hence the __main__ guard. One engine serves both tests below: an engine start is a minute or
+# more on two busy cores. Its window (4096 tokens) is the loglik test's; the engine test's
+# over-long prompt is longer than it.
 ENGINE_SCRIPT = """
 import json, sys
 from llm_agents.backends import get_model
-from env.errors import UserError
-from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig
+from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, scored_choices
 
 def conv(text):
     return [ChatMessage(role="system", content="You play a survival game."),
             ChatMessage(role="user", content=text)]
 
+def engine_checks(model, actions):
+    model.config = GenerateConfig(max_tokens=12, temperature=0.0)
+    free = model.generate([
+        conv("Say hello."),
+        conv("Name one tool you can craft from wood, please, in a few words."),
+        conv("Say hello."),
+        conv("Write a very long story about a tree. " * 3),
+    ])
+    choice = model.generate([conv("A tree is to your left. Which action?"),
+                             conv("Nothing is around. Which action?")],
+                            choices=ChoiceSet(options=tuple(actions), rule="guided"))
+    too_long = model.generate([conv("Say hi."), conv("wood " * 5000)])
+    return {"free": [o.model_dump() for o in free],
+            "choice": [o.model_dump() for o in choice],
+            "too_long": [o.model_dump() for o in too_long],
+            "info": model.info()}
+
+def loglik_checks(model, request):
+    model.config = GenerateConfig(max_tokens=4)
+    conversations = [[ChatMessage(**m) for m in c] for c in request["conversations"]]
+    options = tuple(request["options"])
+    # One scoring pass gives every rule (vLLM on CPU pays per option request).
+    prompts = [model._prompt_ids(c) for c in conversations]
+    candidates = model._candidate_ids(options)
+    raw = model._log_likelihoods(prompts, candidates)
+    scores = {}
+    for rule in request["rules"]:
+        choices = ChoiceSet(options=options, rule="loglik", scoring=rule)
+        free = model._content_free_rows(conversations, choices, candidates)
+        scores[rule] = scored_choices(choices, candidates, raw, free)
+    # The whole path of an answer, the content-free prompt's cached scores included.
+    picked = ChoiceSet(options=options, rule="loglik", scoring=request["answer_rule"])
+    outputs = model.generate(conversations, picked)
+    # Prompts cut to end on a KV-cache block boundary, and two tokens before one: there
+    # the prefix cache reaches into the options, which must then be scored without it.
+    block = model.llm.llm_engine.vllm_config.cache_config.block_size
+    prompt = prompts[0]
+    cut = block * (len(prompt) // block)
+    cut_prompts = [prompt[:cut], prompt[: cut - 2]]
+    cut_scores = model._log_likelihoods(cut_prompts, candidates)
+    return {"scores": scores, "outputs": [o.model_dump() for o in outputs],
+            "cut_prompts": cut_prompts, "cut_scores": cut_scores}
+
 def main():
-    model_dir, out_path, actions = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
-    config = GenerateConfig(max_tokens=12, temperature=0.0)
-    with get_model("vllm:" + model_dir, config, enforce_eager=True, max_model_len=512,
-                   dtype="float32", max_num_seqs=8) as model:
-        free = model.generate([
-            conv("Say hello."),
-            conv("Name one tool you can craft from wood, please, in a few words."),
-            conv("Say hello."),
-            conv("Write a very long story about a tree. " * 3),
-        ])
-        choice = model.generate([conv("A tree is to your left. Which action?"),
-                                 conv("Nothing is around. Which action?")],
-                                choices=ChoiceSet(options=tuple(actions), rule="guided"))
-        too_long = model.generate([conv("Say hi."), conv("wood " * 2000)])
-        info = model.info()
+    model_dir, in_path, out_path = sys.argv[1:4]
+    request = json.load(open(in_path))
+    with get_model("vllm:" + model_dir, GenerateConfig(), enforce_eager=True,
+                   max_model_len=4096, dtype="float32", max_num_seqs=32) as model:
+        # The loglik checks first: the engine test's prompts must not warm its prefix cache.
+        loglik = loglik_checks(model, request["loglik"])
+        engine = engine_checks(model, request["actions"])
     with open(out_path, "w") as f:
-        json.dump({"free": [o.model_dump() for o in free],
-                   "choice": [o.model_dump() for o in choice],
-                   "too_long": [o.model_dump() for o in too_long],
-                   "info": info}, f)
+        json.dump({"engine": engine, "loglik": loglik}, f)
 
 if __name__ == "__main__":
     main()
@@ -89,22 +121,52 @@ def model_dir() -> Path:
     return embedded_model_dir()
 
 
-def test_offline_engine_generates_free_text_and_constrained_choices(
-    model_dir: Path, tmp_path: Path
-) -> None:
-    script = tmp_path / "run_engine.py"
+SCORED_OPTIONS = ("UP", "DO", "PLACE_STONE", "PLACE_FURNACE", "MAKE_WOOD_SWORD", "MAKE_IRON_SWORD")
+
+
+@pytest.fixture(scope="module")
+def loglik_request(classic_env: Any) -> dict[str, Any]:
+    """Real agent conversations and the options and rules to score them under."""
+    conversations, actions = real_agent_conversations(classic_env)
+    # vLLM on CPU scores each option as a request of its own, the whole prompt included: six
+    # names (one token or several, sharing prefixes, each conversation's favourite among them)
+    # prove the agreement in a quarter of the time all 17 took.
+    return {
+        "conversations": [[m.model_dump() for m in c] for c in conversations],
+        "options": [name for name in actions if name in SCORED_OPTIONS],
+        "rules": list(get_args(ChoiceScoring)),
+        "answer_rule": "pmi",
+    }
+
+
+@pytest.fixture(scope="module")
+def engine_results(
+    model_dir: Path, loglik_request: dict[str, Any], tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, Any]:
+    """What one offline engine answered to both tests' requests (ENGINE_SCRIPT)."""
+    folder = tmp_path_factory.mktemp("vllm-engine")
+    script = folder / "run_engine.py"
     script.write_text(ENGINE_SCRIPT)
-    out = tmp_path / "outputs.json"
+    request = folder / "request.json"
+    request.write_text(json.dumps({"actions": ACTIONS, "loglik": loglik_request}))
+    out = folder / "outputs.json"
     run = subprocess.run(
-        [str(VLLM_PYTHON), str(script), str(model_dir), str(out), json.dumps(ACTIONS)],
-        cwd=tmp_path,
+        [str(VLLM_PYTHON), str(script), str(model_dir), str(request), str(out)],
+        cwd=folder,
         env=vllm_environment(),
         capture_output=True,
         text=True,
-        timeout=START_TIMEOUT_S + 120,
+        timeout=START_TIMEOUT_S + 420,
     )
     assert run.returncode == 0, run.stderr[-4000:]
     result: dict[str, Any] = json.loads(out.read_text())
+    return result
+
+
+def test_offline_engine_generates_free_text_and_constrained_choices(
+    engine_results: dict[str, Any],
+) -> None:
+    result = engine_results["engine"]
 
     free = result["free"]
     assert all(o["finish_reason"] in ("stop", "length") and o["text"].strip() for o in free)
@@ -122,48 +184,6 @@ def test_offline_engine_generates_free_text_and_constrained_choices(
     assert fine["finish_reason"] in ("stop", "length") and fine["text"].strip()
     assert bad["finish_reason"] == "error" and "vLLM failed" in bad["error"]
     assert result["info"]["backend"] == "vllm" and result["info"]["vllm"]
-
-
-# Scores real agent conversations by loglik under every scoring rule; runs inside .venv-vllm
-# (see ENGINE_SCRIPT).
-LOGLIK_SCRIPT = """
-import json, sys
-from llm_agents.backends import get_model
-from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, scored_choices
-
-def main():
-    model_dir, in_path, out_path = sys.argv[1:4]
-    request = json.load(open(in_path))
-    conversations = [[ChatMessage(**m) for m in c] for c in request["conversations"]]
-    options = tuple(request["options"])
-    with get_model("vllm:" + model_dir, GenerateConfig(max_tokens=4), enforce_eager=True,
-                   max_model_len=4096, dtype="float32", max_num_seqs=32) as model:
-        # One scoring pass gives every rule (vLLM on CPU pays per option request).
-        prompts = [model._prompt_ids(c) for c in conversations]
-        candidates = model._candidate_ids(options)
-        raw = model._log_likelihoods(prompts, candidates)
-        scores = {}
-        for rule in request["rules"]:
-            choices = ChoiceSet(options=options, rule="loglik", scoring=rule)
-            free = model._content_free_rows(conversations, choices, candidates)
-            scores[rule] = scored_choices(choices, candidates, raw, free)
-        # The whole path of an answer, the content-free prompt's cached scores included.
-        picked = ChoiceSet(options=options, rule="loglik", scoring=request["answer_rule"])
-        outputs = model.generate(conversations, picked)
-        # Prompts cut to end on a KV-cache block boundary, and two tokens before one: there
-        # the prefix cache reaches into the options, which must then be scored without it.
-        block = model.llm.llm_engine.vllm_config.cache_config.block_size
-        prompt = prompts[0]
-        cut = block * (len(prompt) // block)
-        cut_prompts = [prompt[:cut], prompt[: cut - 2]]
-        cut_scores = model._log_likelihoods(cut_prompts, candidates)
-    with open(out_path, "w") as f:
-        json.dump({"scores": scores, "outputs": [o.model_dump() for o in outputs],
-                   "cut_prompts": cut_prompts, "cut_scores": cut_scores}, f)
-
-if __name__ == "__main__":
-    main()
-"""
 
 
 def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]], list[str]]:
@@ -197,46 +217,16 @@ def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]],
     return conversations, list(agent.choices.options)
 
 
-SCORED_OPTIONS = ("UP", "DO", "PLACE_STONE", "PLACE_FURNACE", "MAKE_WOOD_SWORD", "MAKE_IRON_SWORD")
-
-
 def test_hf_and_vllm_agree_under_every_loglik_rule_on_real_prompts(
-    model_dir: Path, tmp_path: Path, classic_env: Any
+    loglik_request: dict[str, Any], engine_results: dict[str, Any]
 ) -> None:
     pytest.importorskip("torch")
     pytest.importorskip("transformers")
     from llm_agents.backends.hf import HFModel
 
-    conversations, actions = real_agent_conversations(classic_env)
-    # vLLM on CPU scores each option as a request of its own, the whole prompt included: six
-    # names (one token or several, sharing prefixes, each conversation's favourite among them)
-    # prove the agreement in a quarter of the time all 17 took.
-    options = [name for name in actions if name in SCORED_OPTIONS]
-    rules = list(get_args(ChoiceScoring))
-    request = tmp_path / "request.json"
-    request.write_text(
-        json.dumps(
-            {
-                "conversations": [[m.model_dump() for m in c] for c in conversations],
-                "options": options,
-                "rules": rules,
-                "answer_rule": "pmi",
-            }
-        )
-    )
-    script = tmp_path / "loglik.py"
-    script.write_text(LOGLIK_SCRIPT)
-    out = tmp_path / "scores.json"
-    run = subprocess.run(
-        [str(VLLM_PYTHON), str(script), str(model_dir), str(request), str(out)],
-        cwd=tmp_path,
-        env=vllm_environment(),
-        capture_output=True,
-        text=True,
-        timeout=START_TIMEOUT_S + 300,
-    )
-    assert run.returncode == 0, run.stderr[-4000:]
-    result: dict[str, Any] = json.loads(out.read_text())
+    conversations = [[ChatMessage(**m) for m in c] for c in loglik_request["conversations"]]
+    options, rules = loglik_request["options"], loglik_request["rules"]
+    result = engine_results["loglik"]
 
     hf = HFModel("smollm2-135m", GenerateConfig(max_tokens=4), dtype="float32")
     hf_scores = {

@@ -382,19 +382,38 @@ def _vitals(
     )
 
 
+class _Leaves:
+    """A batched state's fields, each looked up and made a numpy array once per batch (a
+    nested group of fields becomes another `_Leaves`), shared by the batch's episode rows."""
+
+    def __init__(self, batch: Any) -> None:
+        self._batch = batch
+        self._fields: dict[str, Any] = {}
+
+    def field(self, name: str) -> Any:
+        found = self._fields.get(name)
+        if found is None:
+            value = getattr(self._batch, name)
+            if isinstance(value, np.ndarray) or hasattr(value, "__array__"):
+                found = np.asarray(value)
+            else:
+                found = _Leaves(value)
+            self._fields[name] = found
+        return found
+
+
 class _EpisodeRow:
     """One episode of a batched state: attribute access indexes the leading axis lazily."""
 
-    def __init__(self, batch: Any, index: int) -> None:
-        self._batch = batch
+    def __init__(self, leaves: _Leaves, index: int) -> None:
+        self._leaves = leaves
         self._index = index
 
     def __getattr__(self, name: str) -> Any:
-        value = getattr(self._batch, name)
-        if isinstance(value, np.ndarray) or hasattr(value, "__array__"):
-            found: Any = np.asarray(value)[self._index]
-        else:
-            found = _EpisodeRow(value, self._index)
+        value = self._leaves.field(name)
+        found: Any = (
+            _EpisodeRow(value, self._index) if isinstance(value, _Leaves) else value[self._index]
+        )
         # Kept, so that reading a field again (observe reads several twice) skips this lookup.
         setattr(self, name, found)
         return found
@@ -412,4 +431,5 @@ def observe_batch(
             f"observe_batch() takes a batched state (player_position of shape (N, 2)), got shape {shape}"
         )
     chosen = range(shape[0]) if indices is None else indices
-    return [observe(_EpisodeRow(states, i), variant) for i in chosen]
+    leaves = _Leaves(states)
+    return [observe(_EpisodeRow(leaves, i), variant) for i in chosen]

@@ -7,6 +7,7 @@ import hashlib
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict
@@ -67,12 +68,23 @@ class Decision(BaseModel):
 
 def messages_hash(messages: Sequence[ChatMessage]) -> str:
     """sha256 over the messages' roles, contents and images (their PNGs' digests), stable across
-    processes; a text message hashes as before images existed."""
-    payload = json.dumps(
-        [[m.role, m.content, *(image.sha256 for image in m.images)] for m in messages],
-        ensure_ascii=False,
-    )
-    return hashlib.sha256(payload.encode("utf-8")).hexdigest()
+    processes: of the UTF-8 of `json.dumps([[role, content, *image digests], ...],
+    ensure_ascii=False)` (a text message hashes as before images existed), built a message at a
+    time so that the system prompt every step repeats is encoded once."""
+    digest = hashlib.sha256(b"[")
+    for index, message in enumerate(messages):
+        if index:
+            digest.update(b", ")
+        digest.update(
+            _encoded(message.role, message.content, tuple(image.sha256 for image in message.images))
+        )
+    digest.update(b"]")
+    return digest.hexdigest()
+
+
+@lru_cache(maxsize=64)
+def _encoded(role: str, content: str, images: tuple[str, ...]) -> bytes:
+    return json.dumps([role, content, *images], ensure_ascii=False).encode("utf-8")
 
 
 #: `messages_hash` of no messages: the prompt of a step the model was not asked about.

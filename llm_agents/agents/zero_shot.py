@@ -24,7 +24,7 @@ from llm_agents.agents.parser import parse_action
 from llm_agents.agents.registry import ObservationMode
 from llm_agents.agents.types import Decision, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
-from prompts import render_template
+from prompts import render_template, template_renderer
 
 if TYPE_CHECKING:
     from env.goals import AnyGoal
@@ -194,6 +194,7 @@ class ZeroShotAgent:
             role="system",
             content=render_template(SYSTEM_TEMPLATE, self.system_context(), templates_dir),
         )
+        self._render_step = template_renderer(self.step_template, templates_dir)
         self._episodes: dict[int, _Episode] = {}
 
     @classmethod
@@ -327,9 +328,7 @@ class ZeroShotAgent:
         episode = self._episode(slot)
         recent = episode.history[-self.history_length :] if self.history_length else []
         context = self.step_context(observation_text, episode.instruction, episode.plan, recent)
-        user = ChatMessage(
-            role="user", content=render_template(self.step_template, context, self.templates_dir)
-        )
+        user = ChatMessage(role="user", content=self._render_step(context))
         return [self.system_message, user]
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt:
