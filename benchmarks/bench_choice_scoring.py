@@ -25,7 +25,6 @@ import argparse
 import json
 import sys
 import time
-import zipfile
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,6 +33,7 @@ from typing import Any, get_args
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from benchmarks.official_clone import official_clone  # noqa: E402
 from llm_agents.backends.base import (  # noqa: E402
     ChoiceScoring,
     ChoiceSet,
@@ -43,23 +43,14 @@ from llm_agents.backends.base import (  # noqa: E402
     scored_choices,
 )
 
-OFFICIAL_ARCHIVE = REPO.parent / "shared" / "data" / "craftext_official_1c518ae.zip"
 RULES: tuple[ChoiceScoring, ...] = get_args(ChoiceScoring)
 #: Each run's record of every rule's pick at every step (the run's own folder).
 SHADOW_FILE = "picks_by_rule.jsonl"
 
 
 def _dataset(args: argparse.Namespace, out: Path) -> list[str]:
-    if args.dataset:
-        return ["--dataset", args.dataset]
-    if not OFFICIAL_ARCHIVE.exists():
-        return []
-    target = out / "official"
-    if not target.exists():
-        with zipfile.ZipFile(OFFICIAL_ARCHIVE) as archive:
-            archive.extractall(target)
-    [root] = [p for p in target.iterdir() if p.is_dir()]
-    return ["--dataset", str(root)]
+    dataset = args.dataset or official_clone(out)
+    return ["--dataset", dataset] if dataset else []
 
 
 def _record_every_rule(shadow: Path) -> None:

@@ -28,7 +28,6 @@ import argparse
 import subprocess
 import sys
 import time
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,21 +35,14 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-OFFICIAL_ARCHIVE = REPO.parent / "shared" / "data" / "craftext_official_1c518ae.zip"
+from benchmarks.official_clone import official_clone  # noqa: E402
+
 PLAYERS = ("expert", "guided", "zero-shot")
 
 
 def _dataset(args: argparse.Namespace, out: Path) -> list[str]:
-    if args.dataset:
-        return ["--dataset", args.dataset]
-    if not OFFICIAL_ARCHIVE.exists():
-        return []
-    target = out / "official"
-    if not target.exists():
-        with zipfile.ZipFile(OFFICIAL_ARCHIVE) as archive:
-            archive.extractall(target)
-    [root] = [p for p in target.iterdir() if p.is_dir()]
-    return ["--dataset", str(root)]
+    dataset = args.dataset or official_clone(out)
+    return ["--dataset", dataset] if dataset else []
 
 
 def _cli(*argv: str) -> float:

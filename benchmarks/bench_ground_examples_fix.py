@@ -29,13 +29,13 @@ from __future__ import annotations
 import argparse
 import random
 import sys
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from benchmarks.official_clone import official_clone  # noqa: E402
 from env.dataset import Instruction  # noqa: E402
 from env.goals import DIFFICULTY_CATEGORIES  # noqa: E402
 from llm_agents.agents.grounding import GroundingExample  # noqa: E402
@@ -50,7 +50,6 @@ from llm_agents.evaluation.grounding_run import (  # noqa: E402
 )
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate, wilson_interval  # noqa: E402
 
-OFFICIAL_ARCHIVE = REPO.parent / "shared" / "data" / "craftext_official_1c518ae.zip"
 RULES = ("old", "current")
 
 
@@ -61,16 +60,7 @@ def old_rule(examples: Sequence[GroundingExample]) -> tuple[GroundingExample, ..
 
 
 def _dataset(args: argparse.Namespace, out: Path) -> str | None:
-    if args.dataset:
-        return str(args.dataset)
-    if not OFFICIAL_ARCHIVE.exists():
-        return None
-    target = out / "official"
-    if not target.exists():
-        with zipfile.ZipFile(OFFICIAL_ARCHIVE) as archive:
-            archive.extractall(target)
-    [root] = [p for p in target.iterdir() if p.is_dir()]
-    return str(root)
+    return str(args.dataset) if args.dataset else official_clone(out)
 
 
 def _prepare(args: argparse.Namespace, out: Path, rule: str) -> PreparedGrounding:

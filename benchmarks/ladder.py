@@ -32,7 +32,6 @@ import argparse
 import json
 import sys
 import time
-import zipfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,10 +41,10 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from benchmarks.official_clone import official_clone  # noqa: E402
 from llm_agents.agents.registry import AGENTS  # noqa: E402
 from llm_agents.run_data.metrics import CLUSTERED_LABEL, SuccessRate, clustered_rate  # noqa: E402
 
-OFFICIAL_ARCHIVE = REPO.parent / "shared" / "data" / "craftext_official_1c518ae.zip"
 CPU_LEDGER = "cpu.json"
 DEFAULT_CATEGORIES = ("one", "combo", "new_objects")
 
@@ -236,13 +235,12 @@ def episode_calls(episode: Any, steps: Iterable[Any]) -> int:
     steps that asked the model (an agent acting without one, the expert and guided once it has
     read, records the digest of no messages at all), follow-up requests included; a reading
     that left the episode unstarted (an invalid goal) is a call no step records."""
-    from llm_agents.agents.types import messages_hash
+    from llm_agents.agents.types import NO_PROMPT_HASH
 
     recorded = getattr(episode, "model_calls", None)
     if recorded is not None:
         return int(recorded)
-    silent = messages_hash([])
-    calls = sum(1 + step.followups for step in steps if step.prompt_hash != silent)
+    calls = sum(1 + step.followups for step in steps if step.prompt_hash != NO_PROMPT_HASH)
     return calls if calls or episode.grounding is None else 1
 
 
@@ -273,11 +271,14 @@ def ladder_row(settings: LadderSettings, rung: Rung) -> LadderRow:
                 continue
             episodes = read_episodes(out / "episodes.jsonl")
             outcomes[category] = [(goal_cluster(e), e.success) for e in episodes]
-            steps: dict[str, list[Any]] = {e.episode_id: [] for e in episodes}
-            if (out / "steps.jsonl").exists():
+            # Runs recorded before episodes counted their own model calls: count the steps.
+            steps: dict[str, list[Any]] = {
+                e.episode_id: [] for e in episodes if getattr(e, "model_calls", None) is None
+            }
+            if steps and (out / "steps.jsonl").exists():
                 for step in read_steps(out / "steps.jsonl", steps.keys()):
                     steps[step.episode_id].append(step)
-            calls += sum(episode_calls(e, steps[e.episode_id]) for e in episodes)
+            calls += sum(episode_calls(e, steps.get(e.episode_id, [])) for e in episodes)
     items = [outcome for rows in outcomes.values() for outcome in rows]
     if not items:
         return LadderRow(rung, skipped="not run yet")
@@ -388,14 +389,7 @@ def ladder(settings: LadderSettings, *, play: bool = True) -> str:
 
 
 def _dataset(given: str | None, out: Path) -> str | None:
-    if given or not OFFICIAL_ARCHIVE.exists():
-        return given
-    target = out / "official"
-    if not target.exists():
-        with zipfile.ZipFile(OFFICIAL_ARCHIVE) as archive:
-            archive.extractall(target)
-    [root] = [p for p in target.iterdir() if p.is_dir()]
-    return str(root)
+    return given or official_clone(out)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
