@@ -83,6 +83,24 @@ def test_the_parser_reads_the_answer_field_lines_and_aliases() -> None:
 
 
 @pytest.mark.parametrize(
+    ("answer", "side", "distance", "reference"),
+    [
+        ("SKILL: place stone 4 blocks to the left of the coal.", "left", 4, "coal"),
+        ("place stone two blocks above the iron", "up", 2, "iron"),
+        ("place stone 2 blocks to the right of a tree", "right", 2, "tree"),
+        ("place stone one block to the left of the existing furnace", "left", 1, "furnace"),
+        ("place stone 3 below the water", "down", 3, "water"),
+        ("place stone 4 blocks to the left side of the water", "left", 4, "water"),
+    ],
+)
+def test_a_localization_written_as_prose_is_read_as_the_catalogue_form(
+    answer: str, side: str, distance: int, reference: str
+) -> None:
+    parsed = parse_skill(answer, skill_offer(CLASSIC, "medium"))
+    assert parsed.skill == Place(block="stone", side=side, distance=distance, reference=reference)
+
+
+@pytest.mark.parametrize(
     ("answer", "reason"),
     [
         ("SKILL: dance", "unknown skill 'dance'"),
@@ -90,6 +108,8 @@ def test_the_parser_reads_the_answer_field_lines_and_aliases() -> None:
         ("collect wood 12", "n must be a whole number from 1 to 9"),
         ("craft laser", "unknown item 'laser'"),
         ("place stone sideways of tree", "write place <block> <side> <distance> of <reference>"),
+        ("place stone 5 NW", "write place <block> <side> <distance> of <reference>"),
+        ("place stone 2 blocks left or right of tree", "write place <block> <side>"),
         ("", "empty answer"),
     ],
 )

@@ -354,6 +354,21 @@ _VERBS = ("collect", "place", "build", "craft", "go to", "eat", "drink", "sleep"
           "explore", "noop")  # fmt: skip
 
 
+_PLACE_FILLER = frozenset(
+    ("of", "the", "a", "an", "from", "to", "tiles", "tile", "blocks", "block", "cells", "cell",
+     "side", "away", "existing", "nearest", "at")
+)  # fmt: skip
+_SIDE_WORDS: dict[str, str] = {
+    "above": "up", "over": "up", "north": "up", "below": "down", "under": "down",
+    "beneath": "down", "south": "down", "east": "right", "west": "left",
+}  # fmt: skip
+_NUMBER_WORDS = {
+    word: str(number)
+    for number, word in enumerate(("zero", "one", "two", "three", "four", "five", "six", "seven",
+                                   "eight", "nine", "ten"))
+}  # fmt: skip
+
+
 def _place(rest: list[str], offer: SkillOffer) -> Place:
     if not rest:
         raise _Bad("write place <block>")
@@ -362,7 +377,13 @@ def _place(rest: list[str], offer: SkillOffer) -> Place:
         return Place(block=block)
     if not offer.place_at:
         raise _Bad(f"place takes only a block on {offer.difficulty}: write place {block}")
-    where = [w for w in rest[1:] if w not in ("of", "the", "from", "tiles", "tile", "to")]
+    # Small models write a localization as prose ("2 blocks to the left of the furnace",
+    # "two blocks above the tree"): the same three parameters, read through its wording.
+    where = [
+        _SIDE_WORDS.get(word, _NUMBER_WORDS.get(word, word))
+        for word in rest[1:]
+        if word not in _PLACE_FILLER
+    ]
     sides = [w for w in where if w in SIDES]
     numbers = [w for w in where if w.isdigit()]
     others = [w for w in where if w not in SIDES and not w.isdigit()]
