@@ -4,7 +4,9 @@ An episode is replayed from the key its world was reset with and the action ids 
 replay reports what it reached (achievements, termination, steps, return) so the caller can check
 it against the record. Episodes are replayed in fixed-size batches, stepped in fixed-length
 chunks: the two compiled functions (reset, chunk) never see a new shape, so a run of any length
-compiles once per process (and once per machine with the persistent compilation cache).
+compiles once per process (and once per machine with the persistent compilation cache). A chunk
+skips the steps past its batch's longest episode (a 2-step episode is not stepped and drawn 32
+times).
 """
 
 from __future__ import annotations
@@ -109,25 +111,45 @@ class Replayer:
             end_map = jax.vmap(lambda game: overworld(game, variant))(state.game)
             return (state, end_map), jax.vmap(draw)(state.game), trace(state)
 
-        def advance(carry: Carry, actions: jax.Array) -> tuple[Carry, Any]:
-            def one_step(carry: Carry, action: jax.Array) -> tuple[Carry, Any]:
-                state, end_map = carry
-                ended = state.done
-                state, info = env.step_batch(state, action)
-                # The game goes on stepping after the end; the map the checker last read stays.
-                now = jax.vmap(lambda game: overworld(game, variant))(state.game)
-                end_map = jnp.where(ended[:, None, None], end_map, now)
-                return (state, end_map), (
-                    jax.vmap(draw)(state.game),
-                    info.reward,
-                    info.done,
-                    info.termination,
-                    info.new_achievements,
-                    trace(state),
+        def step(carry: Carry, action: jax.Array, acting: jax.Array) -> tuple[Carry, Any]:
+            state, end_map = carry
+            # The map the checker read last stays once the episode ended or took its last
+            # action (the game goes on stepping after either, for rows that are still acting).
+            frozen = state.done | ~acting
+            state, info = env.step_batch(state, action)
+            now = jax.vmap(lambda game: overworld(game, variant))(state.game)
+            end_map = jnp.where(frozen[:, None, None], end_map, now)
+            return (state, end_map), (
+                jax.vmap(draw)(state.game),
+                info.reward,
+                info.done,
+                info.termination,
+                info.new_achievements,
+                trace(state),
+            )
+
+        def advance(carry: Carry, actions: jax.Array, lengths: jax.Array) -> tuple[Carry, Any]:
+            """Each row's first `lengths` steps of the chunk; outputs past a row's length are
+            never read, and the steps past every row's, drawing included, are skipped (a
+            chunk keeps one shape, so a shorter one never recompiles)."""
+            skipped = jax.tree.map(
+                lambda out: jnp.zeros(out.shape, out.dtype),
+                jax.eval_shape(step, carry, actions[:, 0], lengths > 0)[1],
+            )
+            taken = jnp.max(lengths)
+
+            def one_step(carry: Carry, inputs: tuple[jax.Array, jax.Array]) -> tuple[Carry, Any]:
+                action, index = inputs
+                return jax.lax.cond(
+                    index < taken,
+                    lambda: step(carry, action, index < lengths),
+                    lambda: (carry, skipped),
                 )
 
             # Scan over time with the batch inside: outputs come back time-major.
-            return jax.lax.scan(one_step, carry, actions.T)
+            return jax.lax.scan(
+                one_step, carry, (actions.T, jnp.arange(actions.shape[1], dtype=jnp.int32))
+            )
 
         self._reset = jax.jit(reset)
         self._advance = jax.jit(advance)
@@ -166,7 +188,8 @@ class Replayer:
             np.array([e.kind for e in padded], np.int32),
             np.array([e.params for e in padded], np.int32),
         )
-        longest = max(len(e.actions) for e in padded)
+        lengths = np.array([len(e.actions) for e in padded], np.int32)
+        longest = int(lengths.max())
         actions = np.zeros(
             (self.batch_size, max(1, -(-longest // self.chunk)) * self.chunk), np.int32
         )
@@ -177,7 +200,9 @@ class Replayer:
         # At least one chunk, so even a batch of empty episodes has step outputs to slice.
         for offset in range(0, max(longest, 1), self.chunk):
             carry, outputs = self._advance(
-                carry, jnp.asarray(actions[:, offset : offset + self.chunk])
+                carry,
+                jnp.asarray(actions[:, offset : offset + self.chunk]),
+                jnp.asarray(np.clip(lengths - offset, 0, self.chunk)),
             )
             chunks.append(outputs)
         return (first, first_trace, carry[1]), chunks

@@ -4,6 +4,7 @@ independence from the episodes in flight and answer timing, resume after SIGKILL
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import random
 import signal
@@ -19,13 +20,14 @@ import pytest
 from env import CrafTextEnv, EnvConfig, Variant
 from env.errors import UserError
 from llm_agents.backends import get_model
-from llm_agents.backends.base import GenerateConfig
+from llm_agents.backends.base import ChatMessage, GenerateConfig
 from llm_agents.backends.cache import CachedModel
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.evaluation.config import EvalConfig, build_config
 from llm_agents.evaluation.runner import open_model, run_eval
 from llm_agents.evaluation.schedule import build_schedule
+from llm_agents.run_data.records import StepRecord
 from llm_agents.run_data.store import read_episodes, read_results
 
 REPO = Path(__file__).resolve().parents[1]
@@ -304,6 +306,27 @@ def test_prompts_carry_real_observations_and_action_outcomes(
 
 
 HASH_SCRIPT = SCRIPT.removeprefix("mock:")
+
+
+def test_prompts_and_step_records_are_what_validation_and_the_plain_hash_give(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    """The play loop builds its messages and records unvalidated (`env.trusted`) and hashes
+    prompts from a kept state: each must be exactly what the straightforward path gives."""
+    model = MockModel(HASH_SCRIPT)
+    run_eval(config(tmp_path, limit=4, batch_size=2), model, env=short_env)
+    lines = (tmp_path / "steps.jsonl").read_text().splitlines()
+    records = [StepRecord.model_validate_json(line) for line in lines]
+    assert [record.model_dump_json() for record in records] == lines
+    plain_hashes = set()
+    for messages, _ in model.requests:
+        for message in messages:
+            assert ChatMessage.model_validate(message.model_dump()) == message
+            assert type(message.content) is str
+        payload = json.dumps([[m.role, m.content] for m in messages], ensure_ascii=False)
+        plain_hashes.add(hashlib.sha256(payload.encode()).hexdigest())
+    assert len(records) == len(model.requests) > 4 * 2
+    assert {record.prompt_hash for record in records} == plain_hashes
 
 
 @pytest.mark.parametrize(

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from pydantic import BaseModel
 
 from env.errors import UserError
 from textualizer import RENDERERS, Observation, observe, observe_batch, render
@@ -368,8 +369,24 @@ def test_observation_round_trips_through_json(batched: tuple[str, Batched]) -> N
 
     variant, fns = batched
     states = fns.reset(jax.random.split(jax.random.PRNGKey(5), BATCH))
-    obs = observe_batch(_pull(states), variant)[0]
-    assert Observation.model_validate(json.loads(obs.model_dump_json())) == obs
+    for obs in observe_batch(_pull(states), variant):
+        validated = Observation.model_validate(json.loads(obs.model_dump_json()))
+        # Observations are built unvalidated (`env.trusted`): they must hold exactly what
+        # validation gives, down to each value's type (an int where a float is due would
+        # change the text).
+        assert validated == obs
+        assert _types(validated) == _types(obs)
+
+
+def _types(value: Any) -> Any:
+    """The value's shape with each leaf replaced by its type."""
+    if isinstance(value, BaseModel):
+        return (type(value), {name: _types(item) for name, item in value.__dict__.items()})
+    if isinstance(value, dict):
+        return (dict, [(type(key), _types(item)) for key, item in value.items()])
+    if isinstance(value, list | tuple):
+        return (type(value), [_types(item) for item in value])
+    return type(value)
 
 
 def test_observe_batch_equals_observe_per_episode(batched: tuple[str, Batched]) -> None:
@@ -384,6 +401,12 @@ def test_observe_batch_equals_observe_per_episode(batched: tuple[str, Batched]) 
             == batch[index]
         )
     assert batch[0].blocks != batch[-1].blocks  # the episodes really differ
+    # The play loop observes the slots whose answers came, in any order.
+    assert observe_batch(host, variant, indices=[BATCH - 1, 0, 5]) == [
+        batch[-1],
+        batch[0],
+        batch[5],
+    ]
 
 
 def test_user_mistakes_raise_user_error(batched: tuple[str, Batched]) -> None:

@@ -468,6 +468,41 @@ def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) 
 
 
 @pytest.mark.slow
+def test_a_replay_does_not_depend_on_the_episodes_beside_it(
+    run_dir: Path, viewed: Any, classic_env: CrafTextEnv
+) -> None:
+    # A chunk skips the steps past its batch's longest episode: a short episode replayed
+    # beside a long one (stepped on past its end) and alone (not) must come out the same.
+    from env.replay import ReplayInput
+    from llm_agents.viewer.pages import _replayer
+    from llm_agents.viewer.run import load_run
+
+    rng = np.random.default_rng(4)
+    masks = np.zeros(22, bool)
+    short, long = (
+        ReplayInput(
+            reset_key=episode_key(0, "goal", 0, repeat),
+            required=masks,
+            forbidden=masks,
+            actions=rng.integers(0, classic_env.num_actions, length).tolist(),
+        )
+        for repeat, length in ((0, 3), (1, 10))
+    )
+    # The replayer `view` compiled for the run (its batch size: build_view's default).
+    replayer = _replayer(load_run(run_dir), batch_size=16)
+    beside, long_replay = replayer.replay([short, long])
+    [alone] = replayer.replay([short])
+    assert len(alone.frames) == 4 and len(long_replay.frames) == 11
+    for field in ("frames", "trace", "end_map"):
+        assert np.array_equal(getattr(beside, field), getattr(alone, field))
+    assert (beside.achievements, beside.termination, beside.episode_return) == (
+        alone.achievements,
+        alone.termination,
+        alone.episode_return,
+    )
+
+
+@pytest.mark.slow
 def test_run_page_shows_the_achievement_scores_report_prints(
     run_dir: Path, expert_dir: Path, viewed: Any
 ) -> None:

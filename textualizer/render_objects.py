@@ -29,13 +29,22 @@ def _annotated(offset: Offset) -> str:
 
 def _runs(values: list[int]) -> str:
     """`-5..-1, 3, 5..6` for sorted integers."""
-    runs: list[list[int]] = []
-    for value in values:
-        if runs and value == runs[-1][1] + 1:
-            runs[-1][1] = value
-        else:
-            runs.append([value, value])
-    return ", ".join(f"{low}..{high}" if high > low else f"{low}" for low, high in runs)
+    if not values:
+        return ""
+    parts: list[str] = []
+    low = high = values[0]
+    for value in values[1:]:
+        if value == high + 1:
+            high = value
+            continue
+        parts.append(f"{low}..{high}" if high > low else f"{low}")
+        low = high = value
+    parts.append(f"{low}..{high}" if high > low else f"{low}")
+    return ", ".join(parts)
+
+
+def _top_row_first(offset: Offset) -> tuple[int, int]:
+    return (-offset[1], offset[0])
 
 
 def _offsets_line(name: str, offsets: list[Offset]) -> str:
@@ -44,8 +53,11 @@ def _offsets_line(name: str, offsets: list[Offset]) -> str:
         return f"{name}: " + "; ".join([_annotated(first), *map(format_offset, rest)])
     # Many tiles of one kind (a cave wall, a lake) read shorter as runs along each row.
     rows: dict[int, list[int]] = {}
-    for dx, dy in sorted(offsets, key=lambda offset: (-offset[1], offset[0])):
-        rows.setdefault(dy, []).append(dx)
+    for dx, dy in sorted(offsets, key=_top_row_first):
+        if dy in rows:
+            rows[dy].append(dx)
+        else:
+            rows[dy] = [dx]
     runs = "; ".join(f"dy {dy}: dx {_runs(dxs)}" for dy, dxs in rows.items())
     return f"{name} ({len(offsets)} tiles): nearest {_annotated(first)}; rows {runs}"
 

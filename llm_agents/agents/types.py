@@ -70,16 +70,29 @@ def messages_hash(messages: Sequence[ChatMessage]) -> str:
     """sha256 over the messages' roles, contents and images (their PNGs' digests), stable across
     processes: of the UTF-8 of `json.dumps([[role, content, *image digests], ...],
     ensure_ascii=False)` (a text message hashes as before images existed), built a message at a
-    time so that the system prompt every step repeats is encoded once."""
-    digest = hashlib.sha256(b"[")
-    for index, message in enumerate(messages):
-        if index:
-            digest.update(b", ")
-        digest.update(
-            _encoded(message.role, message.content, tuple(image.sha256 for image in message.images))
-        )
+    time so that the system prompt every step repeats is encoded and hashed once (the hash's
+    state after it is kept and copied)."""
+    if not messages:
+        return hashlib.sha256(b"[]").hexdigest()
+    first, *rest = messages
+    digest = _opened(first.role, first.content, _image_digests(first)).copy()
+    for message in rest:
+        digest.update(b", ")
+        digest.update(_encoded(message.role, message.content, _image_digests(message)))
     digest.update(b"]")
     return digest.hexdigest()
+
+
+def _image_digests(message: ChatMessage) -> tuple[str, ...]:
+    return tuple(image.sha256 for image in message.images) if message.images else ()
+
+
+@lru_cache(maxsize=64)
+def _opened(role: str, content: str, images: tuple[str, ...]) -> Any:
+    """The hash's state after `[` and a first message."""
+    digest = hashlib.sha256(b"[")
+    digest.update(_encoded(role, content, images))
+    return digest
 
 
 @lru_cache(maxsize=64)

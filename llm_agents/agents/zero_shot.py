@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self
 from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
+from env.trusted import trusted
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
 from llm_agents.agents.parser import parse_action
@@ -239,7 +240,11 @@ class ZeroShotAgent:
             "observation": observation_text,
             "instruction": instruction,
             "plan": plan,
-            "history": [entry.model_dump() for entry in history],
+            # `model_dump` of each entry, built directly: this runs for every slot and step.
+            "history": [
+                {"step": entry.step, "action": entry.action, "outcome": entry.outcome}
+                for entry in history
+            ],
             "choice_mode": self.choice_rule is not None,
         }
 
@@ -319,7 +324,9 @@ class ZeroShotAgent:
         """Move the episode's pending action into its history with `outcome`."""
         assert episode.pending is not None
         action, _ = episode.pending
-        episode.history.append(HistoryEntry(step=episode.step - 1, action=action, outcome=outcome))
+        episode.history.append(
+            trusted(HistoryEntry, step=episode.step - 1, action=action, outcome=outcome)
+        )
         episode.pending = None
 
     def messages_for(self, slot: int, observation_text: str) -> list[ChatMessage]:
@@ -328,7 +335,7 @@ class ZeroShotAgent:
         episode = self._episode(slot)
         recent = episode.history[-self.history_length :] if self.history_length else []
         context = self.step_context(observation_text, episode.instruction, episode.plan, recent)
-        user = ChatMessage(role="user", content=self._render_step(context))
+        user = trusted(ChatMessage, role="user", content=self._render_step(context))
         return [self.system_message, user]
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt:
@@ -352,7 +359,8 @@ class ZeroShotAgent:
         shown = f"{name} (your answer named no valid action; {name} was played)"
         episode.pending = (shown if fallback and self.report_invalid else name, observation)
         episode.step += 1
-        return Decision(
+        return trusted(
+            Decision,
             slot=slot,
             action=action,
             name=name,

@@ -20,6 +20,7 @@ import hashlib
 import json
 import time
 from collections.abc import Callable, Sequence
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -108,7 +109,7 @@ class MockModel(ModelAPI):
             return ModelOutput(
                 text="", finish_reason="error", error=f"mock script exhausted after {index} answers"
             )
-        prompt_words = sum(len(m.content.split()) for m in conversation)
+        prompt_words = sum(_word_count(m.content) for m in conversation)
         if choices:
             finish = "choice"
             if text not in choices:
@@ -122,6 +123,12 @@ class MockModel(ModelAPI):
             latency_s=self.latency_s,
             finish_reason=finish,
         )
+
+
+@lru_cache(maxsize=256)
+def _word_count(text: str) -> int:
+    # Cached: the system prompt every step repeats is counted once.
+    return len(text.split())
 
 
 def _parse_script(script: str) -> tuple[list[str], str]:

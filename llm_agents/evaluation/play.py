@@ -16,6 +16,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from env.trusted import trusted
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.types import NO_PROMPT_HASH, Decision, StepPrompt
 from llm_agents.backends.base import ImagePart, ModelAPI
@@ -283,7 +284,10 @@ def _step_record(
     new: list[str],
     frame: ImagePart | None,
 ) -> StepRecord:
-    return StepRecord(
+    # Unvalidated: every value is made here, of its field's type (the runner's tests read the
+    # records back through validation).
+    return trusted(
+        StepRecord,
         episode_id=tally.spec.episode_id,
         step=int(host.steps[slot]) - 1,
         observation=decision.observation_text,
