@@ -185,13 +185,15 @@ def test_a_choice_request_carries_the_skills_valid_now_and_lists_them() -> None:
     assert decision.name in ("LEFT", "RIGHT", "UP", "DOWN", "PLACE_TABLE")
 
 
-def decide_steps(agent: SkillsAgent, answers: list[str], steps: int) -> tuple[int, list[str]]:
-    """Play `steps` steps of one episode on a still observation (no wood, no stone), the model
-    answering `answers` in turn, then `noop`: (model calls, actions)."""
+def decide_steps(
+    agent: SkillsAgent, answers: list[str], steps: int, still: Observation | None = None
+) -> tuple[int, list[str]]:
+    """Play `steps` steps of one episode on a still observation (by default no wood, no stone),
+    the model answering `answers` in turn, then `noop`: (model calls, actions)."""
     agent.start_episode(0, "Place stone.")
     calls, actions = 0, []
     for step in range(steps):
-        prompt = agent.prepare(0, observation().model_copy(update={"step": step}))
+        prompt = agent.prepare(0, (still or observation()).model_copy(update={"step": step}))
         answer = answers[calls] if calls < len(answers) else "noop"
         calls += bool(prompt.messages)
         actions.append(agent.decide(prompt, ModelOutput(text=answer)).name)
@@ -207,8 +209,22 @@ def test_a_model_repeating_a_skill_that_cannot_start_is_stopped_with_the_reason(
         ("place stone", "failed", True)
     ] * 2
     assert last.reason == (
-        "place stone needs 1 stone (have 0); chosen 3 times in a row, failing each time before "
+        "place stone needs 1 stone (have 0); chosen 3 times in a row, ending each time before "
         "a step: no more skills are asked"
+    )
+
+
+def test_a_model_repeating_a_skill_with_nothing_to_do_is_stopped() -> None:
+    beside_tree = observation()
+    blocks = {"tree": [(1, 0)], "grass": [xy for xy in beside_tree.blocks["grass"] if xy != (1, 0)]}
+    beside_tree = beside_tree.model_copy(update={"blocks": blocks})
+    agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=3)
+    calls, actions = decide_steps(agent, ["go to tree"] * 10, 10, beside_tree)
+    assert calls == 3 and actions == ["NOOP"] * 10
+    history = agent._episode(0).history
+    assert [(r.outcome, r.steps) for r in history] == [("succeeded", 0)] * 3
+    assert history[-1].reason == (
+        "chosen 3 times in a row, ending each time before a step: no more skills are asked"
     )
 
 
@@ -317,7 +333,7 @@ def test_what_a_failed_episode_got_wrong() -> None:
     assert error([gave_up]) == "invalid_answers"
     stuck = skill_record(
         2, "craft wood_pickaxe", "failed", prerequisite=True,
-        reason="needs 1 wood (have 0); chosen 3 times in a row, failing each time before a step: "
+        reason="needs 1 wood (have 0); chosen 3 times in a row, ending each time before a step: "
         "no more skills are asked",
     )  # fmt: skip
     assert error([craft_early, craft_early, stuck]) == "stuck_repeating"

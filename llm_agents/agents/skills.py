@@ -10,8 +10,9 @@ An answer that names no skill of the catalogue, or a skill that cannot start (a 
 material, tool or station: prerequisites are not solved for the model), is a decision that
 plays one NOOP step, and the model is told why at the next. The agent stops asking after
 `GIVE_UP` invalid answers in a row, or once the model has chosen the same skill `stuck_after`
-times in a row and each failed before its first step (a model stuck on a skill it cannot start,
-as Qwen2.5-Coder-0.5B's `place stone` with no stone, would otherwise pay a call per step for the
+times in a row and each ended before its first step (a model stuck on a skill it cannot start,
+as Qwen2.5-Coder-0.5B's `place stone` with no stone, or on one with nothing to do, as
+Qwen2.5-Coder-1.5B's `go to stone` beside stone, would otherwise pay a call per step for the
 rest of the episode): the episode plays NOOP to its end, a failure whose reason is in its last
 decision's record. Every decision is recorded (`run_data.records.SkillRecord`) on its step and,
 in full, on the episode.
@@ -259,12 +260,12 @@ class SkillsAgent:
             )
             if self._stuck(episode.history, record):
                 episode.stopped = True
-                record = record.model_copy(
-                    update={
-                        "reason": f"{result.reason}; chosen {self.stuck_after} times in a row, "
-                        f"failing each time before a step: {STOPPED}"
-                    }
+                stop = (
+                    f"chosen {self.stuck_after} times in a row, ending each time before a step: "
+                    f"{STOPPED}"
                 )
+                reason = stop if result.reason is None else f"{result.reason}; {stop}"
+                record = record.model_copy(update={"reason": reason})
             episode.history.append(record)
             return self._decision(prompt, output, "NOOP", parsed.stage, (*earlier, record))
         episode.run = run
@@ -272,13 +273,15 @@ class SkillsAgent:
         return self._decision(prompt, output, result, parsed.stage, (*earlier, episode.record))
 
     def _stuck(self, history: list[SkillRecord], record: SkillRecord) -> bool:
-        """Whether `record`, a skill that failed before its first step, is the `stuck_after`-th
-        such failure of that skill in a row."""
+        """Whether `record`, a skill that ended before its first step (it failed, or had
+        nothing to do: `go to stone` beside stone), is the `stuck_after`-th such end of that
+        skill in a row."""
         if not self.stuck_after:
             return False
         run = [*(history[1 - self.stuck_after :] if self.stuck_after > 1 else ()), record]
         return len(run) == self.stuck_after and all(
-            (r.skill, r.outcome, r.steps) == (record.skill, "failed", 0) for r in run
+            (r.skill, r.steps) == (record.skill, 0) and r.outcome in ("failed", "succeeded")
+            for r in run
         )
 
     def _decision(

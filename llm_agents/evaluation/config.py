@@ -350,7 +350,7 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     `out_of_steps` and the model chooses again."""
     stuck_after: Annotated[int, CHANGES_RESULTS] = Field(3, ge=0)
     """skills: once the model has chosen the same skill this many times in a row and each
-    failed before its first step, the agent asks nothing more and the episode plays NOOP to
+    ended before its first step (it failed, or had nothing to do), the agent asks nothing more and the episode plays NOOP to
     its end, a failure with the reason recorded (0: never; runs recorded before this setting
     never stopped)."""
 

@@ -5,7 +5,7 @@ One label per failed episode, the first that applies:
 - `forbidden_unlocked`: it unlocked an achievement the goal forbids;
 - `invalid_answers`: the agent stopped asking after invalid answers in a row;
 - `stuck_repeating`: the agent stopped asking after the model chose the same skill
-  `stuck_after` times in a row, each failing before a step (`model_calls_saved` counts the
+  `stuck_after` times in a row, each ending before a step (failed, or nothing to do) (`model_calls_saved` counts the
   calls a stop saved);
 - `goal_misread`: no decision ever named the skill the goal asks for (the required
   achievement's, or the placing goal's block with its side, distance and reference, or its
@@ -48,7 +48,7 @@ SKILL_ERRORS: tuple[SkillError, ...] = get_args(SkillError)
 SKILL_ERROR_TITLES: dict[str, str] = {
     "forbidden_unlocked": "a forbidden achievement unlocked",
     "invalid_answers": "invalid answers in a row",
-    "stuck_repeating": "stuck repeating a failing skill",
+    "stuck_repeating": "stuck repeating a skill that does nothing",
     "goal_misread": "the goal misread",
     "missing_prerequisite": "a missing prerequisite",
     "wrong_order": "wrong order",
