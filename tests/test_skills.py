@@ -246,6 +246,19 @@ def test_a_model_that_does_not_repeat_the_same_failure_is_not_cut(answers: list[
     assert calls > len(answers)  # asked on after the last of them
 
 
+def test_the_next_request_says_the_last_skill_failed_and_why() -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy")
+    agent.start_episode(0, "Place stone.")
+    first = agent.prepare(0, observation())
+    assert "failed" not in first.messages[-1].content
+    agent.decide(first, ModelOutput(text="place stone"))
+    request = agent.prepare(0, observation().model_copy(update={"step": 1})).messages[-1].content
+    assert (
+        "Your last skill failed: place stone needs 1 stone (have 0). Choose a skill that gets "
+        "what is missing, not place stone again."
+    ) in request
+
+
 def test_stuck_after_0_never_stops_asking() -> None:
     agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=0)
     assert decide_steps(agent, ["place stone"] * 12, 12)[0] == 12
