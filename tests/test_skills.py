@@ -209,8 +209,8 @@ def test_a_model_repeating_a_skill_that_cannot_start_is_stopped_with_the_reason(
         ("place stone", "failed", True)
     ] * 2
     assert last.reason == (
-        "place stone needs 1 stone (have 0); chosen 3 times in a row, ending each time before "
-        "a step: no more skills are asked"
+        "place stone needs 1 stone (have 0); chosen 3 times with no step taken since: no more "
+        "skills are asked"
     )
 
 
@@ -223,23 +223,37 @@ def test_a_model_repeating_a_skill_with_nothing_to_do_is_stopped() -> None:
     assert calls == 3 and actions == ["NOOP"] * 10
     history = agent._episode(0).history
     assert [(r.outcome, r.steps) for r in history] == [("succeeded", 0)] * 3
-    assert history[-1].reason == (
-        "chosen 3 times in a row, ending each time before a step: no more skills are asked"
-    )
+    assert history[-1].reason == "chosen 3 times with no step taken since: no more skills are asked"
+
+
+@pytest.mark.parametrize(
+    ("answers", "calls"),
+    [
+        # Two failing skills in turn, or an invalid answer between: no step taken all along.
+        (["craft wood_pickaxe", "collect iron"] * 5, 5),
+        (["place stone", "place stone", "dance", "place stone"], 4),
+    ],
+)
+def test_other_decisions_that_take_no_step_do_not_reset_the_count(
+    answers: list[str], calls: int
+) -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=3)
+    assert decide_steps(agent, answers, 12)[0] == calls
+    assert agent._episode(0).stopped
 
 
 @pytest.mark.parametrize(
     "answers",
     [
-        # Another skill between the failures: the model is trying something else.
-        ["place stone", "place stone", "craft wood_pickaxe", "place stone", "place stone"],
-        # An invalid answer between them is another decision too.
-        ["place stone", "place stone", "dance", "place stone", "place stone"],
         # A skill that runs: the player moves towards the tree, the state changes.
-        ["place stone", "place stone", "collect wood", "place stone"],
+        ["place stone", "place stone", "collect wood", "place stone", "place stone"],
+        # `noop` takes its step: time passes.
+        ["place stone", "place stone", "noop", "place stone", "place stone"],
+        # Two failures, then something else: the model recovered.
+        ["place stone", "place stone", "collect wood"],
     ],
 )
-def test_a_model_that_does_not_repeat_the_same_failure_is_not_cut(answers: list[str]) -> None:
+def test_a_model_that_takes_a_step_between_its_failures_is_not_cut(answers: list[str]) -> None:
     agent = SkillsAgent(CLASSIC, difficulty="easy", skill_steps=2, stuck_after=3)
     calls, _ = decide_steps(agent, answers, 12)
     assert not agent._episode(0).stopped
@@ -346,8 +360,8 @@ def test_what_a_failed_episode_got_wrong() -> None:
     assert error([gave_up]) == "invalid_answers"
     stuck = skill_record(
         2, "craft wood_pickaxe", "failed", prerequisite=True,
-        reason="needs 1 wood (have 0); chosen 3 times in a row, ending each time before a step: "
-        "no more skills are asked",
+        reason="needs 1 wood (have 0); chosen 3 times with no step taken since: no more skills "
+        "are asked",
     )  # fmt: skip
     assert error([craft_early, craft_early, stuck]) == "stuck_repeating"
     # The steps after the stop asked nothing: 250 steps, the last decision at step 2.

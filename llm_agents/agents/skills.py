@@ -10,10 +10,10 @@ An answer that names no skill of the catalogue, or a skill that cannot start (a 
 material, tool or station: prerequisites are not solved for the model), is a decision that
 plays one NOOP step, and the model is told why at the next. The agent stops asking after
 `GIVE_UP` invalid answers in a row, or once the model has chosen the same skill `stuck_after`
-times in a row and each ended before its first step (a model stuck on a skill it cannot start,
-as Qwen2.5-Coder-0.5B's `place stone` with no stone, or on one with nothing to do, as
-Qwen2.5-Coder-1.5B's `go to stone` beside stone, would otherwise pay a call per step for the
-rest of the episode): the episode plays NOOP to its end, a failure whose reason is in its last
+times, each ending before its first step, with no step taken by any skill in between (a model
+stuck on a skill it cannot start, as Qwen2.5-Coder-0.5B's `place stone` with no stone, or on
+one with nothing to do, as Qwen2.5-Coder-1.5B's `go to stone` beside stone, would otherwise pay
+a call per step for the rest of the episode): the episode plays NOOP to its end, a failure whose reason is in its last
 decision's record. Every decision is recorded (`run_data.records.SkillRecord`) on its step and,
 in full, on the episode.
 """
@@ -260,10 +260,7 @@ class SkillsAgent:
             )
             if self._stuck(episode.history, record):
                 episode.stopped = True
-                stop = (
-                    f"chosen {self.stuck_after} times in a row, ending each time before a step: "
-                    f"{STOPPED}"
-                )
+                stop = f"chosen {self.stuck_after} times with no step taken since: {STOPPED}"
                 reason = stop if result.reason is None else f"{result.reason}; {stop}"
                 record = record.model_copy(update={"reason": reason})
             episode.history.append(record)
@@ -275,14 +272,17 @@ class SkillsAgent:
     def _stuck(self, history: list[SkillRecord], record: SkillRecord) -> bool:
         """Whether `record`, a skill that ended before its first step (it failed, or had
         nothing to do: `go to stone` beside stone), is the `stuck_after`-th such end of that
-        skill in a row."""
-        if not self.stuck_after:
+        skill since a skill last took a step. Other decisions in between, that took no step
+        either, change nothing (Qwen-1.5B alternated `craft wood_pickaxe` and `collect iron`,
+        both failing, for as long as it was asked)."""
+        if not self.stuck_after or record.outcome not in ("failed", "succeeded"):
             return False
-        run = [*(history[1 - self.stuck_after :] if self.stuck_after > 1 else ()), record]
-        return len(run) == self.stuck_after and all(
-            (r.skill, r.steps) == (record.skill, 0) and r.outcome in ("failed", "succeeded")
-            for r in run
-        )
+        repeats = 1
+        for earlier in reversed(history):
+            if earlier.steps:
+                break
+            repeats += earlier.skill == record.skill and earlier.outcome in ("failed", "succeeded")
+        return repeats >= self.stuck_after
 
     def _decision(
         self,

@@ -349,8 +349,9 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     """skills: the step budget of one skill; one that has not finished by then ends
     `out_of_steps` and the model chooses again."""
     stuck_after: Annotated[int, CHANGES_RESULTS] = Field(3, ge=0)
-    """skills: once the model has chosen the same skill this many times in a row and each
-    ended before its first step (it failed, or had nothing to do), the agent asks nothing more and the episode plays NOOP to
+    """skills: once the model has chosen the same skill this many times, each ending before its
+    first step (it failed, or had nothing to do) and no skill taking a step in between, the
+    agent asks nothing more and the episode plays NOOP to
     its end, a failure with the reason recorded (0: never; runs recorded before this setting
     never stopped)."""
 

@@ -5,7 +5,7 @@ One label per failed episode, the first that applies:
 - `forbidden_unlocked`: it unlocked an achievement the goal forbids;
 - `invalid_answers`: the agent stopped asking after invalid answers in a row;
 - `stuck_repeating`: the agent stopped asking after the model chose the same skill
-  `stuck_after` times in a row, each ending before a step (failed, or nothing to do) (`model_calls_saved` counts the
+  `stuck_after` times, each ending before a step (failed, or nothing to do), no step between (`model_calls_saved` counts the
   calls a stop saved);
 - `goal_misread`: no decision ever named the skill the goal asks for (the required
   achievement's, or the placing goal's block with its side, distance and reference, or its
