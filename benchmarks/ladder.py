@@ -337,12 +337,25 @@ def format_ladder(settings: LadderSettings, rows: Sequence[LadderRow]) -> str:
     return "\n".join(lines)
 
 
-def skill_errors(settings: LadderSettings) -> dict[str, int] | None:
-    """Failed `plans` episodes per label of `evaluation.skill_errors`; None before any ran."""
+@dataclass(frozen=True)
+class SkillErrors:
+    """What the `plans` episodes got wrong, and what stopping to ask saved."""
+
+    counts: dict[str, int]  # failed episodes per label of `evaluation.skill_errors`
+    stopped: int  # episodes whose agent stopped asking (invalid answers, stuck)
+    calls_saved: int  # the model calls those stops saved, one per step left
+
+
+def skill_errors(settings: LadderSettings) -> SkillErrors | None:
+    """The `plans` episodes' errors (`evaluation.skill_errors`); None before any ran."""
     from env.dataset import load_dataset
     from env.goals import AnyGoal, run_category
     from env.variant import Variant
-    from llm_agents.evaluation.skill_errors import skill_error_table
+    from llm_agents.evaluation.skill_errors import (
+        model_calls_saved,
+        skill_error_table,
+        stopped_asking,
+    )
     from llm_agents.run_data.store import read_episodes
 
     [plans] = [rung for rung in RUNGS if rung.key == "plans"]
@@ -361,13 +374,27 @@ def skill_errors(settings: LadderSettings) -> dict[str, int] | None:
         (run_category(i.goal), i.goal.id): i.goal for i in instructions
     }
     table = skill_error_table(episodes, goals, Variant.CLASSIC, "easy")
-    return {str(label): count for label, count in table.items()}
+    return SkillErrors(
+        counts={str(label): count for label, count in table.items()},
+        stopped=sum(stopped_asking(episode) for episode in episodes),
+        calls_saved=sum(model_calls_saved(episode) for episode in episodes),
+    )
 
 
-def format_skill_errors(errors: dict[str, int]) -> str:
-    failed = sum(errors.values())
+def format_skill_errors(errors: SkillErrors) -> str:
+    from llm_agents.evaluation.skill_errors import SKILL_ERROR_TITLES
+
+    failed = sum(errors.counts.values())
     lines = [f"What the skills agent got wrong ({failed} failed episodes):"]
-    lines += [f"  {label:<22} {count:>4}" for label, count in errors.items()]
+    lines += [
+        f"  {label:<22} {count:>4}  {SKILL_ERROR_TITLES[label]}"
+        for label, count in errors.counts.items()
+    ]
+    lines.append(
+        f"The agent stopped asking in {errors.stopped} episode"
+        f"{'s' if errors.stopped != 1 else ''}: {errors.calls_saved} model calls saved "
+        "(one per step left)."
+    )
     return "\n".join(lines)
 
 

@@ -75,7 +75,7 @@ def test_each_rung_reports_its_runs_rate_interval_and_cost(
     plans = _episodes(settings, "plans")
     assert all(e.model_calls > 0 and not e.success for e in plans)
     errors = ladder.skill_errors(settings)
-    assert errors is not None and sum(errors.values()) == len(plans)
+    assert errors is not None and sum(errors.counts.values()) == len(plans)
     assert f"What the skills agent got wrong ({len(plans)} failed episodes):" in table
 
     # Zero-shot asks at every step, on the 3-episode subset (2 of `one`, 1 of new objects).

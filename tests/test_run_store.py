@@ -242,6 +242,7 @@ OTHER_VALUES: dict[str, object] = {
     "few_shot_steps": 2,
     "demos": "expert-run",
     "skill_steps": 20,
+    "stuck_after": 0,
     "grounding_shots": 4,
     "observation": "both",
     "frame_history": 1,
@@ -286,6 +287,9 @@ def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_change
     elif name == "choice_scoring":
         # It scores loglik choices only, and is refused with any other.
         base = EvalConfig(choice="loglik")
+    elif name == "stuck_after":
+        # Only the skills agent stops asking.
+        base = EvalConfig(agent="skills")
     else:
         base = EvalConfig()
     changed = EvalConfig.model_validate(base.model_dump() | {name: OTHER_VALUES[name]})

@@ -261,6 +261,27 @@ def test_a_run_recorded_before_choice_scoring_resumes_under_the_rule_it_played(
     assert len(read_episodes(tmp_path / "episodes.jsonl")) == 2
 
 
+@pytest.mark.parametrize("agent", ["skills", "zero-shot"])
+def test_a_run_recorded_before_stuck_after_resumes_as_it_played(
+    tmp_path: Path, short_env: CrafTextEnv, agent: str
+) -> None:
+    # Played and recorded as before the setting existed: the skills agent never stopped asking.
+    never = {"stuck_after": 0} if agent == "skills" else {}
+    played = config(tmp_path, limit=2, batch_size=1, agent=agent, **never)
+    run(played.model_copy(update={"limit": 1}), short_env)
+    results = json.loads((tmp_path / "results.json").read_text())
+    del results["identity"]["settings"]["stuck_after"]
+    del results["config"]["stuck_after"]
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    assert EvalConfig.recorded(results["config"]).stuck_after == 0
+    if agent == "skills":
+        with pytest.raises(UserError, match=r"stuck_after \(0 before, 3 now\)"):
+            run(config(tmp_path, limit=2, batch_size=1, agent=agent), short_env)
+    # Other agents never read it: their runs resume under the defaults.
+    run(played, short_env)
+    assert len(read_episodes(tmp_path / "episodes.jsonl")) == 2
+
+
 def test_config_file_is_overridden_by_flags(tmp_path: Path) -> None:
     from llm_agents.evaluation.config import load_config_file
 

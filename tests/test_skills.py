@@ -24,7 +24,7 @@ from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.dispatch import Dispatcher
 from llm_agents.evaluation.report import format_table
 from llm_agents.evaluation.runner import run_eval
-from llm_agents.evaluation.skill_errors import skill_error
+from llm_agents.evaluation.skill_errors import model_calls_saved, skill_error
 from llm_agents.run_data.metrics import action_counts
 from llm_agents.run_data.records import EpisodeRecord, SkillRecord
 from llm_agents.run_data.store import read_episodes, read_results, read_steps
@@ -205,6 +205,99 @@ def test_a_choice_request_carries_the_skills_valid_now_and_lists_them() -> None:
     assert decision.name in ("LEFT", "RIGHT", "UP", "DOWN", "PLACE_TABLE")
 
 
+def decide_steps(
+    agent: SkillsAgent, answers: list[str], steps: int, still: Observation | None = None
+) -> tuple[int, list[str]]:
+    """Play `steps` steps of one episode on a still observation (by default no wood, no stone),
+    the model answering `answers` in turn, then `noop`: (model calls, actions)."""
+    agent.start_episode(0, "Place stone.")
+    calls, actions = 0, []
+    for step in range(steps):
+        prompt = agent.prepare(0, (still or observation()).model_copy(update={"step": step}))
+        answer = answers[calls] if calls < len(answers) else "noop"
+        calls += bool(prompt.messages)
+        actions.append(agent.decide(prompt, ModelOutput(text=answer)).name)
+    return calls, actions
+
+
+def test_a_model_repeating_a_skill_that_cannot_start_is_stopped_with_the_reason() -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=3)
+    calls, actions = decide_steps(agent, ["place stone"] * 20, 20)
+    assert calls == 3 and actions == ["NOOP"] * 20
+    *first, last = agent._episode(0).history
+    assert [(r.skill, r.outcome, r.prerequisite) for r in first] == [
+        ("place stone", "failed", True)
+    ] * 2
+    assert last.reason == (
+        "place stone needs 1 stone (have 0); chosen 3 times with no step taken since: no more "
+        "skills are asked"
+    )
+
+
+def test_a_model_repeating_a_skill_with_nothing_to_do_is_stopped() -> None:
+    beside_tree = observation()
+    blocks = {"tree": [(1, 0)], "grass": [xy for xy in beside_tree.blocks["grass"] if xy != (1, 0)]}
+    beside_tree = beside_tree.model_copy(update={"blocks": blocks})
+    agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=3)
+    calls, actions = decide_steps(agent, ["go to tree"] * 10, 10, beside_tree)
+    assert calls == 3 and actions == ["NOOP"] * 10
+    history = agent._episode(0).history
+    assert [(r.outcome, r.steps) for r in history] == [("succeeded", 0)] * 3
+    assert history[-1].reason == "chosen 3 times with no step taken since: no more skills are asked"
+
+
+@pytest.mark.parametrize(
+    ("answers", "calls"),
+    [
+        # Two failing skills in turn, or an invalid answer between: no step taken all along.
+        (["craft wood_pickaxe", "collect iron"] * 5, 5),
+        (["place stone", "place stone", "dance", "place stone"], 4),
+    ],
+)
+def test_other_decisions_that_take_no_step_do_not_reset_the_count(
+    answers: list[str], calls: int
+) -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=3)
+    assert decide_steps(agent, answers, 12)[0] == calls
+    assert agent._episode(0).stopped
+
+
+@pytest.mark.parametrize(
+    "answers",
+    [
+        # A skill that runs: the player moves towards the tree, the state changes.
+        ["place stone", "place stone", "collect wood", "place stone", "place stone"],
+        # `noop` takes its step: time passes.
+        ["place stone", "place stone", "noop", "place stone", "place stone"],
+        # Two failures, then something else: the model recovered.
+        ["place stone", "place stone", "collect wood"],
+    ],
+)
+def test_a_model_that_takes_a_step_between_its_failures_is_not_cut(answers: list[str]) -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy", skill_steps=2, stuck_after=3)
+    calls, _ = decide_steps(agent, answers, 12)
+    assert not agent._episode(0).stopped
+    assert calls > len(answers)  # asked on after the last of them
+
+
+def test_the_next_request_says_the_last_skill_failed_and_why() -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy")
+    agent.start_episode(0, "Place stone.")
+    first = agent.prepare(0, observation())
+    assert "failed" not in first.messages[-1].content
+    agent.decide(first, ModelOutput(text="place stone"))
+    request = agent.prepare(0, observation().model_copy(update={"step": 1})).messages[-1].content
+    assert (
+        "Your last skill failed: place stone needs 1 stone (have 0). Choose a skill that gets "
+        "what is missing, not place stone again."
+    ) in request
+
+
+def test_stuck_after_0_never_stops_asking() -> None:
+    agent = SkillsAgent(CLASSIC, difficulty="easy", stuck_after=0)
+    assert decide_steps(agent, ["place stone"] * 12, 12)[0] == 12
+
+
 def test_the_dispatcher_asks_each_prompt_with_its_own_options() -> None:
     model = MockModel(outputs=["collect wood", "drink"])
     dispatcher = Dispatcher(model, None)
@@ -282,9 +375,18 @@ def test_what_a_failed_episode_got_wrong() -> None:
         "forbidden_unlocked"
     )
     gave_up = skill_record(
-        0, None, "invalid", reason="x; 3 invalid answers in a row: no more skills"
+        0, None, "invalid", reason="x; 3 invalid answers in a row: no more skills are asked"
     )
     assert error([gave_up]) == "invalid_answers"
+    stuck = skill_record(
+        2, "craft wood_pickaxe", "failed", prerequisite=True,
+        reason="needs 1 wood (have 0); chosen 3 times with no step taken since: no more skills "
+        "are asked",
+    )  # fmt: skip
+    assert error([craft_early, craft_early, stuck]) == "stuck_repeating"
+    # The steps after the stop asked nothing: 250 steps, the last decision at step 2.
+    assert model_calls_saved(episode([craft_early, craft_early, stuck])) == 247
+    assert model_calls_saved(episode([craft_early, wood, craft_late])) == 0
     assert error([wood, skill_record(1, "eat", "succeeded")]) == "goal_misread"
     assert error([craft_early]) == "missing_prerequisite"
     assert error([craft_early, wood, craft_late]) == "wrong_order"
@@ -392,6 +494,20 @@ def test_a_missing_prerequisite_and_garbage_end_as_a_recorded_failure(
     assert "no more skills are asked" in (invalid[-1].reason or "")
     assert record.invalid_actions == GIVE_UP
     assert skill_error(record, pickaxe, CLASSIC, "easy") == "invalid_answers"
+
+
+@pytest.mark.slow
+def test_a_model_stuck_on_a_skill_it_cannot_start_ends_early_as_a_recorded_failure(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    stone = goal(("PLACE_STONE",))
+    record, _ = play(tmp_path, short_env, stone, ["place stone"] * MAX_STEPS, "easy")
+    assert not record.success and record.steps == MAX_STEPS
+    assert record.skills is not None and record.model_calls == 3  # the default stuck_after
+    assert [s.skill for s in record.skills] == ["place stone"] * 3
+    assert "no more skills are asked" in (record.skills[-1].reason or "")
+    assert skill_error(record, stone, CLASSIC, "easy") == "stuck_repeating"
+    assert model_calls_saved(record) == MAX_STEPS - 3
 
 
 @pytest.mark.slow

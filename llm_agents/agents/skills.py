@@ -8,10 +8,14 @@ then runs (`skill_runner`), sending nothing to the model, until it succeeds, fai
 is interrupted by an attack or spends its `skill_steps` budget; then the model chooses again.
 An answer that names no skill of the catalogue, or a skill that cannot start (a missing
 material, tool or station: prerequisites are not solved for the model), is a decision that
-plays one NOOP step, and the model is told why at the next. After `GIVE_UP` invalid answers in
-a row the agent stops asking: the episode plays NOOP to its end, a failure whose reason is in
-its last decision's record. Every decision is recorded (`run_data.records.SkillRecord`) on its
-step and, in full, on the episode.
+plays one NOOP step, and the model is told why at the next. The agent stops asking after
+`GIVE_UP` invalid answers in a row, or once the model has chosen the same skill `stuck_after`
+times, each ending before its first step, with no step taken by any skill in between (a model
+stuck on a skill it cannot start, as Qwen2.5-Coder-0.5B's `place stone` with no stone, or on
+one with nothing to do, as Qwen2.5-Coder-1.5B's `go to stone` beside stone, would otherwise pay
+a call per step for the rest of the episode): the episode plays NOOP to its end, a failure whose reason is in its last
+decision's record. Every decision is recorded (`run_data.records.SkillRecord`) on its step and,
+in full, on the episode.
 """
 
 from __future__ import annotations
@@ -40,6 +44,8 @@ if TYPE_CHECKING:
 SKILLS_TEMPLATE = "skills.j2"
 #: Invalid answers in a row after which an episode's model is asked nothing more.
 GIVE_UP = 3
+#: The end of a reason after which the agent asked nothing more (`skill_errors` reads it).
+STOPPED = "no more skills are asked"
 _CHECK_SLOT = -1
 
 
@@ -76,6 +82,7 @@ class SkillsAgent:
         templates_dir: str | Path | None = None,
         history_length: int = 5,
         skill_steps: int = 60,
+        stuck_after: int = 3,
         choice_rule: ChoiceRule | None = None,
         choice_scoring: ChoiceScoring = "sum",
     ):
@@ -85,6 +92,7 @@ class SkillsAgent:
         self.templates_dir = templates_dir
         self.history_length = history_length
         self.skill_steps = skill_steps
+        self.stuck_after = stuck_after
         self.choice_rule = choice_rule
         self.choice_scoring = choice_scoring
         self.fallback_id = action_id("NOOP", self.variant)
@@ -100,6 +108,7 @@ class SkillsAgent:
             templates_dir=config.templates_dir,
             history_length=config.history_length,
             skill_steps=config.skill_steps,
+            stuck_after=config.stuck_after,
             choice_rule=config.choice,
             choice_scoring=config.choice_scoring,
         )
@@ -231,7 +240,7 @@ class SkillsAgent:
             reason = f"not a skill of the catalogue: {parsed.reason}"
             if episode.invalid_in_a_row >= GIVE_UP:
                 episode.stopped = True
-                reason += f"; {GIVE_UP} invalid answers in a row: no more skills are asked"
+                reason += f"; {GIVE_UP} invalid answers in a row: {STOPPED}"
             record = base.model_copy(update={"outcome": "invalid", "reason": reason})
             episode.history.append(record)
             return self._decision(
@@ -249,11 +258,31 @@ class SkillsAgent:
                     "prerequisite": bool(why),
                 }
             )
+            if self._stuck(episode.history, record):
+                episode.stopped = True
+                stop = f"chosen {self.stuck_after} times with no step taken since: {STOPPED}"
+                reason = stop if result.reason is None else f"{result.reason}; {stop}"
+                record = record.model_copy(update={"reason": reason})
             episode.history.append(record)
             return self._decision(prompt, output, "NOOP", parsed.stage, (*earlier, record))
         episode.run = run
         episode.record = base.model_copy(update={"steps": run.steps})
         return self._decision(prompt, output, result, parsed.stage, (*earlier, episode.record))
+
+    def _stuck(self, history: list[SkillRecord], record: SkillRecord) -> bool:
+        """Whether `record`, a skill that ended before its first step (it failed, or had
+        nothing to do: `go to stone` beside stone), is the `stuck_after`-th such end of that
+        skill since a skill last took a step. Other decisions in between, that took no step
+        either, change nothing (Qwen-1.5B alternated `craft wood_pickaxe` and `collect iron`,
+        both failing, for as long as it was asked)."""
+        if not self.stuck_after or record.outcome not in ("failed", "succeeded"):
+            return False
+        repeats = 1
+        for earlier in reversed(history):
+            if earlier.steps:
+                break
+            repeats += earlier.skill == record.skill and earlier.outcome in ("failed", "succeeded")
+        return repeats >= self.stuck_after
 
     def _decision(
         self,

@@ -192,6 +192,9 @@ class ChoiceSettings(ModelSettings):
     predated_settings: ClassVar[dict[str, Any]] = {"choice_scoring": "sum"}
     """Settings added after runs were recorded whose default is not how those runs played:
     the value such a run played with (`predated`; eval's `recorded`)."""
+    predated_context: ClassVar[tuple[str, ...]] = ("choice",)
+    """The recorded settings that decide whether a predated setting counts (`result_settings`
+    leaves a setting out where it changes nothing)."""
 
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
     """Answer with one option (eval: an action name; ground: one of the chosen categories'
@@ -230,13 +233,18 @@ class ChoiceSettings(ModelSettings):
     def predated(cls, recorded: dict[str, Any]) -> dict[str, Any]:
         """The result settings a run that recorded `recorded` (its identity's settings) played
         with: the defaults, except `predated_settings` where it predates them."""
-        return cls.model_construct(
-            **{**cls.predated_settings, "choice": recorded.get("choice")}
-        ).result_settings()
+        context = {key: recorded[key] for key in cls.predated_context if key in recorded}
+        return cls.model_construct(**{**cls.predated_settings, **context}).result_settings()
 
 
 class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     """Everything that defines an evaluation run (`craftext-llm eval`)."""
+
+    predated_settings: ClassVar[dict[str, Any]] = {
+        **ChoiceSettings.predated_settings,
+        "stuck_after": 0,
+    }
+    predated_context: ClassVar[tuple[str, ...]] = ("choice", "agent")
 
     renamed_settings: ClassVar[dict[str, str]] = RENAMED_SETTINGS
 
@@ -340,6 +348,20 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     skill_steps: Annotated[int, CHANGES_RESULTS] = Field(60, ge=1, le=250)
     """skills: the step budget of one skill; one that has not finished by then ends
     `out_of_steps` and the model chooses again."""
+    stuck_after: Annotated[int, CHANGES_RESULTS] = Field(3, ge=0)
+    """skills: once the model has chosen the same skill this many times, each ending before its
+    first step (it failed, or had nothing to do) and no skill taking a step in between, the
+    agent asks nothing more and the episode plays NOOP to
+    its end, a failure with the reason recorded (0: never; runs recorded before this setting
+    never stopped)."""
+
+    def result_settings(self) -> dict[str, Any]:
+        """As `ChoiceSettings.result_settings`; `stuck_after` only for the skills agent, so
+        runs of other agents, recorded before it or not, never differ by it."""
+        settings = super().result_settings()
+        if self.agent != "skills":
+            settings["stuck_after"] = None
+        return settings
 
     @field_validator("agent")
     @classmethod

@@ -4,6 +4,9 @@ ladder's table of errors.
 One label per failed episode, the first that applies:
 - `forbidden_unlocked`: it unlocked an achievement the goal forbids;
 - `invalid_answers`: the agent stopped asking after invalid answers in a row;
+- `stuck_repeating`: the agent stopped asking after the model chose the same skill
+  `stuck_after` times, each ending before a step (failed, or nothing to do), no step between (`model_calls_saved` counts the
+  calls a stop saved);
 - `goal_misread`: no decision ever named the skill the goal asks for (the required
   achievement's, or the placing goal's block with its side, distance and reference, or its
   shape and size);
@@ -33,13 +36,25 @@ from llm_agents.agents.skill_catalogue import (
     read_skill,
     skill_offer,
 )
+from llm_agents.agents.skills import STOPPED
 from llm_agents.run_data.records import EpisodeRecord, SkillRecord
 
 SkillError = Literal[
-    "forbidden_unlocked", "invalid_answers", "goal_misread", "missing_prerequisite",
-    "wrong_order", "died", "out_of_steps",
+    "forbidden_unlocked", "invalid_answers", "stuck_repeating", "goal_misread",
+    "missing_prerequisite", "wrong_order", "died", "out_of_steps",
 ]  # fmt: skip
 SKILL_ERRORS: tuple[SkillError, ...] = get_args(SkillError)
+#: Each label as the ladder's table writes it.
+SKILL_ERROR_TITLES: dict[str, str] = {
+    "forbidden_unlocked": "a forbidden achievement unlocked",
+    "invalid_answers": "invalid answers in a row",
+    "stuck_repeating": "stuck repeating a skill that does nothing",
+    "goal_misread": "the goal misread",
+    "missing_prerequisite": "a missing prerequisite",
+    "wrong_order": "wrong order",
+    "died": "died",
+    "out_of_steps": "out of steps",
+}
 
 _FINAL_SKILL = {
     "COLLECT_DRINK": "drink",
@@ -110,12 +125,8 @@ def skill_error(
     forbidden = set(getattr(goal, "forbidden", ()))
     if forbidden & set(episode.achievements):
         return "forbidden_unlocked"
-    if (
-        records
-        and records[-1].outcome == "invalid"
-        and "no more skills" in (records[-1].reason or "")
-    ):
-        return "invalid_answers"
+    if stopped_asking(episode):
+        return "invalid_answers" if records[-1].outcome == "invalid" else "stuck_repeating"
     chosen = _chosen(records, variant, difficulty)
     targets: list[str | None] = (
         [a for a in goal.required if a not in episode.achievements]
@@ -147,3 +158,18 @@ def skill_error_table(
         for episode in episodes
     )
     return {label: counts[label] for label in SKILL_ERRORS}
+
+
+def model_calls_saved(episode: EpisodeRecord) -> int:
+    """The model calls an episode did not make because the agent stopped asking
+    (`invalid_answers`, `stuck_repeating`): one per step it had left, as many as a model that
+    goes on answering what cannot start (one `NOOP` step each) would have made."""
+    if not stopped_asking(episode):
+        return 0
+    return max(episode.steps - (episode.skills or [])[-1].step - 1, 0)
+
+
+def stopped_asking(episode: EpisodeRecord) -> bool:
+    """Whether the agent stopped asking the model in `episode` (its last decision says so)."""
+    records = episode.skills or []
+    return bool(records) and STOPPED in (records[-1].reason or "")
