@@ -184,33 +184,36 @@ def _read_ledger(out: Path) -> dict[str, dict[str, float]]:
 
 def play_rung(settings: LadderSettings, rung: Rung, env: Any = None) -> Any:
     """Run (or resume) each category's run of `rung` with one model; record the CPU time the
-    rung took and the episodes it played in the ledger. Returns the env it played on."""
+    rung took and the episodes it played in the ledger, also when it is stopped. Returns the
+    env it played on."""
     from env import CrafTextEnv
     from llm_agents.evaluation.grounding_run import execute_grounding, prepare_grounding
     from llm_agents.evaluation.runner import open_model, run_eval
 
     configs = rung_configs(settings, rung)
+    outs = [Path(config.output_dir) for _, config in configs]
+    before = [_items_done(rung, out) for out in outs]
     started_cpu = time.process_time()
-    played = 0
-    with open_model(configs[0][1]) as model:
-        for _, config in configs:
-            out = Path(config.output_dir)
-            before = _items_done(rung, out)
-            if rung.agent is None:
-                execute_grounding(prepare_grounding(config), model)
-            else:
-                if env is None:
-                    env = CrafTextEnv(config.env_config())
-                run_eval(config, model, env=env)
-            played += _items_done(rung, out) - before
-    cpu_s = time.process_time() - started_cpu
-    if played:
-        settings.out.mkdir(parents=True, exist_ok=True)
-        ledger = _read_ledger(settings.out)
-        entry = ledger.setdefault(rung.key, {"cpu_s": 0.0, "items": 0})
-        entry["cpu_s"] += cpu_s
-        entry["items"] += played
-        (settings.out / CPU_LEDGER).write_text(json.dumps(ledger, indent=1, sort_keys=True))
+    # Recorded however the rung ends: a stopped rung's CPU time belongs to the episodes it
+    # played, which a resumed rung will not play again.
+    try:
+        with open_model(configs[0][1]) as model:
+            for _, config in configs:
+                if rung.agent is None:
+                    execute_grounding(prepare_grounding(config), model)
+                else:
+                    if env is None:
+                        env = CrafTextEnv(config.env_config())
+                    run_eval(config, model, env=env)
+    finally:
+        played = sum(_items_done(rung, out) - done for out, done in zip(outs, before, strict=True))
+        if played:
+            settings.out.mkdir(parents=True, exist_ok=True)
+            ledger = _read_ledger(settings.out)
+            entry = ledger.setdefault(rung.key, {"cpu_s": 0.0, "items": 0})
+            entry["cpu_s"] += time.process_time() - started_cpu
+            entry["items"] += played
+            (settings.out / CPU_LEDGER).write_text(json.dumps(ledger, indent=1, sort_keys=True))
     return env
 
 

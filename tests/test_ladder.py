@@ -137,3 +137,36 @@ def test_the_zero_shot_subset_is_spread_over_the_categories(tmp_path: Path) -> N
     assert one.per_category_limit(acts) == {"one": 1, "combo": 0, "new_objects": 0}
     [(category, config)] = ladder.rung_configs(one, acts)
     assert (category, config.limit, tuple(config.categories)) == ("one", 1, ("one",))
+
+
+@pytest.mark.slow
+def test_a_stopped_rung_keeps_the_cpu_time_of_what_it_played(
+    official_repository: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from llm_agents.evaluation import runner
+
+    settings = ladder.LadderSettings(
+        model=MODEL,
+        out=tmp_path,
+        categories=CATEGORIES,
+        limit=1,
+        max_steps=5,
+        dataset=str(official_repository),
+        batch_size=1,
+        rungs=("expert",),
+    )
+    real_run_eval = runner.run_eval
+    calls = []
+
+    def stopped_after_one_category(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        if len(calls) > 1:
+            raise KeyboardInterrupt
+        return real_run_eval(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "run_eval", stopped_after_one_category)
+    [expert] = [rung for rung in ladder.RUNGS if rung.key == "expert"]
+    with pytest.raises(KeyboardInterrupt):
+        ladder.play_rung(settings, expert)
+    entry = ladder._read_ledger(tmp_path)["expert"]
+    assert entry["items"] == 1 and entry["cpu_s"] > 0
