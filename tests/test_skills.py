@@ -162,6 +162,9 @@ def test_prerequisites_are_not_solved_for_the_model() -> None:
     assert why_not("craft wood_pickaxe", bare) == "craft wood_pickaxe needs 1 wood (have 0)"
     assert "no crafting table" in (why_not("craft wood_pickaxe", observation({"wood": 1})) or "")
     assert why_not("collect stone", bare) == "collect stone needs a wood_pickaxe (craft it first)"
+    assert why_not("collect diamond", bare) == (
+        "collect diamond needs an iron_pickaxe (craft it first)"
+    )
     assert why_not("collect stone", observation(tools=("wood_pickaxe",))) is None
     assert why_not("place table", observation({"wood": 1})) == (
         "place crafting_table needs 2 wood (have 1)"

@@ -127,7 +127,9 @@ class SkillRun:
             if block in MINING:
                 tier, _ = MINING[block]
                 if _tier(obs, "pickaxe") < tier:
-                    return f"collect {skill.material} needs a {_PICKAXE[tier]} (craft it first)"
+                    tool = _PICKAXE[tier]
+                    article = "an" if tool[0] in "aeiou" else "a"
+                    return f"collect {skill.material} needs {article} {tool} (craft it first)"
             if have.get(skill.material, 0) + skill.count > INVENTORY_CAP:
                 return f"the inventory holds at most {INVENTORY_CAP} {skill.material}"
             return None
