@@ -48,7 +48,7 @@ def trusted(cls: type[Model], /, **values: Any) -> Model:
 
 @cache
 def _names(cls: type[BaseModel]) -> tuple[str, ...]:
-    return tuple(cls.model_fields)
+    return tuple(name for name, _ in _fields(cls))
 
 
 def _made(cls: type[Model], data: dict[str, Any], fields_set: set[str]) -> Model:
