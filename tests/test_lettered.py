@@ -106,6 +106,33 @@ def test_the_agent_plays_the_action_its_label_stands_for() -> None:
     assert step("DO").fallback_used
 
 
+def test_few_shot_letters_its_step_after_the_demonstrations(tmp_path: Path) -> None:
+    from agent_steps import play_step
+    from test_agents import Seen, goal, make_expert_run, text_of
+
+    from llm_agents.agents.few_shot import FewShotAgent
+
+    agent = FewShotAgent(
+        Variant.CLASSIC,
+        demos=make_expert_run(tmp_path / "expert"),
+        steps=3,
+        choice_rule="loglik",
+        choice_scoring="letters",
+        seed=2,
+    )
+    agent.render_observation = text_of
+    agent.start_episode(
+        0, "Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)), episode="one/W/0/0"
+    )
+    model = MockModel(outputs=lambda conversation: label_of("PLACE_TABLE", conversation))
+    for step in range(2):
+        [decision] = play_step(agent, model, [0], [Seen(text="A tree is 1 east.")])
+        assert decision.name == "PLACE_TABLE"
+        assert decision.options_shown == lettered(CLASSIC, 2, "one/W/0/0", step).order
+    user = model.requests[0][0][-1].content
+    assert user.index("Expert action:") < user.index("A. ") < user.index("letter of the one")
+
+
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
     return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=4))
