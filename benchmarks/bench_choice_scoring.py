@@ -3,14 +3,16 @@
 The zero-shot agent plays the same episodes (Classic, the first `--limit` goals of each
 category, original instructions, one world each) under each rule of `--play`: success with its
 95% interval clustered by goal (`clustered_rate`; one world per goal, so it equals the plain
-Wilson interval here), and the commonest action's share of the steps. Every step of every run is
-also scored under every other rule from the same log-probabilities (one scoring pass gives them
-all), so each rule's commonest action is also measured on the very states the played rule
-reached ("on the same states"), at no extra model cost: the bias of a rule shows there even
-where there was no time to play it.
+Wilson interval here), the commonest action's share of the steps, and each run's wall and CPU
+seconds (its process's, model loading included). Every step of every run of a rule that scores
+names is also scored under every other such rule from the same log-probabilities (one scoring
+pass gives them all), so each rule's commonest action is also measured on the very states the
+played rule reached ("on the same states"), at no extra model cost: the bias of a rule shows
+there even where there was no time to play it. `letters` asks another question (a letter of a
+list shuffled per step), so its runs are played, not scored on the others' states.
 
     python benchmarks/bench_choice_scoring.py [--model hf:/path/to/qwen2.5-coder-0.5b]
-        [--play sum mean bytes pmi] [--categories one new_objects] [--limit 8]
+        [--play sum mean bytes pmi letters] [--categories one new_objects] [--limit 8]
         [--max-steps 250] [--dataset PATH] [--out runs/bench-choice-scoring]
 
 Runs resume: a rerun with the same settings plays only what is missing, then prints; an
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import time
 from collections import Counter
@@ -44,6 +47,8 @@ from llm_agents.backends.base import (  # noqa: E402
 )
 
 RULES: tuple[ChoiceScoring, ...] = get_args(ChoiceScoring)
+#: The rules that score the action names themselves: one scoring pass gives them all.
+NAME_RULES = tuple(rule for rule in RULES if rule != "letters")
 #: Each run's record of every rule's pick at every step (the run's own folder).
 SHADOW_FILE = "picks_by_rule.jsonl"
 
@@ -54,8 +59,11 @@ def _dataset(args: argparse.Namespace, out: Path) -> list[str]:
 
 
 def _record_every_rule(shadow: Path) -> None:
-    """Make the hf backend write, for each prompt it ranks, the pick of every rule."""
+    """Make the hf backend write, for each prompt of names it ranks, the pick of every rule
+    that scores names."""
     from llm_agents.backends.hf import HFModel
+
+    own_choose = HFModel._choose
 
     def choose(
         self: HFModel,
@@ -63,13 +71,15 @@ def _record_every_rule(shadow: Path) -> None:
         choices: ChoiceSet,
         candidates: list[list[int]],
     ) -> list[ModelOutput]:
+        if choices.scoring == "letters":
+            return own_choose(self, conversations, choices, candidates)
         start = time.perf_counter()
         prompts = self._prompt_ids(conversations)
         scores = self._option_logliks(prompts, candidates)
         pmi = choices.model_copy(update={"scoring": "pmi"})
         content_free = self._content_free_rows(conversations, pmi, candidates)
         picks: dict[str, list[str]] = {}
-        for rule in RULES:
+        for rule in NAME_RULES:
             rows = scored_choices(
                 choices.model_copy(update={"scoring": rule}), candidates, scores, content_free
             )
@@ -78,7 +88,7 @@ def _record_every_rule(shadow: Path) -> None:
             ]
         with shadow.open("a", encoding="utf-8") as file:
             for index in range(len(conversations)):
-                file.write(json.dumps({rule: picks[rule][index] for rule in RULES}) + "\n")
+                file.write(json.dumps({rule: picks[rule][index] for rule in NAME_RULES}) + "\n")
         return ranked_choices(
             choices, prompts, candidates, scores, time.perf_counter() - start, content_free
         )
@@ -108,6 +118,12 @@ def _commonest(actions: Counter[str]) -> str:
         return "-"
     name, count = actions.most_common(1)[0]
     return f"{name} {count / sum(actions.values()):.2f}"
+
+
+def _children_cpu_s() -> float:
+    """CPU seconds (user and system) of the finished child processes so far."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def main() -> None:
@@ -166,10 +182,14 @@ def main() -> None:
             if not (target / "results.json").exists():
                 (target / SHADOW_FILE).unlink(missing_ok=True)
             started = time.perf_counter()
+            cpu = _children_cpu_s()
             subprocess.run(
                 [sys.executable, __file__, *sys.argv[1:], "--run-one", rule, category], check=True
             )
-            print(f"played {rule} on {category} in {time.perf_counter() - started:.0f} s")
+            print(
+                f"played {rule} on {category} in {time.perf_counter() - started:.0f} s wall, "
+                f"{_children_cpu_s() - cpu:.0f} s CPU"
+            )
 
     print(
         f"zero-shot --choice loglik, {args.model}, Classic, first {args.limit} goals of each "
@@ -208,7 +228,7 @@ def main() -> None:
             shadow = played_dir(rule, category) / SHADOW_FILE
             if shadow.exists():
                 records[category] += [json.loads(line) for line in shadow.open()]
-    for rule in RULES:
+    for rule in NAME_RULES:
         cells = []
         for category in args.categories:
             picks = Counter(record[rule] for record in records[category])

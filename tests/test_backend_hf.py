@@ -208,6 +208,51 @@ def test_every_scoring_rule_is_its_formula_over_plain_forward_passes(model: HFMo
     assert len(model._content_free._kept) == 1
 
 
+@pytest.mark.parametrize("split_attention", [False, True], ids=["cache-copy", "split"])
+def test_letters_are_read_off_one_pass_over_the_prompt_as_the_general_path_scores_them(
+    model: HFModel, split_attention: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from llm_agents.agents.lettered import label_choices
+    from llm_agents.agents.zero_shot import ZeroShotAgent
+
+    agent = ZeroShotAgent("classic", choice_rule="loglik", choice_scoring="letters")
+    agent.start_episode(0, "Collect wood.", episode="one/1/0/0")
+    conversations = [agent.messages_for(0, "You see grass and a tree to your left."), PERU]
+    choices = label_choices(17)
+    candidates = model._candidate_ids(choices.options)
+    assert {len(ids) for ids in candidates} == {1}
+    model.scorer.split_attention = split_attention
+    passes = {"candidates": 0, "decoder": 0}
+
+    def counted(name: str, function: Any) -> Any:
+        def run(*args: Any, **kwargs: Any) -> Any:
+            passes[name] += 1
+            return function(*args, **kwargs)
+
+        return run
+
+    try:
+        # The general path: each label and its end of turn through the candidate pass.
+        general = model._option_logliks(model._prompt_ids(conversations), candidates)
+        monkeypatch.setattr(
+            scoring, "_candidate_pass", counted("candidates", scoring._candidate_pass)
+        )
+        monkeypatch.setattr(scoring, "_hidden_states", counted("decoder", scoring._hidden_states))
+        letters = model.choice_scores(conversations, choices)
+    finally:
+        model.scorer.split_attention = True
+    assert passes["candidates"] == 0
+    # The split path: the prompts' own tokens once (their shared prefix is kept from above).
+    assert passes["decoder"] == (1 if split_attention else 0)
+    for row, general_row in zip(letters, general, strict=True):
+        assert row == pytest.approx([score.option for score in general_row], abs=1e-4)
+    prompt = model._render(conversations[0])
+    assert letters[0][:3] == pytest.approx(
+        [naive_log_likelihood(model, prompt, label) for label in "ABC"], abs=2e-3
+    )
+    assert max(letters[0]) - min(letters[0]) > 1.0
+
+
 def test_the_end_of_turn_token_is_the_chat_templates(model: HFModel) -> None:
     assert model.tokenizer.convert_ids_to_tokens(model._end_of_turn) == "<|im_end|>"
 

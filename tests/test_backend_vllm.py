@@ -97,8 +97,14 @@ def loglik_checks(model, request):
     cut = block * (len(prompt) // block)
     cut_prompts = [prompt[:cut], prompt[: cut - 2]]
     cut_scores = model._log_likelihoods(cut_prompts, candidates)
+    # Lettered actions (`letters`): the labels' scores, and the labels the whole path picks.
+    lettered = [[ChatMessage(**m) for m in c] for c in request["letters"]["conversations"]]
+    labels = ChoiceSet(options=tuple(request["letters"]["options"]), rule="loglik",
+                       scoring="letters")
+    letters = {"scores": model.choice_scores(lettered, labels),
+               "outputs": [o.model_dump() for o in model.generate(lettered, labels)]}
     return {"scores": scores, "outputs": [o.model_dump() for o in outputs],
-            "cut_prompts": cut_prompts, "cut_scores": cut_scores}
+            "cut_prompts": cut_prompts, "cut_scores": cut_scores, "letters": letters}
 
 def main():
     model_dir, in_path, out_path = sys.argv[1:4]
@@ -128,14 +134,20 @@ SCORED_OPTIONS = ("UP", "DO", "PLACE_STONE", "PLACE_FURNACE", "MAKE_WOOD_SWORD",
 def loglik_request(classic_env: Any) -> dict[str, Any]:
     """Real agent conversations and the options and rules to score them under."""
     conversations, actions = real_agent_conversations(classic_env)
+    lettered, labels = real_agent_conversations(classic_env, "letters")
     # vLLM on CPU scores each option as a request of its own, the whole prompt included: six
     # names (one token or several, sharing prefixes, each conversation's favourite among them)
     # prove the agreement in a quarter of the time all 17 took.
     return {
         "conversations": [[m.model_dump() for m in c] for c in conversations],
         "options": [name for name in actions if name in SCORED_OPTIONS],
-        "rules": list(get_args(ChoiceScoring)),
+        # `letters` scores labels of a lettered list, not names: asked below, of its own prompts.
+        "rules": [rule for rule in get_args(ChoiceScoring) if rule != "letters"],
         "answer_rule": "pmi",
+        "letters": {
+            "conversations": [[m.model_dump() for m in c] for c in lettered],
+            "options": labels,
+        },
     }
 
 
@@ -186,31 +198,36 @@ def test_offline_engine_generates_free_text_and_constrained_choices(
     assert result["info"]["backend"] == "vllm" and result["info"]["vllm"]
 
 
-def real_agent_conversations(classic_env: Any) -> tuple[list[list[ChatMessage]], list[str]]:
-    """The agent's messages over real classic episodes: first steps, and steps with history."""
+def real_agent_conversations(
+    classic_env: Any, scoring: ChoiceScoring = "pmi"
+) -> tuple[list[list[ChatMessage]], list[str]]:
+    """The agent's messages over real classic episodes: first steps, and steps with history;
+    and the options its answers are picked among (under `letters`, the labels)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
 
     from env import ACHIEVEMENT_IDS, NUM_ACHIEVEMENTS, episode_key, make_task
+    from llm_agents.agents.actions import action_names
     from llm_agents.agents.zero_shot import ZeroShotAgent
     from textualizer import observe
 
-    agent = ZeroShotAgent("classic", choice_rule="loglik")
+    agent = ZeroShotAgent("classic", choice_rule="loglik", choice_scoring=scoring)
     assert agent.choices is not None
+    names = action_names("classic")
     required = np.zeros(NUM_ACHIEVEMENTS, dtype=bool)
     required[ACHIEVEMENT_IDS["COLLECT_WOOD"]] = True
     task = make_task(required, np.zeros_like(required))
     conversations = []
     for slot, actions in enumerate([[], [5, 2, 2], [1, 3]]):
         state = classic_env.reset(jnp.asarray(episode_key(0, "loglik", 0, slot)), task)
-        agent.start_episode(slot, "Collect some wood.")
+        agent.start_episode(slot, "Collect some wood.", episode=f"loglik/{slot}")
         for action in [*actions, None]:
             observation = observe(jax.tree.map(np.asarray, state.game), "classic")
             messages, _ = agent.build_messages(slot, observation)
             if action is None:
                 break
-            agent._episodes[slot].pending = (agent.choices.options[action], observation)
+            agent._episodes[slot].pending = (names[action], observation)
             agent._episodes[slot].step += 1
             state, _ = classic_env.step(state, jnp.int32(action))
         conversations.append(messages)
@@ -258,6 +275,26 @@ def test_hf_and_vllm_agree_under_every_loglik_rule_on_real_prompts(
         for a, b in zip(hf_score, vllm_score, strict=True)
     )
     assert cut_worst < 0.01
+    # `letters`: the labels' next-token scores (hf's one pass over the prompt) agree, and so
+    # does the label each backend picks.
+    lettered = result["letters"]
+    letter_conversations = [
+        [ChatMessage(**m) for m in c] for c in loglik_request["letters"]["conversations"]
+    ]
+    labels = ChoiceSet(
+        options=tuple(loglik_request["letters"]["options"]), rule="loglik", scoring="letters"
+    )
+    hf_letters = hf.choice_scores(letter_conversations, labels)
+    letters_worst = max(
+        abs(a - b)
+        for hf_row, vllm_row in zip(hf_letters, lettered["scores"], strict=True)
+        for a, b in zip(hf_row, vllm_row, strict=True)
+    )
+    print(f"hf vs vllm loglik scores (letters), float32: largest difference {letters_worst:.2e}")
+    assert letters_worst < 0.01
+    hf_picks = [o.text for o in hf.generate(letter_conversations, labels)]
+    assert hf_picks == [o["text"] for o in lettered["outputs"]]
+    assert all(o["finish_reason"] == "choice" for o in lettered["outputs"])
     # hf's answers are its scores' best options (its own tests check that `generate` picks
     # them), so vLLM's answers are compared with those instead of scoring everything again.
     vllm_outputs = result["outputs"]

@@ -136,6 +136,10 @@ MISTAKES: dict[str, Mistake] = {
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1", *LOGLIK_PMI],
         "log-probabilities",
     ),
+    "lettered actions for an agent without a step message": Mistake(
+        [*EVAL, "--agent", "skills", "--choice", "loglik", "--choice-scoring", "letters"],
+        "letters works with: zero-shot, few-shot",
+    ),
     "the hf choice_scoring option that became a setting": Mistake(
         [*EVAL, "--model", "hf:smollm2-135m", "--backend-option", "choice_scoring=mean"],
         "no option 'choice_scoring'",

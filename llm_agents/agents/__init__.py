@@ -42,8 +42,15 @@ class Agent(Protocol):
     """The action names answers are constrained to, with their rule; None: free text."""
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
-    ) -> None: ...
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
+    ) -> None:
+        """Begin an episode in `slot`; `episode` names it in the run (its `episode_id`, the
+        same in every run of the schedule), for what an agent draws per episode."""
 
     def end_episode(self, slot: int) -> None: ...
 

@@ -50,9 +50,14 @@ class ChainOfThoughtAgent(ZeroShotAgent):
         return {"steps": config.cot_steps, "max_tokens": config.cot_max_tokens}
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
     ) -> None:
-        super().start_episode(slot, instruction, plan, goal)
+        super().start_episode(slot, instruction, plan, goal, episode)
         self._replies[slot] = []
 
     def end_episode(self, slot: int) -> None:

@@ -96,6 +96,7 @@ class ExpertAgent:
         instruction: str,
         plan: str | None = None,
         goal: AnyGoal | Goal | None = None,
+        episode: str = "",
     ) -> None:
         """Begin an episode; `goal` (the dataset record) is required, the text is ignored."""
         if goal is None:

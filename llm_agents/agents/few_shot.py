@@ -165,11 +165,16 @@ class FewShotAgent(ZeroShotAgent):
         return {"demos": config.demos, "steps": config.few_shot_steps}
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
     ) -> None:
         if goal is None:
             raise UserError("the few-shot agent needs the goal record to leave its own goal out")
-        super().start_episode(slot, instruction, plan, goal)
+        super().start_episode(slot, instruction, plan, goal, episode)
         self._demos[slot] = pick_demonstrations(self.demo_episodes, goal.id, self.demo_steps)
 
     def end_episode(self, slot: int) -> None:

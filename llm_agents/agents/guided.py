@@ -102,7 +102,12 @@ class GuidedAgent:
         return dict(self._groundings)
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
     ) -> None:
         """Begin an episode; `goal` (the dataset record) is never played, the model's reading
         is: it only keeps its own answer out of the worked examples."""

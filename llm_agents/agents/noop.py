@@ -34,7 +34,12 @@ class NoopAgent:
         return cls(config.variant)
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
     ) -> None:
         """Nothing to remember: every step is the same."""
 

@@ -27,6 +27,9 @@ ObservationMode = Literal["text", "image", "both"]
 #: The strategies whose step message can carry the frames (the others ask no step question of
 #: a model, or ask it about the instruction alone).
 IMAGE_AGENTS = ("zero-shot", "cot", "few-shot")
+#: The strategies whose step message can letter the actions (`--choice-scoring letters`): those
+#: that render `step.j2`.
+LETTER_AGENTS = ("zero-shot", "few-shot")
 
 
 class AgentSettings(Protocol):
@@ -45,6 +48,8 @@ class AgentSettings(Protocol):
     def choice(self) -> ChoiceRule | None: ...
     @property
     def choice_scoring(self) -> ChoiceScoring: ...
+    @property
+    def seed(self) -> int: ...
     @property
     def fallback_action(self) -> str: ...
     @property

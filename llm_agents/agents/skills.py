@@ -114,7 +114,12 @@ class SkillsAgent:
         )
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
     ) -> None:
         """Begin an episode; only the instruction text is read (the model reads the goal)."""
         self._episodes[slot] = _Episode(instruction)

@@ -31,6 +31,9 @@ class StepPrompt:
     choices: ChoiceSet | None = None
     """The options this prompt's answer must be one of, when they differ from the agent's
     (`skills --choice`: the skills valid now); None: the agent's `choices`."""
+    options_shown: tuple[str, ...] | None = None
+    """`--choice-scoring letters`: the options in the order the prompt letters them (the first
+    under `A`); the answer is a label, mapped back through this order."""
     deferred: bool = False
     """The slot waits on another slot's request (the same question, asked once): it is sent
     nowhere, and the play loop prepares it again once that answer has been decided."""
@@ -60,6 +63,9 @@ class Decision(BaseModel):
     grounding: Grounding | None = None
     """Set on an episode's first decision by agents that read the instruction into a goal
     first (`guided`); an invalid one means the episode could not start."""
+    options_shown: tuple[str, ...] | None = None
+    """`--choice-scoring letters`: the order the prompt lettered the options in (the prompt's
+    `options_shown`)."""
     skills: tuple[SkillRecord, ...] = ()
     """`skills`: the decisions this step touched, as they stand after it is chosen: the one
     it closed (a skill that finished or failed on this observation), then the one it belongs

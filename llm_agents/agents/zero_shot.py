@@ -21,6 +21,7 @@ from env.errors import UserError
 from env.trusted import trusted
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
+from llm_agents.agents.lettered import LetteredOptions, label_choices, lettered
 from llm_agents.agents.parser import parse_action
 from llm_agents.agents.registry import ObservationMode
 from llm_agents.agents.types import Decision, StepPrompt, messages_hash
@@ -91,10 +92,16 @@ class HistoryEntry(BaseModel):
 
 
 class _Episode:
-    def __init__(self, instruction: str, plan: str | None, goal: AnyGoal | None = None):
+    def __init__(
+        self, instruction: str, plan: str | None, goal: AnyGoal | None = None, name: str = ""
+    ):
         self.instruction = instruction
         self.plan = plan
         self.goal = goal
+        self.name = name
+        """The episode's `episode_id` (what `--choice-scoring letters` draws its orders from)."""
+        self.shown: LetteredOptions | None = None
+        """`letters`: the order of the step message last built."""
         self.step = 0
         self.history: list[HistoryEntry] = []
         self.pending: tuple[str, Any] | None = None
@@ -158,12 +165,16 @@ class ZeroShotAgent:
         report_invalid: bool = False,
         observation: ObservationMode = "text",
         frame_history: int = 0,
+        seed: int = 0,
     ):
         """`renderer`: a textualizer style name or a function observation -> text.
 
         `choice_rule` passes the action names as choices to the model, picked by that rule
         (`loglik` or `guided`); None lets the model write free text. `choice_scoring`: how
-        `loglik` scores an option (`llm_agents.backends.base.choice_score`). `report_invalid`
+        `loglik` scores an option (`llm_agents.backends.base.choice_score`); under `letters`
+        the step message letters the actions in an order drawn from (`seed`, the episode, the
+        step) (`agents.lettered`), the backend picks a label, and the label's action is played.
+        `report_invalid`
         tells the model, in the next step's history, that an answer named no valid action and the
         fallback was played in its place (BALROG's harness does; by default the history shows the
         fallback action alone). `observation`: `image` or `both` say, in the observation's
@@ -184,10 +195,14 @@ class ZeroShotAgent:
         self.render_observation = (
             _textualizer_renderer(renderer) if isinstance(renderer, str) else renderer
         )
+        self.seed = seed
+        #: Whether the step message letters the actions (`letters`; `loglik` only).
+        self.lettered = choice_rule == "loglik" and choice_scoring == "letters"
+        names = action_names(self.variant)
         self.choices = (
-            ChoiceSet(
-                options=tuple(action_names(self.variant)), rule=choice_rule, scoring=choice_scoring
-            )
+            label_choices(len(names))
+            if self.lettered
+            else ChoiceSet(options=tuple(names), rule=choice_rule, scoring=choice_scoring)
             if choice_rule is not None
             else None
         )
@@ -212,6 +227,7 @@ class ZeroShotAgent:
             report_invalid=config.report_invalid_answers,
             observation=config.observation,
             frame_history=config.frame_history,
+            seed=config.seed,
             **cls.strategy_settings(config),
         )
 
@@ -233,8 +249,9 @@ class ZeroShotAgent:
         instruction: str,
         plan: str | None = None,
         history: Sequence[HistoryEntry] = (),
+        shown: LetteredOptions | None = None,
     ) -> dict[str, Any]:
-        """The variables `step.j2` is rendered with."""
+        """The variables `step.j2` is rendered with (`shown`: the lettered actions, `letters`)."""
         return {
             "variant": self.variant.value,
             "observation": observation_text,
@@ -246,6 +263,7 @@ class ZeroShotAgent:
                 for entry in history
             ],
             "choice_mode": self.choice_rule is not None,
+            "lettered": shown.lines() if shown is not None else None,
         }
 
     def check_templates(
@@ -267,14 +285,20 @@ class ZeroShotAgent:
             self.end_episode(slot)
 
     def start_episode(
-        self, slot: int, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
+        self,
+        slot: int,
+        instruction: str,
+        plan: str | None = None,
+        goal: AnyGoal | None = None,
+        episode: str = "",
     ) -> None:
         """Begin a new episode in a slot, forgetting the slot's previous one.
 
         `goal` is the dataset record the instruction describes; strategies that must know which
-        goal is played (few-shot leaves it out of its demonstrations) read it.
+        goal is played (few-shot leaves it out of its demonstrations) read it. `episode` names
+        the episode in the run: `letters` draws its orders from it.
         """
-        self._episodes[slot] = _Episode(instruction, plan, goal)
+        self._episodes[slot] = _Episode(instruction, plan, goal, episode)
 
     def end_episode(self, slot: int) -> None:
         """Forget a slot's episode."""
@@ -334,14 +358,27 @@ class ZeroShotAgent:
         built on this one add their turns here)."""
         episode = self._episode(slot)
         recent = episode.history[-self.history_length :] if self.history_length else []
-        context = self.step_context(observation_text, episode.instruction, episode.plan, recent)
+        if self.lettered:
+            episode.shown = lettered(
+                action_names(self.variant), self.seed, episode.name, episode.step
+            )
+        context = self.step_context(
+            observation_text, episode.instruction, episode.plan, recent, episode.shown
+        )
         user = trusted(ChatMessage, role="user", content=self._render_step(context))
         return [self.system_message, user]
 
     def prepare(self, slot: int, observation: Any) -> StepPrompt:
         """The slot's prompt for this observation."""
         messages, text = self.build_messages(slot, observation)
-        return StepPrompt(slot=slot, observation=observation, messages=messages, text=text)
+        shown = self._episode(slot).shown
+        return StepPrompt(
+            slot=slot,
+            observation=observation,
+            messages=messages,
+            text=text,
+            options_shown=shown.order if shown is not None else None,
+        )
 
     def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
         """Turn the model's answer to `prompt` into the slot's decision."""
@@ -351,7 +388,11 @@ class ZeroShotAgent:
             prompt.messages,
             prompt.text,
         )
-        parsed = parse_action(output.text, self.variant, prompt=[m.content for m in messages])
+        answer = output.text
+        if prompt.options_shown is not None:
+            # A label stands for the action listed under it; anything else parses as nothing.
+            answer = LetteredOptions(order=prompt.options_shown).option_of(output.text) or ""
+        parsed = parse_action(answer, self.variant, prompt=[m.content for m in messages])
         fallback = parsed.action is None
         action = self.fallback_id if parsed.action is None else parsed.action
         name = self.fallback_name if parsed.name is None else parsed.name
@@ -369,4 +410,5 @@ class ZeroShotAgent:
             observation_text=text,
             prompt_hash=messages_hash(messages),
             fallback_used=fallback,
+            options_shown=prompt.options_shown,
         )

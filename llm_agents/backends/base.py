@@ -36,7 +36,7 @@ FinishReason = Literal["stop", "length", "choice", "error"]
 #: The two can pick different options from the same prompt, so runs compare only under one rule.
 ChoiceRule = Literal["loglik", "guided"]
 #: How `loglik` turns an option's log-probabilities into its score (`choice_score`).
-ChoiceScoring = Literal["sum", "mean", "bytes", "pmi"]
+ChoiceScoring = Literal["sum", "mean", "bytes", "pmi", "letters"]
 #: The user message of PMI's content-free prompt (Zhao et al. 2021's "N/A"): the options'
 #: prior under the conversation's system message alone.
 CONTENT_FREE_TEXT = "N/A"
@@ -159,9 +159,16 @@ def choice_score(
     turn, so a prefix pays for stopping early: `mean` per token (the option's `tokens` and the
     end), `bytes` per UTF-8 byte of the option (lm-evaluation-harness's `acc_norm`), `pmi` minus
     the same after the content-free prompt (`content_free`: the option's prior).
+
+    `letters`: the options are one-character labels of a list the prompt shows
+    (`agents.lettered`), each one token, scored by that token's log-probability, the next-token
+    distribution at the end of the prompt. With every option one token long, no option is
+    another's prefix and none pays for more tokens, so the end of turn adds nothing but noise
+    and is left out (`needs_end`); what a label's own prior adds (models favour `A`) the agent
+    spreads by permuting the list per step.
     """
     whole = score.option + score.end
-    if scoring == "sum":
+    if scoring in ("sum", "letters"):
         return score.option
     if scoring == "mean":
         return whole / (tokens + 1)
@@ -170,6 +177,13 @@ def choice_score(
     if content_free is None:
         raise ValueError("pmi needs the options' scores after the content-free prompt")
     return whole - (content_free.option + content_free.end)
+
+
+def needs_end(scoring: ChoiceScoring) -> bool:
+    """Whether `scoring` reads the end-of-turn token after an option (`OptionLoglik.end`): a
+    backend that scores only the option's own tokens under the others (hf: one pass over the
+    prompt for one-token options) gives the same scores."""
+    return scoring not in ("sum", "letters")
 
 
 def content_free_conversation(conversation: Conversation) -> list[ChatMessage]:

@@ -11,7 +11,8 @@ Spec forms (`mock:<script>`):
   whose server went away does (its probe fails too).
 From Python, `MockModel(outputs=callable)` answers `callable(conversation)`.
 Every request is recorded in `requests`. Both choice rules are accepted and answered alike: the
-scripted answer when it is one of the options, else the first option.
+scripted answer when it is one of the options, else the first option (under
+`--choice-scoring letters` the options are letters, so a script names letters: `cycle:A|C`).
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ from env.open_ended import Task
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
-from llm_agents.agents.registry import AGENTS, IMAGE_AGENTS, ObservationMode
+from llm_agents.agents.registry import AGENTS, IMAGE_AGENTS, LETTER_AGENTS, ObservationMode
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
@@ -205,8 +205,10 @@ class ChoiceSettings(ModelSettings):
     """--choice loglik: how an option's log-probabilities make its score: sum (its tokens'
     total, no end of turn: favours the shortest option; runs recorded before this setting
     played it), mean (per token, the end of turn included), bytes (per byte,
-    lm-evaluation-harness's acc_norm) or pmi (minus the same after a content-free prompt). See
-    the README's Choices."""
+    lm-evaluation-harness's acc_norm), pmi (minus the same after a content-free prompt) or
+    letters (eval's zero-shot and few-shot agents: the actions listed under the letters A-Z,
+    a-z in an order drawn per step from the seed, episode and step, and the model's next-token
+    probability of each letter; the order is recorded per step). See the README's Choices."""
 
     @model_validator(mode="after")
     def _scoring_with_loglik(self) -> ChoiceSettings:
@@ -369,6 +371,17 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
         if value not in AGENTS:
             raise ValueError(f"unknown agent {value!r}; choose from {', '.join(AGENTS)}")
         return value
+
+    @model_validator(mode="after")
+    def _letters_where_listed(self) -> EvalConfig:
+        lettered = self.choice == "loglik" and self.choice_scoring == "letters"
+        if lettered and self.agent not in LETTER_AGENTS:
+            raise ValueError(
+                f"choice_scoring letters letters the actions of a step message; the "
+                f"{self.agent} agent shows none (letters works with: "
+                f"{', '.join(LETTER_AGENTS)})"
+            )
+        return self
 
     @model_validator(mode="after")
     def _few_shot_has_demos(self) -> EvalConfig:

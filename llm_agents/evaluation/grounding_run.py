@@ -26,7 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 from env.dataset import Instruction, load_dataset
 from env.errors import UserError
@@ -87,6 +87,15 @@ class GroundConfig(TextSelection, ChoiceSettings, GroundingSettings, FailureSett
     """Where groundings and results are written; rerunning on it resumes the run."""
     requests_per_call: int = Field(16, ge=1)
     """Conversations sent to the backend in one call (a server gets them concurrently)."""
+
+    @model_validator(mode="after")
+    def _no_letters(self) -> GroundConfig:
+        if self.choice == "loglik" and self.choice_scoring == "letters":
+            raise ValueError(
+                "choice_scoring letters letters an eval step's actions; ground's options are "
+                "goals, never lettered (use sum, mean, bytes or pmi)"
+            )
+        return self
 
 
 class GroundingRecord(BaseModel):

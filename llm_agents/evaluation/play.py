@@ -161,7 +161,9 @@ class _Slots:
         for slot, spec in zip(slots, specs, strict=True):
             self.live[slot] = _Tally(spec)
             self.frames[slot] = deque(maxlen=self.config.frame_history + 1)
-            self.agent.start_episode(slot, spec.instruction.text, spec.plan, spec.instruction.goal)
+            self.agent.start_episode(
+                slot, spec.instruction.text, spec.plan, spec.instruction.goal, spec.episode_id
+            )
 
     def prompts(self, ready: list[int]) -> list[StepPrompt]:
         """The prompts of the slots in `ready`, from their current observations; a slot whose
@@ -309,6 +311,7 @@ def _step_record(
         error=decision.output.error,
         cached=decision.output.cached,
         followups=decision.output.followups,
+        options_shown=list(decision.options_shown) if decision.options_shown else None,
         skill=decision.skills[-1].label
         if decision.skills and decision.parse.stage != SKILL_STAGE
         else None,

@@ -99,6 +99,9 @@ class StepRecord(BaseModel):
     """True when the answer came from the response cache."""
     followups: int = Field(0, ge=0)
     """Extra requests made for this answer (e.g. an answer-only follow-up after long reasoning)."""
+    options_shown: list[str] | None = None
+    """`--choice-scoring letters`: the options in the order the prompt lettered them, the first
+    under `A` (`raw_output` is the label the model chose); None under other rules."""
     skill: str | None = None
     """`skills`: the skill chosen at this step, without counts and places (`collect wood`,
     `invalid`); None on the steps a chosen skill carries on (`parse_stage` `skill`) and for

@@ -12,8 +12,11 @@ candidates then go through a single pass over the prompt's cached keys and value
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
 attention mask). Each candidate is scored with and without the chat template's end-of-turn
 token after it (one trie: the two share their tokens), and `ranked_choices` makes the run's
-`--choice-scoring` rule of them (`pmi` also scores the content-free prompt, once per run). The
-answer is always one of the choices.
+`--choice-scoring` rule of them (`pmi` also scores the content-free prompt, once per run). A
+rule that reads no end of turn (`sum`, `letters`: `base.needs_end`) scores the options alone,
+and options of one token each (`letters`' labels) then cost no candidate pass at all: their
+scores are the next-token distribution at the prompt's end. The answer is always one of the
+choices.
 
 `loglik` scores equal a plain forward pass over prompt + option in float32 (to float rounding)
 and in float16 (to hundredths of a nat: the split path's attention runs in float32 and rounds
@@ -60,6 +63,7 @@ from llm_agents.backends.base import (
     content_free_conversation,
     end_of_turn_id,
     local_model_path,
+    needs_end,
     ranked_choices,
     scored_choices,
 )
@@ -285,7 +289,7 @@ class HFModel(ModelAPI):
         self.check_choice_rule("loglik")
         prompts = self._prompt_ids(conversations)
         candidates = self._candidate_ids(choices.options)
-        scores = self._option_logliks(prompts, candidates)
+        scores = self._option_logliks(prompts, candidates, with_end=needs_end(choices.scoring))
         return scored_choices(
             choices, candidates, scores, self._content_free_rows(conversations, choices, candidates)
         )
@@ -372,7 +376,7 @@ class HFModel(ModelAPI):
     ) -> list[ModelOutput]:
         start = time.perf_counter()
         prompts = self._prompt_ids(conversations)
-        scores = self._option_logliks(prompts, candidates)
+        scores = self._option_logliks(prompts, candidates, with_end=needs_end(choices.scoring))
         content_free = self._content_free_rows(conversations, choices, candidates)
         return ranked_choices(
             choices, prompts, candidates, scores, time.perf_counter() - start, content_free
@@ -385,10 +389,20 @@ class HFModel(ModelAPI):
         return candidates
 
     def _option_logliks(
-        self, prompts: Sequence[np.ndarray | Sequence[int]], candidates: list[list[int]]
+        self,
+        prompts: Sequence[np.ndarray | Sequence[int]],
+        candidates: list[list[int]],
+        *,
+        with_end: bool = True,
     ) -> list[list[OptionLoglik]]:
         """Each option's log-probability after each prompt, and its end of turn's after it:
-        the options with and without the end token in one trie, which shares their tokens."""
+        the options with and without the end token in one trie, which shares their tokens.
+        Without the end (`with_end` False, its log-probability then 0), options of one token
+        each (`letters`' labels) are all read off the prompt's last logits: one pass over the
+        prompt, no candidate pass."""
+        if not with_end:
+            rows = self.scorer.log_likelihoods(self.model, prompts, candidates)
+            return [[OptionLoglik(option=own, end=0.0) for own in row] for row in rows]
         ended = [[*ids, self._end_of_turn] for ids in candidates]
         rows = self.scorer.log_likelihoods(self.model, prompts, candidates + ended)
         width = len(candidates)
