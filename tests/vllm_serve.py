@@ -8,6 +8,7 @@ Tests import it from `tests/` (pytest puts that folder on the path); benchmarks 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import socket
 import subprocess
@@ -22,6 +23,30 @@ REPO = Path(__file__).resolve().parents[1]
 VLLM_VENV = Path(os.environ.get("VLLM_VENV") or REPO / ".venv-vllm")
 #: Engine start on 2 busy cores takes one to three minutes.
 START_TIMEOUT_S = 480
+#: The setup script's build on 2 cores busy with the tests (`make test` runs them side by side).
+BUILD_TIMEOUT_S = 1200
+
+
+def vllm_environment_ready(timeout_s: float = BUILD_TIMEOUT_S) -> bool:
+    """Whether the vLLM environment is built, once no setup script is building it: the script
+    holds an exclusive lock on `VLLM_VENV.lock` while it runs, so a test started beside it
+    waits here for the build to end instead of skipping. Raises TimeoutError past `timeout_s`."""
+    lock = VLLM_VENV.with_name(VLLM_VENV.name + ".lock")
+    if lock.exists():
+        deadline = time.monotonic() + timeout_s
+        with lock.open() as held:
+            while True:
+                try:
+                    fcntl.flock(held, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() > deadline:
+                        raise TimeoutError(
+                            f"scripts/setup_vllm_cpu.sh still building {VLLM_VENV} after "
+                            f"{timeout_s:.0f} s"
+                        ) from None
+                    time.sleep(1)
+    return (VLLM_VENV / ".craftext-vllm-ready").is_file() and (VLLM_VENV / "bin" / "vllm").exists()
 
 
 class ServerDidNotStart(RuntimeError):
