@@ -147,9 +147,10 @@ def loglik_request(classic_env: Any) -> dict[str, Any]:
         # `letters` scores labels of a lettered list, not names: asked below, of its own prompts.
         "rules": [rule for rule in get_args(ChoiceScoring) if rule != "letters"],
         "answer_rule": "pmi",
+        # Four of the 17 labels: each is a request of its own there too.
         "letters": {
             "conversations": [[m.model_dump() for m in c] for c in lettered],
-            "options": labels,
+            "options": labels[:4],
         },
     }
 

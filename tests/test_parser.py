@@ -145,6 +145,7 @@ def test_echo_of_our_own_prompt_is_never_an_answer(variant: Variant) -> None:
         "history": [{"step": 4, "action": "LEFT", "outcome": "moved west"}],
         "observation": "You face grass. A tree is 2 north.",
         "choice_mode": False,
+        "lettered": None,
     }
     # The messages the zero-shot agent sends: its system prompt, then its step prompt.
     messages = [render_template("system", context), render_template("step", context)]
