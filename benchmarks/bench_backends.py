@@ -112,6 +112,7 @@ def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
 
     import env
     import textualizer
+    from llm_agents.agents.types import EpisodeStart
     from llm_agents.agents.zero_shot import ZeroShotAgent
 
     craftext = env.CrafTextEnv(env.EnvConfig(variant=env.Variant(variant)))
@@ -125,7 +126,7 @@ def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
     states = []
     for slot in range(slots):
         states.append(reset(jnp.asarray(env.episode_key(0, "g", 0, slot)), task))
-        agent.start_episode(slot, goals[slot % len(goals)].texts[0])
+        agent.start_episode(slot, EpisodeStart(goals[slot % len(goals)].texts[0]))
     rng = np.random.default_rng(0)
     conversations = []
     for _ in range(steps):

@@ -29,6 +29,7 @@ from env.frames import AGENT_BLOCK_SIZES, frame_shape
 from env.open_ended import OPEN_ENDED_GOAL
 from env.scenario_tasks import encode_goals
 from llm_agents.agents.registry import ObservationMode
+from llm_agents.agents.types import EpisodeStart
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ImagePart, openai_message
 from textualizer import observe_batch
@@ -51,7 +52,7 @@ def measure(
     }
     for agent in agents.values():
         for slot in range(batch):
-            agent.start_episode(slot, OPEN_ENDED_GOAL.instruction)
+            agent.start_episode(slot, EpisodeStart(OPEN_ENDED_GOAL.instruction))
     history: dict[str, list[deque[ImagePart]]] = {
         mode: [deque(maxlen=frame_history + 1) for _ in range(batch)] for mode in MODES
     }

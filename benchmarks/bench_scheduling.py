@@ -103,6 +103,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
 
     from env import VectorEnv, episode_key, goal_masks
     from env.dataset import load_dataset
+    from llm_agents.agents.types import EpisodeStart
     from llm_agents.agents.zero_shot import ZeroShotAgent
     from llm_agents.evaluation.schedule import build_schedule
     from textualizer import observe_batch
@@ -123,7 +124,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
     host = vector.reset(*rows(first))
     live = set(range(batch))
     for slot, spec in enumerate(first):
-        agent.start_episode(slot, spec.instruction.text)
+        agent.start_episode(slot, EpisodeStart(spec.instruction.text))
     while live:
         slots = sorted(live)
         observations = observe_batch(host.game, config.variant, slots)
@@ -140,7 +141,7 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
         if refill:
             host = vector.refill([s for s, _ in refill], *rows([spec for _, spec in refill]))
             for slot, spec in refill:
-                agent.start_episode(slot, spec.instruction.text)
+                agent.start_episode(slot, EpisodeStart(spec.instruction.text))
                 live.add(slot)
 
 

@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field
 
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.agents.types import Decision, messages_hash
+from llm_agents.agents.types import Decision, EpisodeStart, messages_hash
 from llm_agents.agents.zero_shot import ZeroShotAgent, describe_outcome
 from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, ChoiceRule
@@ -79,7 +79,7 @@ def test_each_slot_gets_its_own_step_message_under_a_shared_system_prompt() -> N
     assert isinstance(model, MockModel)
     agent = make_agent()
     for slot in range(3):
-        agent.start_episode(slot, f"goal number {slot}")
+        agent.start_episode(slot, EpisodeStart(f"goal number {slot}"))
     observations = [FakeObservation(label=f"slot {slot}") for slot in range(3)]
     first = play_step(agent, model, [0, 1, 2], observations)
     second = play_step(agent, model, [0, 1, 2], observations)
@@ -100,8 +100,8 @@ def test_unparseable_answers_fall_back_and_are_flagged() -> None:
         return "I refuse." if "bad" in user_text(conversation) else "<think>x</think>ACTION: SLEEP"
 
     agent = make_agent(fallback_action="do")
-    agent.start_episode(0, "bad slot")
-    agent.start_episode(1, "good slot")
+    agent.start_episode(0, EpisodeStart("bad slot"))
+    agent.start_episode(1, EpisodeStart("good slot"))
     decisions = play_step(agent, MockModel(outputs=answer), [0, 1], [FakeObservation()] * 2)
     bad, good = decisions
     assert (bad.name, bad.action, bad.fallback_used, bad.parse.stage) == ("DO", 5, True, "invalid")
@@ -114,7 +114,7 @@ def test_an_invalid_answer_is_reported_on_the_next_step_when_asked(report: bool)
     script = iter(["I refuse.", "ACTION: LEFT", "ACTION: LEFT"])
     model = MockModel(outputs=lambda conversation: next(script))
     agent = make_agent(report_invalid=report)
-    agent.start_episode(0, "collect wood")
+    agent.start_episode(0, EpisodeStart("collect wood"))
     for observation in (fake(x=10), fake(x=10), fake(x=9)):
         play_step(agent, model, [0], [observation])
     second, third = (user_text(request[0]) for request in model.requests[1:])
@@ -127,7 +127,7 @@ def test_an_invalid_answer_is_reported_on_the_next_step_when_asked(report: bool)
 
 def test_echoed_prompt_is_not_taken_as_an_answer() -> None:
     agent = make_agent()
-    agent.start_episode(0, "place a table near the water")
+    agent.start_episode(0, EpisodeStart("place a table near the water"))
     decision = play_step(
         agent,
         MockModel(outputs=lambda conversation: user_text(conversation)),
@@ -140,8 +140,8 @@ def test_echoed_prompt_is_not_taken_as_an_answer() -> None:
 def test_prompt_hash_is_sha256_of_the_messages_sent() -> None:
     model = MockModel(outputs=["NOOP"])
     agent = make_agent()
-    agent.start_episode(0, "eat a cow")
-    agent.start_episode(1, "eat a cow")
+    agent.start_episode(0, EpisodeStart("eat a cow"))
+    agent.start_episode(1, EpisodeStart("eat a cow"))
     same = play_step(agent, model, [0, 1], [FakeObservation(), FakeObservation()])
     sent = model.requests[0][0]
     payload = json.dumps([[m.role, m.content] for m in sent], ensure_ascii=False)
@@ -168,7 +168,7 @@ def test_history_records_outcomes_from_consecutive_observations() -> None:
     script = iter(["LEFT", "UP", "DO", "MAKE_WOOD_PICKAXE", "NOOP", "NOOP"])
     model = MockModel(outputs=lambda conversation: next(script))
     agent = make_agent(history_length=3)
-    agent.start_episode(0, "make a wood pickaxe")
+    agent.start_episode(0, EpisodeStart("make a wood pickaxe"))
     observations = [
         fake(x=10),
         fake(x=9),  # LEFT moved west
@@ -202,11 +202,11 @@ def test_history_records_outcomes_from_consecutive_observations() -> None:
 def test_new_episode_in_a_slot_starts_a_fresh_history_and_plan() -> None:
     model = MockModel(outputs=["RIGHT"])
     agent = make_agent()
-    agent.start_episode(0, "old goal")
+    agent.start_episode(0, EpisodeStart("old goal"))
     play_step(agent, model, [0], [FakeObservation()])
     play_step(agent, model, [0], [fake(x=11)])
     assert len(agent.history(0)) == 1
-    agent.start_episode(0, "new goal", plan="1. find water\n2. drink")
+    agent.start_episode(0, EpisodeStart("new goal", plan="1. find water\n2. drink"))
     play_step(agent, model, [0], [FakeObservation()])
     prompt = user_text(model.requests[-1][0])
     assert agent.history(0) == []
@@ -218,7 +218,7 @@ def test_new_episode_in_a_slot_starts_a_fresh_history_and_plan() -> None:
 def test_choice_mode_passes_the_variant_action_names_and_the_rule(rule: ChoiceRule) -> None:
     model = MockModel(outputs=["not a name"])
     agent = ZeroShotAgent(Variant.FULL, renderer=render_fake, choice_rule=rule)
-    agent.start_episode(0, "descend")
+    agent.start_episode(0, EpisodeStart("descend"))
     decision = play_step(agent, model, [0], [FakeObservation()])[0]
     choices = model.requests[0][1]
     assert choices is not None and choices.rule == rule

@@ -20,6 +20,7 @@ from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
 from llm_agents.agents.guided import GuidedAgent
 from llm_agents.agents.noop import NoopAgent
 from llm_agents.agents.skills import SkillsAgent
+from llm_agents.agents.types import EpisodeStart
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.comparison import compare_runs
@@ -150,7 +151,7 @@ def test_cot_keeps_the_last_k_replies_as_assistant_turns() -> None:
     )
     model = MockModel(outputs=lambda conversation: next(replies))
     agent = ChainOfThoughtAgent(Variant.CLASSIC, renderer=text_of, steps=2)
-    agent.start_episode(0, "collect wood")
+    agent.start_episode(0, EpisodeStart("collect wood"))
     for observation in ["grass", "tree east", "tree north", "wood 1"]:
         play_step(agent, model, [0], [Seen(text=observation)])
     last = model.requests[-1][0]
@@ -163,7 +164,7 @@ def test_cot_keeps_the_last_k_replies_as_assistant_turns() -> None:
 
 def test_cot_token_cap_drops_old_replies_and_keeps_the_end_of_a_long_one() -> None:
     agent = ChainOfThoughtAgent(Variant.CLASSIC, renderer=str, steps=3, max_tokens=6)
-    agent.start_episode(0, "x")
+    agent.start_episode(0, EpisodeStart("x"))
     agent._replies[0] = [(0, "a" * 100), (1, "b" * 20 + "ACTION: DO"), (2, "c" * 8)]
     kept = agent.kept_replies(0)
     assert kept[-1] == (2, "c" * 8)
@@ -176,7 +177,7 @@ def test_cot_prompt_snapshot() -> None:
     replies = iter(["The tree is east.\nACTION: RIGHT", "Facing it.\nACTION: DO"])
     model = MockModel(outputs=lambda conversation: next(replies))
     agent = ChainOfThoughtAgent(Variant.CLASSIC, renderer=text_of, steps=2)
-    agent.start_episode(0, "Collect wood.")
+    agent.start_episode(0, EpisodeStart("Collect wood."))
     for observation in ["A tree is 1 east.", "You face a tree."]:
         play_step(
             agent, model, [0], [Seen(text=observation, position=_Position(x=len(observation)))]
@@ -252,12 +253,16 @@ def make_expert_run(run_dir: Path, renderer: str = "objects", agent: str = "expe
 def test_few_shot_demonstrations_come_from_other_training_goals(tmp_path: Path) -> None:
     run = make_expert_run(tmp_path / "expert")
     agent = FewShotAgent(Variant.CLASSIC, renderer="objects", demos=run, steps=4)
-    agent.start_episode(0, "Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)))
+    agent.start_episode(
+        0, EpisodeStart("Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)))
+    )
     demos = agent.demonstrations(0)
     # COLLECT_WOOD is the evaluated goal, EAT_COW a test goal, COLLECT_DRINK failed.
     assert [d.goal_id for d in demos] == ["TABLE_AND_WOOD"]
     assert [s.step for s in demos[0].steps] == [1, 2, 3, 4]
-    agent.start_episode(1, "x", goal=goal("EAT_COW", ("EAT_COW",), split="easy_test_other_params"))
+    agent.start_episode(
+        1, EpisodeStart("x", goal=goal("EAT_COW", ("EAT_COW",), split="easy_test_other_params"))
+    )
     picked = agent.demonstrations(1)
     assert [d.goal_id for d in picked] == ["COLLECT_WOOD", "TABLE_AND_WOOD"]
     assert sum(len(d.steps) for d in picked) == 4
@@ -277,14 +282,16 @@ def test_few_shot_rejects_demonstrations_it_cannot_use(tmp_path: Path) -> None:
         FewShotAgent(Variant.CLASSIC)
     agent = FewShotAgent(Variant.CLASSIC, demos=make_expert_run(tmp_path / "ok"))
     with pytest.raises(UserError, match="goal record"):
-        agent.start_episode(0, "text only")
+        agent.start_episode(0, EpisodeStart("text only"))
 
 
 def test_few_shot_prompt_snapshot(tmp_path: Path) -> None:
     run = make_expert_run(tmp_path / "expert")
     agent = FewShotAgent(Variant.CLASSIC, renderer="objects", demos=run, steps=3)
     model = MockModel(outputs=["DO"])
-    agent.start_episode(0, "Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)))
+    agent.start_episode(
+        0, EpisodeStart("Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)))
+    )
     agent.render_observation = text_of
     play_step(agent, model, [0], [Seen(text="A tree is 1 east.")])
     messages = model.requests[0][0]
@@ -342,7 +349,7 @@ def _render_every_prompt(name: str, templates: Path, demos: Path) -> None:
     agent.check_templates("Collect wood.", None, wood)
     if isinstance(agent, ZeroShotAgent):
         agent.render_observation = text_of
-        agent.start_episode(0, "Collect wood.", goal=wood)
+        agent.start_episode(0, EpisodeStart("Collect wood.", goal=wood))
         model = MockModel(outputs=["thinking\nACTION: DO"])
         for text in ("grass", "a tree east"):
             play_step(agent, model, [0], [Seen(text=text)])

@@ -213,6 +213,7 @@ def real_agent_conversations(
 
     from env import ACHIEVEMENT_IDS, NUM_ACHIEVEMENTS, episode_key, make_task
     from llm_agents.agents.actions import action_names
+    from llm_agents.agents.types import EpisodeStart
     from llm_agents.agents.zero_shot import ZeroShotAgent
     from textualizer import observe
 
@@ -225,7 +226,7 @@ def real_agent_conversations(
     conversations = []
     for slot, actions in enumerate([[], [5, 2, 2], [1, 3]]):
         state = classic_env.reset(jnp.asarray(episode_key(0, "loglik", 0, slot)), task)
-        agent.start_episode(slot, "Collect some wood.", episode=f"loglik/{slot}")
+        agent.start_episode(slot, EpisodeStart("Collect some wood.", episode=f"loglik/{slot}"))
         for action in [*actions, None]:
             observation = observe(jax.tree.map(np.asarray, state.game), "classic")
             messages, _ = agent.build_messages(slot, observation)

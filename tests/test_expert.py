@@ -28,6 +28,7 @@ from llm_agents.agents.expert_plan import (
     spend_task,
     supply_task,
 )
+from llm_agents.agents.types import EpisodeStart
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.store import read_episodes
@@ -196,27 +197,31 @@ def expert_goal(required: tuple[str, ...], forbidden: tuple[str, ...] = ()) -> G
 
 def test_the_expert_faces_and_takes_what_it_needs() -> None:
     agent = ExpertAgent(Variant.CLASSIC)
-    agent.start_episode(0, "text", goal=expert_goal(("COLLECT_WOOD",)))
+    agent.start_episode(0, EpisodeStart("text", goal=expert_goal(("COLLECT_WOOD",))))
     assert agent.choose(0, observation({"tree": [(0, 1)]}, facing="right"))[0] == "UP"
     assert agent.choose(0, observation({"tree": [(0, 1)]}, facing="up"))[0] == "DO"
-    agent.start_episode(1, "text", goal=expert_goal(("COLLECT_WOOD",)))
+    agent.start_episode(1, EpisodeStart("text", goal=expert_goal(("COLLECT_WOOD",))))
     assert agent.choose(1, observation({"tree": [(3, 0)]}))[0] == "RIGHT"
 
 
 def test_the_expert_never_does_what_is_forbidden() -> None:
     agent = ExpertAgent(Variant.CLASSIC)
     # Killing the zombie next to it is forbidden: it steps away instead of attacking.
-    agent.start_episode(0, "text", goal=expert_goal(("COLLECT_WOOD",), ("DEFEAT_ZOMBIE",)))
+    agent.start_episode(
+        0, EpisodeStart("text", goal=expert_goal(("COLLECT_WOOD",), ("DEFEAT_ZOMBIE",)))
+    )
     action, task = agent.choose(0, observation(mobs=(("zombie", 1, 0),), facing="right"))
     assert action == "LEFT" and task is not None and "away" in task.note
     # Drinking is forbidden: facing water while thirsty does not make it drink.
-    agent.start_episode(1, "text", goal=expert_goal(("COLLECT_WOOD",), ("COLLECT_DRINK",)))
+    agent.start_episode(
+        1, EpisodeStart("text", goal=expert_goal(("COLLECT_WOOD",), ("COLLECT_DRINK",)))
+    )
     thirsty = observation({"water": [(1, 0)]}, facing="right").model_copy(
         update={"vitals": observation().vitals.model_copy(update={"drink": 1})}
     )
     assert agent.choose(1, thirsty)[0] != "DO"
     with pytest.raises(UserError, match="goal record"):
-        agent.start_episode(2, "collect wood")
+        agent.start_episode(2, EpisodeStart("collect wood"))
 
 
 def test_spending_picks_an_action_that_takes_the_item_out_of_the_inventory() -> None:
@@ -277,7 +282,7 @@ def _play(env: Any, goal: Any, seed: int, max_steps: int = 250) -> Any:
     keys = np.array([[seed, 7]], dtype=np.uint32)
     host = vector.reset(keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params)
     agent = ExpertAgent(Variant.CLASSIC)
-    agent.start_episode(0, "ignored", goal=goal)
+    agent.start_episode(0, EpisodeStart("ignored", goal=goal))
     for _ in range(max_steps):
         if host.done[0]:
             break

@@ -13,7 +13,7 @@ from env import CrafTextEnv, EnvConfig, Variant
 from env.errors import UserError
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.lettered import LABELS, LetteredOptions, label_choices, lettered
-from llm_agents.agents.types import StepPrompt
+from llm_agents.agents.types import EpisodeStart, StepPrompt
 from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.embedded import NAMED_MODELS, cache_root
@@ -80,7 +80,7 @@ def label_of(action: str, messages: Sequence[ChatMessage]) -> str:
 def test_the_agent_plays_the_action_its_label_stands_for() -> None:
     agent = ZeroShotAgent("classic", choice_rule="loglik", choice_scoring="letters", seed=5)
     assert agent.choices == label_choices(len(CLASSIC))
-    agent.start_episode(0, "Collect wood.", episode="one/1/0/0")
+    agent.start_episode(0, EpisodeStart("Collect wood.", episode="one/1/0/0"))
     messages = agent.messages_for(0, "(observation)")
     shown = agent._episode(0).shown
     assert shown == lettered(CLASSIC, 5, "one/1/0/0", 0)
@@ -122,7 +122,10 @@ def test_few_shot_letters_its_step_after_the_demonstrations(tmp_path: Path) -> N
     )
     agent.render_observation = text_of
     agent.start_episode(
-        0, "Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)), episode="one/W/0/0"
+        0,
+        EpisodeStart(
+            "Collect wood.", goal=goal("COLLECT_WOOD", ("COLLECT_WOOD",)), episode="one/W/0/0"
+        ),
     )
     model = MockModel(outputs=lambda conversation: label_of("PLACE_TABLE", conversation))
     for step in range(2):

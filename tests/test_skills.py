@@ -17,7 +17,7 @@ from llm_agents.agents.expert_navigation import ExpertEpisode
 from llm_agents.agents.skill_catalogue import Build, Collect, Place, parse_skill, skill_offer
 from llm_agents.agents.skill_runner import SkillRun, valid_now
 from llm_agents.agents.skills import GIVE_UP, SkillsAgent
-from llm_agents.agents.types import StepPrompt
+from llm_agents.agents.types import EpisodeStart, StepPrompt
 from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
@@ -197,7 +197,7 @@ def test_choice_offers_the_skills_valid_now() -> None:
 
 def test_a_choice_request_carries_the_skills_valid_now_and_lists_them() -> None:
     agent = SkillsAgent(CLASSIC, difficulty="easy", choice_rule="loglik")
-    agent.start_episode(0, "Place a crafting table.")
+    agent.start_episode(0, EpisodeStart("Place a crafting table."))
     prompt = agent.prepare(0, observation({"wood": 3}))
     assert prompt.choices is not None and prompt.choices.rule == "loglik"
     assert "place crafting_table" in prompt.choices.options
@@ -213,7 +213,7 @@ def decide_steps(
 ) -> tuple[int, list[str]]:
     """Play `steps` steps of one episode on a still observation (by default no wood, no stone),
     the model answering `answers` in turn, then `noop`: (model calls, actions)."""
-    agent.start_episode(0, "Place stone.")
+    agent.start_episode(0, EpisodeStart("Place stone."))
     calls, actions = 0, []
     for step in range(steps):
         prompt = agent.prepare(0, (still or observation()).model_copy(update={"step": step}))
@@ -285,7 +285,7 @@ def test_a_model_that_takes_a_step_between_its_failures_is_not_cut(answers: list
 
 def test_the_next_request_says_the_last_skill_failed_and_why() -> None:
     agent = SkillsAgent(CLASSIC, difficulty="easy")
-    agent.start_episode(0, "Place stone.")
+    agent.start_episode(0, EpisodeStart("Place stone."))
     first = agent.prepare(0, observation())
     assert "failed" not in first.messages[-1].content
     agent.decide(first, ModelOutput(text="place stone"))

@@ -20,7 +20,7 @@ from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 if TYPE_CHECKING:
     from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
-    from llm_agents.agents.types import Decision, StepPrompt
+    from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt
 
 __all__ = ["AGENTS", "Agent", "NoModel", "agent_class", "build_agent"]
 
@@ -41,16 +41,8 @@ class Agent(Protocol):
     choices: ChoiceSet | None
     """The action names answers are constrained to, with their rule; None: free text."""
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
-        """Begin an episode in `slot`; `episode` names it in the run (its `episode_id`, the
-        same in every run of the schedule), for what an agent draws per episode."""
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
+        """Begin an episode in `slot`, forgetting the slot's previous one."""
 
     def end_episode(self, slot: int) -> None: ...
 

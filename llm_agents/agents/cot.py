@@ -13,13 +13,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError
-from llm_agents.agents.types import Decision, StepPrompt
+from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt
 from llm_agents.agents.zero_shot import SYSTEM_TEMPLATE, ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from prompts import render_template
 
 if TYPE_CHECKING:
-    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
 
 CHARS_PER_TOKEN = 4
@@ -49,15 +48,8 @@ class ChainOfThoughtAgent(ZeroShotAgent):
     def strategy_settings(cls, config: AgentSettings) -> dict[str, Any]:
         return {"steps": config.cot_steps, "max_tokens": config.cot_max_tokens}
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
-        super().start_episode(slot, instruction, plan, goal, episode)
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
+        super().start_episode(slot, start)
         self._replies[slot] = []
 
     def end_episode(self, slot: int) -> None:

@@ -49,13 +49,12 @@ from llm_agents.agents.expert_plan import (
     supply_task,
 )
 from llm_agents.agents.parser import ParseResult
-from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ModelOutput
 from textualizer.observation import Observation
 
 if TYPE_CHECKING:
     from env.dataset import Goal
-    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
     from llm_agents.run_data.readings import GoalReading
 
@@ -90,15 +89,9 @@ class ExpertAgent:
         """The expert of an evaluation config (it uses only the variant and renderer)."""
         return cls(config.variant, renderer=config.renderer, fallback_action=config.fallback_action)
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | Goal | None = None,
-        episode: str = "",
-    ) -> None:
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
         """Begin an episode; `goal` (the dataset record) is required, the text is ignored."""
+        goal = start.goal
         if goal is None:
             raise UserError("the expert agent needs the goal record, not only the instruction text")
         required, forbidden = getattr(goal, "required", ()), getattr(goal, "forbidden", ())

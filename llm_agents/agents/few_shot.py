@@ -30,8 +30,8 @@ from llm_agents.run_data.store import (
 from prompts import render_template
 
 if TYPE_CHECKING:
-    from env.goals import AnyGoal
     from llm_agents.agents.registry import AgentSettings
+    from llm_agents.agents.types import EpisodeStart
 
 TRAINING_CATEGORIES = frozenset({"one", "combo"})
 TEMPLATE = "few_shot"
@@ -164,18 +164,11 @@ class FewShotAgent(ZeroShotAgent):
     def strategy_settings(cls, config: AgentSettings) -> dict[str, Any]:
         return {"demos": config.demos, "steps": config.few_shot_steps}
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
-        if goal is None:
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
+        if start.goal is None:
             raise UserError("the few-shot agent needs the goal record to leave its own goal out")
-        super().start_episode(slot, instruction, plan, goal, episode)
-        self._demos[slot] = pick_demonstrations(self.demo_episodes, goal.id, self.demo_steps)
+        super().start_episode(slot, start)
+        self._demos[slot] = pick_demonstrations(self.demo_episodes, start.goal.id, self.demo_steps)
 
     def end_episode(self, slot: int) -> None:
         super().end_episode(slot)

@@ -33,7 +33,7 @@ from llm_agents.agents.grounding import (
     training_examples,
 )
 from llm_agents.agents.parser import ParseResult
-from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.run_data.readings import Grounding, reading_of
 
@@ -101,21 +101,14 @@ class GuidedAgent:
         """Instruction text -> its grounding, for every text grounded so far."""
         return dict(self._groundings)
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
         """Begin an episode; `goal` (the dataset record) is never played, the model's reading
         is: it only keeps its own answer out of the worked examples."""
-        self._texts[slot] = instruction
-        self._goals[slot] = goal
+        self._texts[slot] = start.instruction
+        self._goals[slot] = start.goal
         self._unreported.pop(slot, None)
-        if instruction in self._groundings:
-            self._begin(slot, self._groundings[instruction])
+        if start.instruction in self._groundings:
+            self._begin(slot, self._groundings[start.instruction])
 
     def _begin(self, slot: int, grounding: Grounding) -> None:
         self._unreported[slot] = grounding

@@ -10,7 +10,7 @@ from env.variant import Variant, as_variant
 from llm_agents.agents.actions import action_id
 from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.registry import AgentSettings
-from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ModelOutput
 
 __all__ = ["NoopAgent"]
@@ -33,14 +33,7 @@ class NoopAgent:
     def from_config(cls, config: AgentSettings) -> NoopAgent:
         return cls(config.variant)
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
         """Nothing to remember: every step is the same."""
 
     def end_episode(self, slot: int) -> None:

@@ -32,7 +32,7 @@ from llm_agents.agents.expert_navigation import ExpertEpisode
 from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.skill_catalogue import SkillOffer, parse_skill, skill_offer
 from llm_agents.agents.skill_runner import Finished, SkillRun, valid_now
-from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
 from llm_agents.run_data.records import SKILL_STAGE, SkillRecord
 from prompts import render_blocks
@@ -113,16 +113,9 @@ class SkillsAgent:
             choice_scoring=config.choice_scoring,
         )
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
         """Begin an episode; only the instruction text is read (the model reads the goal)."""
-        self._episodes[slot] = _Episode(instruction)
+        self._episodes[slot] = _Episode(start.instruction)
 
     def end_episode(self, slot: int) -> None:
         self._episodes.pop(slot, None)

@@ -1,5 +1,5 @@
-"""The records every strategy and the runner share: a step's prompt and the decision read from
-the answer to it."""
+"""The records every strategy and the runner share: an episode's start, a step's prompt and the
+decision read from the answer to it."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
@@ -16,6 +16,25 @@ from llm_agents.agents.parser import ParseResult
 from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import SkillRecord
+
+if TYPE_CHECKING:
+    from env.goals import AnyGoal
+
+
+@dataclass(frozen=True)
+class EpisodeStart:
+    """What an agent is told when an episode begins in a slot."""
+
+    instruction: str
+    """The text the agent is asked to carry out (the goal's instruction or a paraphrase)."""
+    plan: str | None = None
+    """The plan `--plans` maps the instruction to, added to the step prompt; None: no plan."""
+    goal: AnyGoal | None = None
+    """The dataset record the instruction describes: read only by strategies that must know
+    which goal is played (few-shot leaves it out of its demonstrations; the expert plays it)."""
+    episode: str = ""
+    """The episode's `episode_id` in the run (the same in every run of the schedule), from
+    which `--choice-scoring letters` draws its orders."""
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id
 from llm_agents.agents.lettered import LetteredOptions, label_choices, lettered
 from llm_agents.agents.parser import parse_action
 from llm_agents.agents.registry import ObservationMode
-from llm_agents.agents.types import Decision, StepPrompt, messages_hash
+from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
 from prompts import render_template, template_renderer
 
@@ -273,7 +273,7 @@ class ZeroShotAgent:
         answered step) the way a run builds them, so a broken template of any strategy (the step
         message, a kept reply's stand-in, the demonstrations) fails before any work."""
         slot = _CHECK_SLOT
-        self.start_episode(slot, instruction, plan, goal)
+        self.start_episode(slot, EpisodeStart(instruction, plan, goal))
         try:
             first = StepPrompt(slot=slot, observation=None, messages=[], text=_PLACEHOLDER)
             self.decide(first, ModelOutput(text=self.fallback_name))
@@ -284,21 +284,9 @@ class ZeroShotAgent:
         finally:
             self.end_episode(slot)
 
-    def start_episode(
-        self,
-        slot: int,
-        instruction: str,
-        plan: str | None = None,
-        goal: AnyGoal | None = None,
-        episode: str = "",
-    ) -> None:
-        """Begin a new episode in a slot, forgetting the slot's previous one.
-
-        `goal` is the dataset record the instruction describes; strategies that must know which
-        goal is played (few-shot leaves it out of its demonstrations) read it. `episode` names
-        the episode in the run: `letters` draws its orders from it.
-        """
-        self._episodes[slot] = _Episode(instruction, plan, goal, episode)
+    def start_episode(self, slot: int, start: EpisodeStart) -> None:
+        """Begin a new episode in a slot, forgetting the slot's previous one."""
+        self._episodes[slot] = _Episode(start.instruction, start.plan, start.goal, start.episode)
 
     def end_episode(self, slot: int) -> None:
         """Forget a slot's episode."""

@@ -18,7 +18,7 @@ import numpy as np
 
 from env.trusted import trusted
 from llm_agents.agents import Agent, build_agent
-from llm_agents.agents.types import NO_PROMPT_HASH, Decision, StepPrompt
+from llm_agents.agents.types import NO_PROMPT_HASH, Decision, EpisodeStart, StepPrompt
 from llm_agents.backends.base import ImagePart, ModelAPI
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.dispatch import Dispatcher
@@ -162,7 +162,10 @@ class _Slots:
             self.live[slot] = _Tally(spec)
             self.frames[slot] = deque(maxlen=self.config.frame_history + 1)
             self.agent.start_episode(
-                slot, spec.instruction.text, spec.plan, spec.instruction.goal, spec.episode_id
+                slot,
+                EpisodeStart(
+                    spec.instruction.text, spec.plan, spec.instruction.goal, spec.episode_id
+                ),
             )
 
     def prompts(self, ready: list[int]) -> list[StepPrompt]:
