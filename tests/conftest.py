@@ -32,15 +32,13 @@ def pytest_runtest_makereport(
 
 #: The files that take a worker longest (CI's `--durations`, whole files): they go first. Under
 #: `--dist loadfile` each worker takes the next file in collection order when it is free, so a
-#: long file collected last keeps one core busy while the other idles. The vLLM file comes after
-#: three others: `make test` builds its environment beside the tests (about 3 minutes), and a
-#: worker that took it first would only wait.
+#: long file collected last keeps one core busy while the other idles.
 LONGEST_FILES = (
     "test_whole_dataset.py",
+    "test_backend_vllm.py",
     "test_scenario_differential.py",
     "test_grounding.py",
     "test_ray_runner.py",
-    "test_backend_vllm.py",
     "test_view.py",
 )
 
