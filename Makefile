@@ -38,11 +38,13 @@ $(BIN)/python:
 # An up-to-date dev install already holds the hf extra: no second install then.
 $(VENV)/.stamp-hf: pyproject.toml | $(BIN)/python
 	@if [ $(VENV)/.stamp-dev -nt pyproject.toml ]; then echo "hf extra present (dev install)"; \
-	else $(PIP) install $(PIP_FLAGS) -e ".[hf]"; fi
+	else flock pyproject.toml $(PIP) install $(PIP_FLAGS) -e ".[hf]"; fi
 	touch $@
 
+# The editable installs hold a lock on pyproject.toml: the vLLM environment's build installs this
+# checkout too, and two editable installs at once would write the same egg-info.
 $(VENV)/.stamp-dev: pyproject.toml | $(BIN)/python
-	$(PIP) install $(PIP_FLAGS) -e ".[hf,openai,dev]"
+	flock pyproject.toml $(PIP) install $(PIP_FLAGS) -e ".[hf,openai,dev]"
 	touch $@
 
 setup: $(VENV)/.stamp-hf
@@ -65,13 +67,16 @@ lint: $(VENV)/.stamp-dev
 # Three jobs side by side, each one's output held back and printed after the tests': the vLLM-on-CPU
 # environment's build (its tests wait for it on the script's lock, the other workers go on), lint
 # (the workers leave a core idle at times, mypy fills it) and pytest. Any failing fails the target.
-test: $(VENV)/.stamp-dev
-	@# Debian's Chromium for the browser test of `craftext-llm view` (apt-get, only when missing).
-	bash scripts/setup_chromium.sh
+# The build starts first, beside .venv's own install, where pip leaves the second core idle.
+# Debian's Chromium is for the browser test of `craftext-llm view` (apt-get, only when missing).
+test:
 	@vllm_log=$$(mktemp); lint_log=$$(mktemp); \
 	if [ -f scripts/setup_vllm_cpu.sh ]; then bash scripts/setup_vllm_cpu.sh > "$$vllm_log" 2>&1; \
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment" > "$$vllm_log"; \
 	fi & vllm_pid=$$!; \
+	if ! { $(MAKE) --no-print-directory $(VENV)/.stamp-dev && bash scripts/setup_chromium.sh; }; then \
+		kill $$vllm_pid 2>/dev/null; rm -f "$$vllm_log" "$$lint_log"; exit 1; \
+	fi; \
 	$(MAKE) --no-print-directory lint > "$$lint_log" 2>&1 & lint_pid=$$!; \
 	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile; tests=$$?; \
 	wait $$vllm_pid; built=$$?; wait $$lint_pid; linted=$$?; \

@@ -59,7 +59,8 @@ pip=("$venv/bin/python" -m pip)
 "${pip[@]}" uninstall -y torchvision torchaudio torchcodec 2>/dev/null || true
 # --no-deps keeps pip from re-resolving torch; the project's own light dependencies come next,
 # without the extras that would pull torch again.
-"${pip[@]}" install --no-deps -e "$repo_root"
+# Under the Makefile's lock: `make test` runs .venv's editable install of the same checkout beside it.
+flock "$repo_root/pyproject.toml" "${pip[@]}" install --no-deps -e "$repo_root"
 "$venv/bin/python" - "$repo_root/pyproject.toml" <<'PY' | xargs -r "${pip[@]}" install
 import sys, tomllib
 with open(sys.argv[1], "rb") as f:

@@ -99,7 +99,7 @@ def loglik_checks(model, request):
     prompt = prompts[0]
     cut = block * (len(prompt) // block)
     cut_prompts = [prompt[:cut], prompt[: cut - 2]]
-    cut_scores = model._log_likelihoods(cut_prompts, candidates)
+    cut_scores = model._log_likelihoods(cut_prompts, model._candidate_ids(request["cut_options"]))
     # Lettered actions (`letters`): the labels' scores, and the labels the whole path picks.
     lettered = [[ChatMessage(**m) for m in c] for c in request["letters"]["conversations"]]
     labels = ChoiceSet(options=tuple(request["letters"]["options"]), rule="loglik",
@@ -147,6 +147,9 @@ def loglik_request(classic_env: Any) -> dict[str, Any]:
         # `letters` scores labels of a lettered list, not names: asked below, of its own prompts.
         "rules": [rule for rule in get_args(ChoiceScoring) if rule != "letters"],
         "answer_rule": "pmi",
+        # A cut prompt's every option misses the cache and is computed again in full: a name of
+        # one token and one of several cover both paths at a third of the six names' cost.
+        "cut_options": ["DO", "MAKE_IRON_SWORD"],
         # Four of the 17 labels: each is a request of its own there too.
         "letters": {
             "conversations": [[m.model_dump() for m in c] for c in lettered],
@@ -272,7 +275,9 @@ def test_hf_and_vllm_agree_under_every_loglik_rule_on_real_prompts(
         for rule in rules
     }
     assert len({tuple(picks) for picks in best.values()}) > 1
-    hf_cut = hf._option_logliks(result["cut_prompts"], hf._candidate_ids(options))
+    cut_candidates = hf._candidate_ids(loglik_request["cut_options"])
+    assert min(map(len, cut_candidates)) == 1 < max(map(len, cut_candidates))
+    hf_cut = hf._option_logliks(result["cut_prompts"], cut_candidates)
     cut_worst = max(
         abs(a - b)
         for hf_row, vllm_row in zip(hf_cut, result["cut_scores"], strict=True)
