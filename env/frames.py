@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from env.texture_cache import share_texture_caches
 from env.variant import Variant
 
 #: Map rows and columns a frame shows above the inventory, the player in the middle (craftax's
@@ -47,6 +48,7 @@ class FrameRenderer:
     def __init__(self, variant: Variant):
         self.variant = variant
         block = AGENT_BLOCK_SIZES[variant]
+        share_texture_caches()
         # craftax announces its texture loading on stdout, which belongs to the command's output.
         with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
             if variant is Variant.FULL:

@@ -28,6 +28,7 @@ from env.craftext_env import CrafTextEnv, EpisodeState, make_task
 from env.scenario_checker import checker_trace, overworld
 from env.scenario_tasks import NUM_PARAMS
 from env.termination import Termination
+from env.texture_cache import share_texture_caches
 from env.variant import Variant
 
 #: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for
@@ -266,6 +267,7 @@ def _summarize(
 
 def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
     block_size = BLOCK_SIZES[env.variant]
+    share_texture_caches()
     # craftax announces its texture loading on stdout, which belongs to the command's output.
     with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
         if env.variant is Variant.FULL:
