@@ -77,6 +77,8 @@ def _copy_atomically(source: Path, target: Path) -> None:
     os.close(handle)
     try:
         shutil.copyfile(source, part)
+        # mkstemp's file is the owner's alone; an installation is read by every user.
+        os.chmod(part, 0o644)
         os.replace(part, target)
     finally:
         Path(part).unlink(missing_ok=True)
