@@ -31,13 +31,15 @@ def pytest_runtest_makereport(
 
 
 #: The files that take a worker longest (CI's `--durations`, whole files): they go first. Under
-#: `--dist loadfile` each worker takes the next file in collection order when it is free, so a
-#: long file collected last keeps one core busy while the other idles.
+#: `--dist loadfile --no-loadscope-reorder` each worker takes the next file in collection order
+#: when it is free, so a long file collected last keeps one core busy while the other idles. The
+#: vLLM file comes fourth, not first: its tests wait for the environment `make test` builds beside
+#: them (about 110 s from a fresh clone), and a worker starting there would idle that long.
 LONGEST_FILES = (
     "test_whole_dataset.py",
-    "test_backend_vllm.py",
     "test_scenario_differential.py",
     "test_grounding.py",
+    "test_backend_vllm.py",
     "test_ray_runner.py",
     "test_view.py",
 )
