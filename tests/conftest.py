@@ -30,29 +30,6 @@ def pytest_runtest_makereport(
     return report
 
 
-#: The files that take a worker longest (CI's `--durations`, whole files): they go first. Under
-#: `--dist loadfile --no-loadscope-reorder` each worker takes the next file in collection order
-#: when it is free, so a long file collected last keeps one core busy while the other idles. The
-#: vLLM file comes fourth, not first: its tests wait for the environment `make test` builds beside
-#: them (about 110 s from a fresh clone), and a worker starting there would idle that long.
-LONGEST_FILES = (
-    "test_whole_dataset.py",
-    "test_scenario_differential.py",
-    "test_grounding.py",
-    "test_backend_vllm.py",
-    "test_ray_runner.py",
-    "test_view.py",
-)
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    def rank(item: pytest.Item) -> int:
-        name = item.path.name
-        return LONGEST_FILES.index(name) if name in LONGEST_FILES else len(LONGEST_FILES)
-
-    items.sort(key=rank)  # stable: the order within and among the other files is kept
-
-
 # Port 9 (discard) on loopback refuses connections: no test reaches the real code host.
 UNREACHABLE_CODE_HOST = "http://127.0.0.1:9"
 
