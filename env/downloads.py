@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import uuid
 from pathlib import Path
 
 import platformdirs
@@ -31,6 +32,21 @@ def cache_root() -> Path:
     if override:
         return Path(override).expanduser()
     return Path(platformdirs.user_cache_dir("craftext-llm"))
+
+
+def atomic_write_bytes(target: Path, data: bytes) -> None:
+    """Replace `target` with `data` so that a reader sees no file, the old one or the new one,
+    never part of one."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    # A unique sibling file, renamed over the target once complete; "xb" keeps umask permissions.
+    temp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex}.tmp")
+    try:
+        with temp.open("xb") as out:
+            out.write(data)
+        os.replace(temp, target)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
 
 
 def sha256_file(path: Path) -> str:

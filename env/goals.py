@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import uuid
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Annotated, Literal, cast, get_args
@@ -27,6 +25,7 @@ from pydantic import (
 )
 
 from env.achievements import ACHIEVEMENT_IDS, ACHIEVEMENTS, NUM_ACHIEVEMENTS
+from env.downloads import atomic_write_bytes
 from env.errors import UserError
 
 Split = Literal[
@@ -590,7 +589,7 @@ class Dataset(BaseModel):
     def save_json(self, path: str | Path) -> Path:
         """Write the dataset as JSON (atomically: a reader never sees a partial file)."""
         target = Path(path)
-        _atomic_write(target, self.model_dump_json(indent=1).encode())
+        atomic_write_bytes(target, self.model_dump_json(indent=1).encode())
         return target
 
 
@@ -621,16 +620,3 @@ def _digested(goal: AnyGoal) -> list[object]:
 
 
 # --- files: writing ------------------------------------------------------------------------
-
-
-def _atomic_write(target: Path, data: bytes) -> None:
-    target.parent.mkdir(parents=True, exist_ok=True)
-    # A unique sibling file, renamed over the target once complete; "xb" keeps umask permissions.
-    temp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex}.tmp")
-    try:
-        with temp.open("xb") as out:
-            out.write(data)
-        os.replace(temp, target)
-    except BaseException:
-        temp.unlink(missing_ok=True)
-        raise

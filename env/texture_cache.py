@@ -9,22 +9,18 @@ craftax's renderer is imported.
 """
 
 import bz2
+import functools
 import importlib.metadata
 import importlib.util
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
-from env.downloads import cache_root
+from env.downloads import atomic_write_bytes, cache_root
 
 #: The texture files craftax writes, relative to the installed `craftax` package.
 TEXTURE_FILES = (
     Path("craftax/assets/texture_cache.pbz2"),
     Path("craftax_classic/assets/texture_cache_classic.pbz2"),
 )
-
-_shared = False
 
 
 def kept_textures_dir() -> Path:
@@ -35,13 +31,10 @@ def kept_textures_dir() -> Path:
     return cache_root() / "craftax-textures" / versions
 
 
+@functools.cache
 def share_texture_caches() -> None:
     """Share the installed craftax's texture files with the user cache (`share_texture_files`),
     once per process."""
-    global _shared
-    if _shared:
-        return
-    _shared = True
     spec = importlib.util.find_spec("craftax")
     if spec is not None and spec.submodule_search_locations:
         share_texture_files(Path(next(iter(spec.submodule_search_locations))), kept_textures_dir())
@@ -54,31 +47,19 @@ def share_texture_files(package: Path, kept: Path) -> None:
         installed, copy = package / relative, kept / relative.name
         try:
             if copy.is_file() and not installed.is_file():
-                _copy_atomically(copy, installed)
-            elif installed.is_file() and not copy.is_file() and _is_whole(installed):
-                _copy_atomically(installed, copy)
+                atomic_write_bytes(installed, copy.read_bytes())
+            elif installed.is_file() and not copy.is_file():
+                drawn = installed.read_bytes()
+                if _is_whole(drawn):
+                    atomic_write_bytes(copy, drawn)
         except OSError:
             continue
 
 
-def _is_whole(path: Path) -> bool:
+def _is_whole(data: bytes) -> bool:
     """Craftax writes its file in place: one another process is still writing ends early."""
     try:
-        bz2.decompress(path.read_bytes())
-    except (OSError, EOFError, ValueError):
+        bz2.decompress(data)
+    except (EOFError, ValueError, OSError):
         return False
     return True
-
-
-def _copy_atomically(source: Path, target: Path) -> None:
-    """A reader of `target` sees no file or the whole file, never part of one."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    handle, part = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".part")
-    os.close(handle)
-    try:
-        shutil.copyfile(source, part)
-        # mkstemp's file is the owner's alone; an installation is read by every user.
-        os.chmod(part, 0o644)
-        os.replace(part, target)
-    finally:
-        Path(part).unlink(missing_ok=True)
