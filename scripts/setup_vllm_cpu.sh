@@ -39,8 +39,9 @@ if [[ "${1:-}" == "--force" ]]; then
     rm -rf "$venv"
 fi
 
-# Where the environment imports this project from, printed once vLLM imports and is known to
-# importlib.metadata under the name its CLI asks for (`vllm serve` needs it); fails otherwise.
+# Where the environment imports this project from ("nowhere" once that checkout is deleted),
+# printed once vLLM imports and is known to importlib.metadata under the name its CLI asks for
+# (`vllm serve` needs it); fails otherwise.
 # -I: neither the working directory nor $PYTHONPATH may stand in for the editable install.
 installed_checkout() {
     "$venv/bin/python" -I - "$@" <<'PY' 2>/dev/null
@@ -48,8 +49,12 @@ import importlib, importlib.metadata, pathlib, sys
 if sys.argv[1:] != ["--project-only"]:
     importlib.import_module("vllm")
     importlib.metadata.version("vllm")
-import llm_agents
-print(pathlib.Path(llm_agents.__file__).resolve().parents[1])
+try:
+    import llm_agents
+except ImportError:
+    print("nowhere")
+else:
+    print(pathlib.Path(llm_agents.__file__).resolve().parents[1])
 PY
 }
 

@@ -101,8 +101,23 @@ def test_the_installed_requirements_are_the_runtime_ones() -> None:
     assert not any(name.startswith(("torch", "vllm")) for name in wanted)
 
 
-def _stand_in_environment(venv: Path, checkout: Path, stamp: str) -> None:
-    """A venv whose `vllm` imports and has metadata, importing `llm_agents` from `checkout`."""
+#: The stand-in environment's pip: `install --no-deps --no-build-isolation -e CHECKOUT` points
+#: the environment at CHECKOUT, as the real one does; any other call is logged and fails.
+FAKE_PIP = """
+import pathlib, sys
+args = sys.argv[1:]
+here = pathlib.Path(__file__).parent
+with (here / "calls").open("a") as log:
+    print(" ".join(args), file=log)
+if args[0] != "install" or "--no-deps" not in args or "-e" not in args:
+    sys.exit(1)
+(here.parent / "checkout.pth").write_text(args[args.index("-e") + 1] + "\\n")
+"""
+
+
+def _stand_in_environment(venv: Path, checkout: Path, stamp: str) -> Path:
+    """A venv whose `vllm` imports and has metadata, importing `llm_agents` from `checkout`;
+    returns the log of its pip's calls."""
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
     (site,) = venv.glob("lib/python*/site-packages")
     (site / "vllm").mkdir()
@@ -111,38 +126,87 @@ def _stand_in_environment(venv: Path, checkout: Path, stamp: str) -> None:
     (site / "vllm-0.32.0+cpu.dist-info" / "METADATA").write_text(
         "Metadata-Version: 2.1\nName: vllm\nVersion: 0.32.0+cpu\n"
     )
+    (site / "pip").mkdir()
+    (site / "pip" / "__main__.py").write_text(FAKE_PIP)
     (site / "checkout.pth").write_text(f"{checkout}\n")
     (venv / ".craftext-vllm-ready").write_text(f"{stamp}\n0.32.0\n")
+    return site / "pip" / "calls"
 
 
-def test_a_built_environment_is_only_checked_and_linked_into_the_checkout(tmp_path: Path) -> None:
-    checkout = tmp_path / "checkout"
-    (checkout / "scripts").mkdir(parents=True)
-    (checkout / "llm_agents").mkdir()
-    (checkout / "llm_agents" / "__init__.py").write_text("")
+def _checkout(root: Path) -> Path:
+    """The parts of a checkout the setup script reads, and a `llm_agents` to import."""
+    (root / "scripts").mkdir(parents=True)
+    (root / "llm_agents").mkdir()
+    (root / "llm_agents" / "__init__.py").write_text("")
     for name in ("scripts/setup_vllm_cpu.sh", "scripts/vllm_env.py", "pyproject.toml"):
-        shutil.copy(REPO / name, checkout / name)
-    shared = tmp_path / "cache" / "venv-vllm"
-    _stand_in_environment(shared, checkout, vllm_env.stamp_line(checkout / "pyproject.toml"))
-    environ = {k: v for k, v in os.environ.items() if k not in ("VLLM_VENV", "PYTHONPATH")}
-    environ |= {CACHE_ENV_VAR: str(tmp_path / "cache"), "PYTHON": sys.executable}
+        shutil.copy(REPO / name, root / name)
+    return root
 
-    def setup() -> subprocess.CompletedProcess[str]:
+
+class _Setup:
+    """scripts/setup_vllm_cpu.sh of a checkout, the user cache in `cache`, $VLLM_VENV unset."""
+
+    def __init__(self, checkout: Path, cache: Path) -> None:
+        self.checkout = checkout
+        self.environ = {k: v for k, v in os.environ.items() if k not in ("VLLM_VENV", "PYTHONPATH")}
+        self.environ |= {CACHE_ENV_VAR: str(cache), "PYTHON": sys.executable}
+
+    def __call__(self) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
-            ["bash", str(checkout / "scripts" / "setup_vllm_cpu.sh")],
-            cwd=tmp_path,
-            env=environ,
+            ["bash", str(self.checkout / "scripts" / "setup_vllm_cpu.sh")],
+            cwd=self.checkout,  # as `make test` runs it: the checkout must not stand in for the install
+            env=self.environ,
             capture_output=True,
             text=True,
             timeout=120,
         )
 
+
+def test_a_built_environment_is_only_checked_and_linked_into_the_checkout(tmp_path: Path) -> None:
+    checkout = _checkout(tmp_path / "checkout")
+    shared = tmp_path / "cache" / "venv-vllm"
+    calls = _stand_in_environment(
+        shared, checkout, vllm_env.stamp_line(checkout / "pyproject.toml")
+    )
+    setup = _Setup(checkout, tmp_path / "cache")
     run = setup()
     assert run.returncode == 0, run.stderr
     assert f"already built at {shared}" in run.stdout
+    assert not calls.exists()  # no pip at all
     assert (checkout / ".venv-vllm").resolve() == shared.resolve()
     # A stale link is re-pointed.
     (checkout / ".venv-vllm").unlink()
     (checkout / ".venv-vllm").symlink_to(tmp_path / "gone")
     assert setup().returncode == 0
     assert (checkout / ".venv-vllm").resolve() == shared.resolve()
+
+
+@pytest.mark.parametrize("other_checkout", ["present", "deleted"])
+def test_another_checkouts_environment_is_re_pointed_not_rebuilt(
+    tmp_path: Path, other_checkout: str
+) -> None:
+    checkout = _checkout(tmp_path / "checkout")
+    other = _checkout(tmp_path / "other")
+    shared = tmp_path / "cache" / "venv-vllm"
+    calls = _stand_in_environment(shared, other, vllm_env.stamp_line(checkout / "pyproject.toml"))
+    if other_checkout == "deleted":
+        shutil.rmtree(other)
+    run = _Setup(checkout, tmp_path / "cache")()
+    assert run.returncode == 0, run.stderr
+    assert f"re-linked {shared} from" in run.stdout
+    assert "already built" in run.stdout
+    (call,) = calls.read_text().splitlines()
+    assert call.endswith(f"-e {checkout}")
+    assert (checkout / ".venv-vllm").resolve() == shared.resolve()
+
+
+def test_an_environment_built_from_other_pins_gets_the_whole_pip_sequence(tmp_path: Path) -> None:
+    checkout = _checkout(tmp_path / "checkout")
+    shared = tmp_path / "cache" / "venv-vllm"
+    stale = vllm_env.stamp_line(checkout / "pyproject.toml", torch_pin="torch==2.12.0")
+    calls = _stand_in_environment(shared, checkout, stale)
+    run = _Setup(checkout, tmp_path / "cache")()
+    # The stand-in's pip refuses the sequence's first step, which shows the script started it.
+    assert run.returncode != 0
+    assert calls.read_text().splitlines() == ["install --upgrade pip wheel setuptools"]
+    assert not (checkout / ".venv-vllm").exists()
