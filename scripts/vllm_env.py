@@ -54,7 +54,8 @@ def vllm_venv(repo: Path) -> Path:
     by every checkout on the machine."""
     override = os.environ.get(VENV_ENV_VAR)
     if override:
-        return Path(override)
+        # Absolute: the checkout's link to it must not depend on where the script was run from.
+        return Path(override).absolute()
     in_clone = repo / LINK_NAME
     if in_clone.is_dir() and not in_clone.is_symlink():
         return in_clone
