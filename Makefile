@@ -32,7 +32,8 @@ help:
 	@echo "make lint       ruff check, ruff format --check, mypy, lint-imports"
 	@echo "make bench      run every benchmarks/bench_*.py script, one after another"
 	@echo "make clean      remove build outputs, caches and runs/demo (keeps the virtualenvs)"
-	@echo "make distclean  clean, and remove .venv and .venv-vllm"
+	@echo "make distclean  clean, remove .venv and the .venv-vllm link (not the shared vLLM"
+	@echo "                environment it points to: scripts/setup_vllm_cpu.sh --force rebuilds that)"
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -96,5 +97,7 @@ clean:
 	find . -path ./.venv -prune -o -path ./.venv-vllm -prune -o \
 		-name __pycache__ -type d -prune -exec rm -rf {} +
 
+# .venv-vllm is a link to the vLLM environment shared by every checkout (in the user cache): rm
+# removes the link alone. An older build inside the clone is a real folder, and goes.
 distclean: clean
 	rm -rf $(VENV) .venv-vllm

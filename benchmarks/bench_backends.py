@@ -8,8 +8,8 @@ log-likelihood; transformers and vLLM) or `guided` (constrained greedy decoding;
 Each cell is the best of `--repeats` timed runs; one batch-1 call per mode warms up first.
 
 The vLLM column runs this same script in a child process with the vLLM environment's Python
-(`--vllm-python`, default `.venv-vllm/bin/python` when it exists; `--vllm-python none` skips it),
-on the same workload, passed to it as a JSON file.
+(`--vllm-python`, default: the one scripts/setup_vllm_cpu.sh builds, when it exists;
+`--vllm-python none` skips it), on the same workload, passed to it as a JSON file.
 
 `--realistic classic|full` times choice mode on real CrafText prompts instead: the agent's
 system prompt and step messages over observations of real episodes (16 slots, random actions,
@@ -36,11 +36,15 @@ from typing import Any
 from pydantic import BaseModel
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_VLLM_PYTHON = REPO / ".venv-vllm" / "bin" / "python"
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
+
+from vllm_serve import VLLM_VENV  # noqa: E402
 
 from llm_agents.backends import GenerateConfig, get_model  # noqa: E402
 from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput  # noqa: E402
+
+DEFAULT_VLLM_PYTHON = VLLM_VENV / "bin" / "python"
 
 
 class Workload(BaseModel):
@@ -338,7 +342,9 @@ def main() -> None:
             vllm_python, workload, args.batches, args.repeats, ("free", "guided", "loglik")
         )
     else:
-        print(f"vLLM skipped: no vLLM environment at {vllm_python} (build .venv-vllm to compare)")
+        print(
+            f"vLLM skipped: no vLLM environment at {vllm_python} (build it with scripts/setup_vllm_cpu.sh to compare)"
+        )
     import torch
 
     print(

@@ -1,4 +1,4 @@
-"""The vllm backend and `vllm serve`, really running SmolLM2 on CPU through `.venv-vllm`.
+"""The vllm backend and `vllm serve`, really running SmolLM2 on CPU in the vLLM environment.
 
 vLLM lives in its own environment (built by scripts/setup_vllm_cpu.sh), so each test drives it in
 a subprocess with that environment's interpreter and checks what comes back.
@@ -47,7 +47,7 @@ def _vllm_built() -> None:
         pytest.skip(f"no vLLM environment at {VLLM_VENV}; build it with scripts/setup_vllm_cpu.sh")
 
 
-# Runs inside .venv-vllm; the spawn start method re-imports this file in the engine's children,
+# Runs inside the vLLM environment; the spawn start method re-imports this file in the engine's children,
 # hence the __main__ guard. One engine serves both tests below: an engine start is a minute or
 # more on two busy cores. Its window (4096 tokens) is the loglik test's; the engine test's
 # over-long prompt is longer than it.
@@ -110,6 +110,7 @@ def loglik_checks(model, request):
             "cut_prompts": cut_prompts, "cut_scores": cut_scores, "letters": letters}
 
 def main():
+    import llm_agents
     model_dir, in_path, out_path = sys.argv[1:4]
     request = json.load(open(in_path))
     with get_model("vllm:" + model_dir, GenerateConfig(), enforce_eager=True,
@@ -118,7 +119,7 @@ def main():
         loglik = loglik_checks(model, request["loglik"])
         engine = engine_checks(model, request["actions"])
     with open(out_path, "w") as f:
-        json.dump({"engine": engine, "loglik": loglik}, f)
+        json.dump({"engine": engine, "loglik": loglik, "project": llm_agents.__file__}, f)
 
 if __name__ == "__main__":
     main()
@@ -185,6 +186,9 @@ def engine_results(
 def test_offline_engine_generates_free_text_and_constrained_choices(
     engine_results: dict[str, Any],
 ) -> None:
+    # The environment is shared by checkouts, its editable install that of whichever set it up
+    # last: the engine ran this checkout's code all the same (vllm_environment's PYTHONPATH).
+    assert Path(engine_results["project"]).resolve().is_relative_to(REPO)
     result = engine_results["engine"]
 
     free = result["free"]

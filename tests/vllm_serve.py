@@ -9,18 +9,32 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import importlib.util
 import os
 import socket
 import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType
 
 import httpx
 
 REPO = Path(__file__).resolve().parents[1]
-#: Same default and override as scripts/setup_vllm_cpu.sh (CI keeps the environment outside the clone).
-VLLM_VENV = Path(os.environ.get("VLLM_VENV") or REPO / ".venv-vllm")
+
+
+def _load_vllm_env() -> ModuleType:
+    """scripts/vllm_env.py, which declares where the setup script builds (scripts/ is no package)."""
+    spec = importlib.util.spec_from_file_location("vllm_env", REPO / "scripts" / "vllm_env.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+vllm_env = _load_vllm_env()
+#: Where scripts/setup_vllm_cpu.sh builds: `$VLLM_VENV`, else shared in the user cache.
+VLLM_VENV: Path = vllm_env.vllm_venv(REPO)
 #: Engine start on 2 busy cores takes one to three minutes.
 START_TIMEOUT_S = 480
 #: The setup script's build on 2 cores busy with the tests (`make test` runs them side by side).
