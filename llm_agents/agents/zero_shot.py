@@ -257,11 +257,10 @@ class ZeroShotAgent:
             "observation": observation_text,
             "instruction": instruction,
             "plan": plan,
-            # `model_dump` of each entry, built directly: this runs for every slot and step.
-            "history": [
-                {"step": entry.step, "action": entry.action, "outcome": entry.outcome}
-                for entry in history
-            ],
+            # The entries themselves, not dicts: Jinja reads `entry.step` as an attribute first
+            # and a dict's item only once that lookup has raised, an exception per field that
+            # made up half the render (`entry["step"]` still works on an entry).
+            "history": list(history),
             "choice_mode": self.choice_rule is not None,
             "lettered": shown.lines() if shown is not None else None,
         }
