@@ -43,22 +43,21 @@ def _runs(values: list[int]) -> str:
     return ", ".join(parts)
 
 
-def _top_row_first(offset: Offset) -> tuple[int, int]:
-    return (-offset[1], offset[0])
-
-
 def _offsets_line(name: str, offsets: list[Offset]) -> str:
     first, *rest = offsets
     if len(offsets) <= MAX_LISTED:
         return f"{name}: " + "; ".join([_annotated(first), *map(format_offset, rest)])
-    # Many tiles of one kind (a cave wall, a lake) read shorter as runs along each row.
+    # Many tiles of one kind (a cave wall, a lake) read shorter as runs along each row, top row
+    # first. Grouped by row before sorting: sorting every tile by a key function cost more
+    # than the rest of the line.
     rows: dict[int, list[int]] = {}
-    for dx, dy in sorted(offsets, key=_top_row_first):
-        if dy in rows:
-            rows[dy].append(dx)
-        else:
+    for dx, dy in offsets:
+        row = rows.get(dy)
+        if row is None:
             rows[dy] = [dx]
-    runs = "; ".join(f"dy {dy}: dx {_runs(dxs)}" for dy, dxs in rows.items())
+        else:
+            row.append(dx)
+    runs = "; ".join(f"dy {dy}: dx {_runs(sorted(rows[dy]))}" for dy in sorted(rows, reverse=True))
     return f"{name} ({len(offsets)} tiles): nearest {_annotated(first)}; rows {runs}"
 
 
