@@ -51,10 +51,21 @@ def _names(cls: type[BaseModel]) -> tuple[str, ...]:
     return tuple(name for name, _ in _fields(cls))
 
 
+# `BaseModel`'s slots, set through their descriptors, and `object.__new__` (no model defines
+# `__new__`) called directly: each of the several records an agent-step makes skips the
+# attribute lookups `object.__setattr__(instance, name, ...)` and `cls.__new__` pay (a quarter
+# of `_made`).
+_new = object.__new__
+_set_dict = object.__setattr__
+_FIELDS_SET = vars(BaseModel)["__pydantic_fields_set__"]
+_EXTRA = vars(BaseModel)["__pydantic_extra__"]
+_PRIVATE = vars(BaseModel)["__pydantic_private__"]
+
+
 def _made(cls: type[Model], data: dict[str, Any], fields_set: set[str]) -> Model:
-    instance = cls.__new__(cls)
-    object.__setattr__(instance, "__dict__", data)
-    object.__setattr__(instance, "__pydantic_fields_set__", fields_set)
-    object.__setattr__(instance, "__pydantic_extra__", None)
-    object.__setattr__(instance, "__pydantic_private__", None)
+    instance: Model = _new(cls)
+    _set_dict(instance, "__dict__", data)
+    _FIELDS_SET.__set__(instance, fields_set)
+    _EXTRA.__set__(instance, None)
+    _PRIVATE.__set__(instance, None)
     return instance

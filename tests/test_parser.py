@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from env.variant import Variant
-from llm_agents.agents.actions import action_catalogue, action_id
-from llm_agents.agents.parser import ParseResult, parse_action
+from llm_agents.agents.actions import action_catalogue, action_id, action_names
+from llm_agents.agents.parser import ParseResult, _parse_layered, _vocabulary, parse_action
 from prompts import render_template
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -276,3 +276,16 @@ def test_recovers_sensible_actions_from_balrog_failures(
     recovered = sum(result.valid for _, result in failed)
     assert labelled > 100
     assert recovered >= 120, f"only {recovered} of {len(failed)} failed rows recovered"
+
+
+@pytest.mark.parametrize("variant", list(Variant))
+def test_well_formed_answer_reads_as_the_layered_stages_read_it(variant: Variant) -> None:
+    # `ACTION: NAME` skips the stages; it must give exactly what they give.
+    vocabulary = _vocabulary(variant)
+    for name in action_names(variant):
+        text = f"ACTION: {name}"
+        result = parse_action(text, variant)
+        assert result == _parse_layered(text, vocabulary, None)
+        assert (result.name, result.stage) == (name, "field")
+    for near in ("ACTION: LEFT ", "ACTION:LEFT", "action: LEFT", "ACTION: left", "ACTION: WEST"):
+        assert parse_action(near, variant) == _parse_layered(near, vocabulary, None)

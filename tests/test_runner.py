@@ -95,6 +95,30 @@ def test_run_writes_consistent_steps_episodes_and_results(
     assert outcome.summary is not None and outcome.summary.overall.episodes == 7
 
 
+@pytest.mark.parametrize("every_s", [0.0, 3600.0])
+def test_results_are_rewritten_at_most_every_results_every_s_and_always_at_the_end(
+    tmp_path: Path, short_env: CrafTextEnv, monkeypatch: pytest.MonkeyPatch, every_s: float
+) -> None:
+    from llm_agents.evaluation import sink
+
+    monkeypatch.setattr(sink, "RESULTS_EVERY_S", every_s)
+    written: list[str] = []
+    write = sink.write_results
+    monkeypatch.setattr(
+        sink,
+        "write_results",
+        lambda path, results: (written.append(results.status), write(path, results)),
+    )
+    run(config(tmp_path, limit=5), short_env)
+    # Without a wait, each round that ends an episode rewrites it (5 episodes, 3 in flight:
+    # more than one round); with an hour's, only the run's start and end do.
+    assert written[-1] == "complete" == read_results(tmp_path / "results.json").status
+    if every_s:
+        assert written == ["partial", "complete"]
+    else:
+        assert len(written) > 3
+
+
 def test_limited_schedule_samples_every_category_originals_first(tmp_path: Path) -> None:
     from env.dataset import load_dataset
 

@@ -120,9 +120,14 @@ def _opened(role: str, content: str, images: tuple[str, ...]) -> Any:
     return digest
 
 
+#: `json.dumps(..., ensure_ascii=False)`'s encoder, made once: `json.dumps` makes a new one at
+#: every call given any option.
+_JSON = json.JSONEncoder(ensure_ascii=False)
+
+
 @lru_cache(maxsize=64)
 def _encoded(role: str, content: str, images: tuple[str, ...]) -> bytes:
-    return json.dumps([role, content, *images], ensure_ascii=False).encode("utf-8")
+    return _JSON.encode([role, content, *images]).encode("utf-8")
 
 
 #: `messages_hash` of no messages: the prompt of a step the model was not asked about.

@@ -122,13 +122,16 @@ def describe_outcome(action: str, before: ObservationLike, after: ObservationLik
         moved = (before.position.x, before.position.y) != (after.position.x, after.position.y)
         effects.append(f"moved {heading}" if moved else f"blocked, now facing {heading}")
     items_before, items_after = _items(before), _items(after)
-    for item in sorted(set(items_before) | set(items_after)):
-        change = items_after.get(item, 0) - items_before.get(item, 0)
-        if change:
-            verb = "gained" if change > 0 else "spent"
-            effects.append(f"{verb} {abs(change)} {item.replace('_', ' ')}")
-    for achievement in sorted(set(after.achievements) - set(before.achievements)):
-        effects.append(f"achievement {achievement.lower().replace('_', ' ')}")
+    # Most steps change neither: one comparison each, not a sorted walk over every item.
+    if items_before != items_after:
+        for item in sorted(set(items_before) | set(items_after)):
+            change = items_after.get(item, 0) - items_before.get(item, 0)
+            if change:
+                verb = "gained" if change > 0 else "spent"
+                effects.append(f"{verb} {abs(change)} {item.replace('_', ' ')}")
+    if after.achievements != before.achievements:
+        for achievement in sorted(set(after.achievements) - set(before.achievements)):
+            effects.append(f"achievement {achievement.lower().replace('_', ' ')}")
     lost = before.vitals.health - after.vitals.health
     if lost > 0:
         effects.append(f"lost {lost:g} health")
@@ -257,11 +260,10 @@ class ZeroShotAgent:
             "observation": observation_text,
             "instruction": instruction,
             "plan": plan,
-            # `model_dump` of each entry, built directly: this runs for every slot and step.
-            "history": [
-                {"step": entry.step, "action": entry.action, "outcome": entry.outcome}
-                for entry in history
-            ],
+            # The entries themselves, not dicts: Jinja reads `entry.step` as an attribute first
+            # and a dict's item only once that lookup has raised, an exception per field that
+            # made up half the render (`entry["step"]` still works on an entry).
+            "history": list(history),
             "choice_mode": self.choice_rule is not None,
             "lettered": shown.lines() if shown is not None else None,
         }

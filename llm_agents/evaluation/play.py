@@ -218,22 +218,28 @@ class _Slots:
     def settle(self, decisions: list[Decision]) -> _Settled:
         """Tally the stepped slots, record their steps, and close the episodes that ended."""
         host, settled = self.host, _Settled()
+        # Each array read once for the round, as Python values: a numpy scalar per slot and
+        # field cost more than the rest of a step's bookkeeping.
+        rewards, done, steps = host.reward.tolist(), host.done.tolist(), host.steps.tolist()
+        unlocked = _unlocked(host.new_achievements)
         for decision in decisions:
             slot = decision.slot
             tally = self.live[slot]
             started = not _not_started(decision)
-            new = _names(host.new_achievements[slot]) if started else []
-            reward = float(host.reward[slot]) if started else 0.0
+            new = unlocked.get(slot, []) if started else []
+            reward = rewards[slot] if started else 0.0
             tally.add(decision, reward, new)
             if self.config.record_steps and started:
                 frame = self.frames[slot][-1] if self.frames[slot] else None
-                settled.steps.append(_step_record(tally, decision, host, slot, reward, new, frame))
+                settled.steps.append(
+                    _step_record(tally, decision, steps[slot], done[slot], reward, new, frame)
+                )
             if decision.output.finish_reason == "error":
                 # The backend failed, not the agent: not scored; a rerun plays it again.
                 settled.aborted.append(tally.spec.episode_id)
             elif not started:
                 settled.ended.append(_episode_record(tally, 0, None, self.config.seed))
-            elif host.done[slot]:
+            elif done[slot]:
                 settled.ended.append(self._episode_record(tally, slot))
             else:
                 settled.continuing.append(slot)
@@ -270,10 +276,16 @@ class _Slots:
         return slots
 
 
-def _names(mask: np.ndarray) -> list[str]:
+def _unlocked(new_achievements: np.ndarray) -> dict[int, list[str]]:
+    """Slot -> the names of the achievements it unlocked on its last step, in id order (slots
+    that unlocked none are left out)."""
     from env.achievements import ACHIEVEMENTS
 
-    return [ACHIEVEMENTS[i] for i in np.flatnonzero(mask)]
+    found: dict[int, list[str]] = {}
+    slots, ids = np.nonzero(new_achievements)
+    for slot, index in zip(slots.tolist(), ids.tolist(), strict=True):
+        found.setdefault(slot, []).append(ACHIEVEMENTS[index])
+    return found
 
 
 def _not_started(decision: Decision) -> bool:
@@ -283,18 +295,19 @@ def _not_started(decision: Decision) -> bool:
 def _step_record(
     tally: _Tally,
     decision: Decision,
-    host: Any,
-    slot: int,
+    steps: int,
+    done: bool,
     reward: float,
     new: list[str],
     frame: ImagePart | None,
 ) -> StepRecord:
+    """The record of a step that took the episode to `steps` steps (`done`: its last)."""
     # Unvalidated: every value is made here, of its field's type (the runner's tests read the
     # records back through validation).
     return trusted(
         StepRecord,
         episode_id=tally.spec.episode_id,
-        step=int(host.steps[slot]) - 1,
+        step=steps - 1,
         observation=decision.observation_text,
         frame_png=frame.png_base64 if frame is not None else None,
         prompt_hash=decision.prompt_hash,
@@ -305,7 +318,7 @@ def _step_record(
         parse_stage=decision.parse.stage,
         fallback_used=decision.fallback_used,
         reward=reward,
-        done=bool(host.done[slot]),
+        done=done,
         new_achievements=new,
         prompt_tokens=decision.output.prompt_tokens,
         completion_tokens=decision.output.completion_tokens,

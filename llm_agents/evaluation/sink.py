@@ -30,10 +30,18 @@ from llm_agents.run_data.store import (
     write_results,
 )
 
+#: Seconds at least between the `results.json` rewrites of a run in progress. Each rewrite
+#: summarises every finished episode: rewritten after each round that ends one, a fast agent's
+#: run (several episodes a second) spent time quadratic in its episodes on it, and an fsync per
+#: rewrite. The run's end, its stop on failures and Ctrl-C always write it; a resume rebuilds
+#: it from `episodes.jsonl`, so a killed run loses nothing to the wait.
+RESULTS_EVERY_S = 1.0
+
 
 class RunSink:
     """The run's sink: hands out the episodes still to play, writes what comes back, stops the
-    run when the backend fails too often in a row, and keeps `results.json` current."""
+    run when the backend fails too often in a row, and keeps `results.json` current (rewritten
+    at the first round `RESULTS_EVERY_S` after the last rewrite, once an episode has ended)."""
 
     def __init__(
         self,
@@ -60,6 +68,8 @@ class RunSink:
         self.failure: str | None = None
         self._failures_in_a_row = 0
         self._started = time.perf_counter()
+        self._saved_at = -RESULTS_EVERY_S
+        self._unsaved = False
         self._agent_steps = 0
         self._tokens = 0
 
@@ -97,7 +107,8 @@ class RunSink:
             append_records(self.out / EPISODES_FILE, ended)
             self.episodes.extend(ended)
         self._count_failures(decisions, aborted)
-        if ended or aborted:
+        self._unsaved = self._unsaved or bool(ended or aborted)
+        if self._unsaved and time.monotonic() - self._saved_at >= RESULTS_EVERY_S:
             self.save()
         self._agent_steps += len(decisions)
         self._tokens += sum(d.output.prompt_tokens + d.output.completion_tokens for d in decisions)
@@ -159,6 +170,7 @@ class RunSink:
             results.status, results.failure = "partial", None
         results.finished_at = datetime.now(UTC) if results.status == "complete" else None
         write_results(self.out / RESULTS_FILE, results)
+        self._saved_at, self._unsaved = time.monotonic(), False
 
 
 def finished_episodes(out: Path) -> list[EpisodeRecord]:
