@@ -18,6 +18,25 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 IN_CI = bool(os.environ.get("CI"))
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Each pytest worker's thread pools sized to its share of the cores, before any test module
+    imports torch.
+
+    Torch (and vLLM on CPU, OpenMP both) start one thread per core and spin while waiting. Beside
+    another busy worker, a pool of two on two cores runs slower than a pool of one: the embedded
+    model's grounding test took 38 s beside a busy core with two threads, 21 s with one (14 s
+    alone). Child processes (vLLM, CLI runs) inherit the setting; one set by hand is kept.
+    """
+    # Only in xdist's workers: one pytest process may use every core, and the controller's
+    # environment, which the workers inherit, must not pass its own choice on as the user's.
+    worker = getattr(config, "workerinput", None)
+    if worker is None:
+        return
+    share = max(1, len(os.sched_getaffinity(0)) // worker["workercount"])
+    for variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(variable, str(share))
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(
     item: pytest.Item, call: pytest.CallInfo[None]

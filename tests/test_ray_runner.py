@@ -28,7 +28,7 @@ from llm_agents.run_data.store import read_episodes, read_results
 
 ray = pytest.importorskip("ray")
 
-from llm_agents.evaluation.ray_runner import run_on_ray  # noqa: E402
+from llm_agents.evaluation.ray_runner import LOCAL_CLUSTER_SYSTEM_CONFIG, run_on_ray  # noqa: E402
 
 MAX_STEPS = 6
 EPISODES = 8
@@ -45,6 +45,7 @@ def cluster() -> Iterator[str]:
         include_dashboard=False,
         logging_level=logging.WARNING,
         _node_ip_address="127.0.0.1",
+        _system_config=LOCAL_CLUSTER_SYSTEM_CONFIG,
     )
     try:
         yield ray.get_runtime_context().gcs_address
@@ -91,6 +92,14 @@ def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     with MockModel(SCRIPT.removeprefix("mock:")) as model:
         run_eval(config(out), model, env=env)
     return out
+
+
+def test_the_workers_play_at_the_drivers_priority(cluster: str) -> None:
+    @ray.remote
+    def niceness() -> int:
+        return os.nice(0)
+
+    assert ray.get(niceness.remote()) == os.nice(0)
 
 
 def test_a_ray_run_gives_the_episodes_of_a_local_run(

@@ -72,7 +72,12 @@ def vllm_environment(kv_cache_gib: int = 1) -> dict[str, str]:
     """The environment the vLLM processes run with: this checkout importable, a small KV cache
     (it fits the test model and keeps memory low on a shared 2-core machine)."""
     path = os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)
-    return {**os.environ, "VLLM_CPU_KVCACHE_SPACE": str(kv_cache_gib), "PYTHONPATH": path}
+    environment = {**os.environ, "VLLM_CPU_KVCACHE_SPACE": str(kv_cache_gib), "PYTHONPATH": path}
+    if "OMP_NUM_THREADS" in os.environ:
+        # vLLM on CPU otherwise pins one OpenMP thread to every core and ignores OMP_NUM_THREADS;
+        # the tests set it to their worker's share of the cores (tests/conftest.py).
+        environment.setdefault("VLLM_CPU_OMP_THREADS_BIND", "nobind")
+    return environment
 
 
 def free_port() -> int:
