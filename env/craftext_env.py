@@ -344,6 +344,22 @@ class CrafTextEnv:
         return ending & jnp.where(achievements, met_unlocking_none, in_world)
 
 
+_SHARED: dict[str, CrafTextEnv] = {}
+
+
+def shared_env(config: EnvConfig) -> CrafTextEnv:
+    """The process's one `CrafTextEnv` for `config`, made on first use.
+
+    Each new env traces and lowers the game again on its first step (seconds, even when the
+    persistent cache then skips compiling), so every run, replay or do-nothing check of a
+    process that plays the same settings shares one.
+    """
+    key = config.model_dump_json()
+    if key not in _SHARED:
+        _SHARED[key] = CrafTextEnv(config)
+    return _SHARED[key]
+
+
 def _step_keys(state: EpisodeState) -> jax.Array:
     """Each row's step key: its episode key folded with its step index."""
     return jax.vmap(jax.random.fold_in)(state.episode_key, state.steps)

@@ -321,11 +321,11 @@ def _replayer(run: LoadedRun, *, batch_size: int) -> Any:
 # benchmarks, a notebook) does it once per env.
 @functools.cache
 def _compiled_replayer(env_config_json: str, batch_size: int) -> Any:
-    from env import CrafTextEnv, EnvConfig
+    from env import EnvConfig, shared_env
     from env.replay import Replayer
 
     return Replayer(
-        CrafTextEnv(EnvConfig.model_validate_json(env_config_json)), batch_size=batch_size
+        shared_env(EnvConfig.model_validate_json(env_config_json)), batch_size=batch_size
     )
 
 
