@@ -17,6 +17,7 @@ only on such a step, and only for goals other than achievements.
 from __future__ import annotations
 
 import hashlib
+import weakref
 from collections.abc import Sequence
 from typing import Any
 
@@ -344,20 +345,23 @@ class CrafTextEnv:
         return ending & jnp.where(achievements, met_unlocking_none, in_world)
 
 
-_SHARED: dict[str, CrafTextEnv] = {}
+_SHARED: weakref.WeakValueDictionary[str, CrafTextEnv] = weakref.WeakValueDictionary()
 
 
 def shared_env(config: EnvConfig) -> CrafTextEnv:
-    """The process's one `CrafTextEnv` for `config`, made on first use.
+    """The process's `CrafTextEnv` for `config`: the one made earlier while anything still
+    holds it (a run in progress, a caller's reference), else a new one.
 
     Each new env traces and lowers the game again on its first step (seconds, even when the
-    persistent cache then skips compiling), so every run, replay or do-nothing check of a
-    process that plays the same settings shares one.
+    persistent cache then skips compiling), so runs, replays and do-nothing checks of the same
+    settings share one. Held weakly: an env nobody holds frees its compiled functions.
     """
     key = config.model_dump_json()
-    if key not in _SHARED:
-        _SHARED[key] = CrafTextEnv(config)
-    return _SHARED[key]
+    env = _SHARED.get(key)
+    if env is None:
+        env = CrafTextEnv(config)
+        _SHARED[key] = env
+    return env
 
 
 def _step_keys(state: EpisodeState) -> jax.Array:

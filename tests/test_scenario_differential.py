@@ -70,6 +70,16 @@ def official(official_repository: Path) -> Iterator[Any]:
         sys.path.remove(str(official_repository))
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _cached_for_this_module_only() -> Iterator[None]:
+    """The trajectories and compiled functions below are cached for the test, then freed: full
+    Craftax's trajectories alone hold over a GB, which the worker would otherwise keep."""
+    yield
+    for cached in (_craftax_step, _trajectories, _our_checker, _new_world):
+        cached.cache_clear()
+    _SCORERS.clear()
+
+
 _SCORERS: dict[tuple[Any, Any], Any] = {}
 
 
