@@ -33,6 +33,7 @@ if TYPE_CHECKING:
         VectorEnv,
         episode_key,
         make_task,
+        shared_env,
     )
 
 _LAZY = {
@@ -45,6 +46,7 @@ _LAZY = {
     "VectorEnv",
     "episode_key",
     "make_task",
+    "shared_env",
 }
 
 __all__ = [
@@ -72,6 +74,7 @@ __all__ = [
     "load_dataset",
     "make_task",
     "parse_categories",
+    "shared_env",
 ]
 
 

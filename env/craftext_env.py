@@ -17,6 +17,7 @@ only on such a step, and only for goals other than achievements.
 from __future__ import annotations
 
 import hashlib
+import weakref
 from collections.abc import Sequence
 from typing import Any
 
@@ -342,6 +343,25 @@ class CrafTextEnv:
             lambda: jnp.zeros_like(generate),
         )
         return ending & jnp.where(achievements, met_unlocking_none, in_world)
+
+
+_SHARED: weakref.WeakValueDictionary[str, CrafTextEnv] = weakref.WeakValueDictionary()
+
+
+def shared_env(config: EnvConfig) -> CrafTextEnv:
+    """The process's `CrafTextEnv` for `config`: the one made earlier while anything still
+    holds it (a run in progress, a caller's reference), else a new one.
+
+    Each new env traces and lowers the game again on its first step (seconds, even when the
+    persistent cache then skips compiling), so runs, replays and do-nothing checks of the same
+    settings share one. Held weakly: an env nobody holds frees its compiled functions.
+    """
+    key = config.model_dump_json()
+    env = _SHARED.get(key)
+    if env is None:
+        env = CrafTextEnv(config)
+        _SHARED[key] = env
+    return env
 
 
 def _step_keys(state: EpisodeState) -> jax.Array:

@@ -139,12 +139,12 @@ def _craftax_version() -> str:
 def _play_do_nothing(
     goals: Sequence[AnyGoal], encoded: object, config: EnvConfig, worlds: int, seed: int
 ) -> dict[str, int]:
-    from env.craftext_env import CrafTextEnv, VectorEnv, episode_key
+    from env.craftext_env import VectorEnv, episode_key, shared_env
     from env.termination import Termination
 
     rows = [(index, world) for index in range(len(goals)) for world in range(worlds)]
     batch = min(_BATCH, len(rows))
-    vector = VectorEnv(CrafTextEnv(config), batch)
+    vector = VectorEnv(shared_env(config), batch)
     noop = config.variant.action_names.index("NOOP")
     kind, required, forbidden, params = (
         getattr(encoded, name) for name in ("kind", "required", "forbidden", "params")

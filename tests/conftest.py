@@ -97,9 +97,9 @@ class CompiledEnv:
 def _compiled(variant: str) -> CompiledEnv:
     import jax
 
-    from env import CrafTextEnv, EnvConfig, Variant
+    from env import EnvConfig, Variant, shared_env
 
-    env = CrafTextEnv(EnvConfig(variant=Variant(variant)))
+    env = shared_env(EnvConfig(variant=Variant(variant)))
     # The env already holds a jitted reset (VectorEnv refills use it); reuse its trace.
     return CompiledEnv(env=env, reset=env.jitted_reset, step=jax.jit(env.step_from_episode_key))
 

@@ -113,8 +113,11 @@ def main():
     import llm_agents
     model_dir, in_path, out_path = sys.argv[1:4]
     request = json.load(open(in_path))
+    # The engine runs in this process (VLLM_ENABLE_V1_MULTIPROCESSING=0 and the "uni"
+    # executor): the same engine, without two more processes importing vLLM (about 20 s).
     with get_model("vllm:" + model_dir, GenerateConfig(), enforce_eager=True,
-                   max_model_len=4096, dtype="float32", max_num_seqs=32) as model:
+                   max_model_len=4096, dtype="float32", max_num_seqs=32,
+                   engine_args={"distributed_executor_backend": "uni"}) as model:
         # The loglik checks first: the engine test's prompts must not warm its prefix cache.
         loglik = loglik_checks(model, request["loglik"])
         engine = engine_checks(model, request["actions"])
@@ -173,7 +176,7 @@ def engine_results(
     run = subprocess.run(
         [str(VLLM_PYTHON), str(script), str(model_dir), str(request), str(out)],
         cwd=folder,
-        env=vllm_environment(),
+        env=vllm_environment() | {"VLLM_ENABLE_V1_MULTIPROCESSING": "0"},
         capture_output=True,
         text=True,
         timeout=START_TIMEOUT_S + 420,

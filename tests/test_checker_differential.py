@@ -20,7 +20,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from env import ACHIEVEMENTS, NUM_ACHIEVEMENTS, CrafTextEnv, EnvConfig, Termination, Variant
+from env import (
+    ACHIEVEMENTS,
+    NUM_ACHIEVEMENTS,
+    CrafTextEnv,
+    EnvConfig,
+    Termination,
+    Variant,
+    shared_env,
+)
 from env.checker import goal_reached, scored_success
 from env.rules import SUCCESS_RULES
 
@@ -150,9 +158,7 @@ def test_the_rules_differ_exactly_on_the_game_over_step() -> None:
 def envs() -> dict[str, Any]:
     built = {}
     for rule in SUCCESS_RULES:
-        env = CrafTextEnv(
-            EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS, success_rule=rule)
-        )
+        env = shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS, success_rule=rule))
         built[rule] = (env, jax.jit(env.step_from_episode_key))
     return built
 

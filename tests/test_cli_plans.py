@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import EnvConfig, Variant, shared_env
 from env.dataset import load_dataset
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_USER_ERROR, main
@@ -73,7 +73,7 @@ def test_plan_command_rejects_an_unknown_split(tmp_path: Path, capsys: Any) -> N
 def test_eval_with_plans_puts_each_plan_in_its_prompt_and_reports_the_missing(
     tmp_path: Path,
 ) -> None:
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=3))
+    env = shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=3))
     config = build_config(
         {
             "model": "mock:noop",

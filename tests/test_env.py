@@ -17,13 +17,13 @@ import pytest
 from env import (
     ACHIEVEMENT_IDS,
     NUM_ACHIEVEMENTS,
-    CrafTextEnv,
     EnvConfig,
     Termination,
     Variant,
     VectorEnv,
     episode_key,
     make_task,
+    shared_env,
 )
 from env.checker import goal_reached
 
@@ -122,7 +122,7 @@ def test_death_ends_the_episode(any_env: Any) -> None:
 
 
 def test_step_cap_times_out() -> None:
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=3))
+    env = shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=3))
     reset, step = env.jitted_reset, jax.jit(env.step_from_episode_key)
     req, forb = masks(["COLLECT_DIAMOND"])
     state = reset(key(), make_task(req, forb))
@@ -294,7 +294,7 @@ def test_new_achievements_are_reported_on_the_unlocking_step_only(any_env: Any) 
 @pytest.fixture(scope="module")
 def official_env() -> Any:
     """Classic under the official success rule and world seeding."""
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, success_rule="official", world_key=1))
+    env = shared_env(EnvConfig(variant=Variant.CLASSIC, success_rule="official", world_key=1))
     return env, jax.jit(env.step_from_episode_key)
 
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.dataset import Dataset, DatasetSource, Goal, load_dataset
 from env.errors import UserError
 from llm_agents.agents.grounding import parse_grounding, reading_json
@@ -587,7 +587,7 @@ MAX_STEPS = 30
 
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
 
 
 def guided_answer(conversation: Sequence[ChatMessage]) -> str:

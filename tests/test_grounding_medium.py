@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.dataset import Dataset, DatasetSource
 from env.dataset import Goal as AchievementsGoal
 from env.goals import DIFFICULTY_KINDS, GOAL_KINDS, SPLITS, AnyGoal, Goal, LocalizationGoal
@@ -388,7 +388,7 @@ MAX_STEPS = 25
 
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
 
 
 def played(

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.errors import UserError
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.lettered import LABELS, LetteredOptions, label_choices, lettered
@@ -138,7 +138,7 @@ def test_few_shot_letters_its_step_after_the_demonstrations(tmp_path: Path) -> N
 
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=4))
+    return shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=4))
 
 
 def letters_config(out: Path, **overrides: Any) -> Any:

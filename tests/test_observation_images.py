@@ -35,9 +35,9 @@ ANSWERS = ["ACTION: LEFT", "ACTION: DO", "ACTION: UP", "ACTION: RIGHT", "ACTION:
 
 @pytest.fixture(scope="module")
 def short_env() -> Any:
-    from env import CrafTextEnv, EnvConfig, Variant
+    from env import EnvConfig, Variant, shared_env
 
-    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
 
 
 def image_run(out: Path, model: str, **settings: Any) -> EvalConfig:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import EnvConfig, Variant, shared_env
 from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import GenerateConfig
@@ -149,7 +149,7 @@ def test_a_paper_run_plays_the_official_world_and_records_its_protocol(tmp_path:
             "output_dir": str(tmp_path),
         }
     )
-    env = CrafTextEnv(
+    env = shared_env(
         EnvConfig(variant=Variant.CLASSIC, max_steps=6, success_rule="official", world_key=1)
     )
     with get_model(config.model, config.generation) as model:
@@ -202,7 +202,7 @@ def test_a_balrog_run_plays_the_open_ended_goal_until_the_game_or_the_cap_ends(
             "output_dir": str(tmp_path),
         }
     )
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=12))
+    env = shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=12))
     with get_model(config.model, config.generation) as model:
         run_eval(config, model, env=env)
     results = read_results(tmp_path / "results.json")

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 from fault_server import FaultServer
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import EnvConfig, Variant, shared_env
 from env.errors import UserError
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
@@ -88,7 +88,7 @@ def decisions(run_dir: Path) -> list[tuple[str, int, str, str]]:
 @pytest.fixture(scope="module")
 def local_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("local")
-    env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    env = shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
     with MockModel(SCRIPT.removeprefix("mock:")) as model:
         run_eval(config(out), model, env=env)
     return out

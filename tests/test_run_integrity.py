@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.cli import EXIT_BACKEND_FAILURE, EXIT_USER_ERROR, main
@@ -24,7 +24,7 @@ SCRIPT = "mock:hash:ACTION: LEFT|I will go RIGHT|<action>DO</action>|zzz"
 
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
 
 
 def config(out: Path, **overrides: Any) -> Any:

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.errors import UserError
 from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, GenerateConfig
@@ -38,7 +38,7 @@ SCRIPT = "mock:hash:ACTION: LEFT|I will go RIGHT|<action>DO</action>|hmm, not su
 
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
 
 
 def config(out: Path, **overrides: Any) -> Any:
@@ -58,6 +58,22 @@ def config(out: Path, **overrides: Any) -> Any:
 def run(cfg: Any, env: CrafTextEnv) -> Any:
     with get_model(cfg.model, cfg.generation) as model:
         return run_eval(cfg, model, env=env)
+
+
+def test_runs_of_the_same_settings_in_one_process_share_one_env(tmp_path: Path) -> None:
+    """A run made without an env plays on the process's shared one for its settings, so a
+    second run of those settings traces nothing again."""
+    settings = EnvConfig(variant=Variant.CLASSIC, max_steps=5)
+    env = shared_env(settings)
+    assert shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=5)) is env
+    assert shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=6)) is not env
+    traced = []
+    for attempt in range(2):
+        cfg = config(tmp_path / str(attempt), max_steps=5, limit=3)
+        with get_model(cfg.model, cfg.generation) as model:
+            run_eval(cfg, model)
+        traced.append(env.batched_step._cache_size())
+    assert traced == [1, 1]
 
 
 def canonical(run_dir: Path) -> list[dict[str, Any]]:

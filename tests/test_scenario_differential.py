@@ -70,6 +70,16 @@ def official(official_repository: Path) -> Iterator[Any]:
         sys.path.remove(str(official_repository))
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _cached_for_this_module_only() -> Iterator[None]:
+    """The trajectories and compiled functions below are cached for the test, then freed: full
+    Craftax's trajectories alone hold over a GB, which the worker would otherwise keep."""
+    yield
+    for cached in (_craftax_step, _trajectories, _our_checker, _new_world):
+        cached.cache_clear()
+    _SCORERS.clear()
+
+
 _SCORERS: dict[tuple[Any, Any], Any] = {}
 
 
@@ -87,19 +97,50 @@ def _official_scorer(checker: Any, game_data: Any) -> Any:
     return _SCORERS[key]
 
 
-def _trajectory(variant: Variant, seed: int) -> tuple[Any, Any, np.ndarray]:
-    """(previous states, new states, actions) of one biased-random episode, stacked by step."""
+@functools.cache
+def _craftax_step(variant: Variant) -> tuple[Any, Any]:
+    """(reset, compiled step) of raw Craftax: one trace per variant, not one per trajectory."""
     from craftax.craftax_env import make_craftax_env_from_name
 
     env = make_craftax_env_from_name(variant.craftax_name, auto_reset=False)
     params = env.default_params
+    return (
+        jax.jit(lambda key: env.reset_env(key, params)[1]),
+        jax.jit(lambda key, s, a: env.step_env(key, s, a, params)),
+    )
+
+
+@functools.cache
+def _trajectories(variant: Variant) -> list[tuple[Any, Any, np.ndarray]]:
+    """Every trajectory a variant's splits are scored on: `TRAJECTORIES` biased-random ones,
+    then the same with squares stamped (`_with_squares`). The Medium splits share them."""
+    plain = [_trajectory(variant, seed) for seed in range(TRAJECTORIES)]
+    return plain + [
+        (*_with_squares(previous, new, variant, seed), actions)
+        for seed, (previous, new, actions) in enumerate(plain)
+    ]
+
+
+@functools.cache
+def _our_checker(variant: Variant) -> Any:
+    """`goal_met` over a trajectory, one goal's encoding broadcast over its steps."""
+    return jax.jit(
+        jax.vmap(
+            lambda p, n, kind, req, forb, par: goal_met(p, n, kind, req, forb, par, variant),
+            in_axes=(0, 0, None, None, None, None),
+        )
+    )
+
+
+def _trajectory(variant: Variant, seed: int) -> tuple[Any, Any, np.ndarray]:
+    """(previous states, new states, actions) of one biased-random episode, stacked by step."""
+    reset, step = _craftax_step(variant)
     rng = np.random.default_rng(seed)
-    _, state = env.reset_env(jax.random.PRNGKey(seed), params)
+    state = reset(jax.random.PRNGKey(seed))
     inventory = state.inventory.replace(
         wood=jnp.int32(9), stone=jnp.int32(9), sapling=jnp.int32(9), coal=jnp.int32(3)
     )
     state = state.replace(inventory=inventory)
-    step = jax.jit(lambda key, s, a: env.step_env(key, s, a, params))
     names = variant.action_names
     placing = [
         names.index(n) for n in ("PLACE_TABLE", "PLACE_FURNACE", "PLACE_STONE", "PLACE_PLANT")
@@ -157,7 +198,7 @@ def _new_world(variant: Variant) -> Any:
 
     ends = _GameEnds(variant)
     params = ends.craftax.default_params
-    return lambda key, state: EnvironmentAutoReset.step(ends, key, state, 0, params)[1]
+    return jax.jit(lambda key, state: EnvironmentAutoReset.step(ends, key, state, 0, params)[1])
 
 
 def _deaths(
@@ -245,11 +286,7 @@ def test_every_medium_and_hard_goal_scores_like_the_official_checker(
         goals = dataset.split(split)
         assert [goal.id for goal in goals] == list(entries)
         tasks = encode_goals(goals, variant)
-        trajectories = [_trajectory(variant, seed) for seed in range(TRAJECTORIES)]
-        trajectories += [
-            (*_with_squares(previous, new, variant, seed), actions)
-            for seed, (previous, new, actions) in enumerate(trajectories)
-        ]
+        trajectories = _trajectories(variant)
         if variant not in deaths:
             found = [
                 _deaths(variant, previous, actions, seed)
@@ -265,14 +302,7 @@ def test_every_medium_and_hard_goal_scores_like_the_official_checker(
                 for seed, (dying, worlds, actions, _) in enumerate(found)
             ]
             deaths[variant] = found + stamped
-        ours = jax.jit(
-            jax.vmap(
-                lambda p, n, kind, req, forb, par, variant=variant: goal_met(
-                    p, n, kind, req, forb, par, variant
-                ),
-                in_axes=(0, 0, None, None, None, None),
-            )
-        )
+        ours = _our_checker(variant)
         for row, goal in enumerate(goals):
             entry = entries[goal.id]
             checker_id = int(entry["scenario_checker"])

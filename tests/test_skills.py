@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from env import CrafTextEnv, EnvConfig, Variant
+from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.dataset import Dataset, DatasetSource, Goal
 from env.goals import AnyGoal, BuildLineGoal, BuildSquareGoal, LocalizationGoal
 from llm_agents.agents.expert_navigation import ExpertEpisode
@@ -414,7 +414,7 @@ MAX_STEPS = 30
 
 @pytest.fixture(scope="module")
 def short_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=CLASSIC, max_steps=MAX_STEPS))
 
 
 def play(
@@ -515,7 +515,7 @@ def test_a_model_stuck_on_a_skill_it_cannot_start_ends_early_as_a_recorded_failu
 
 @pytest.mark.slow
 def test_a_hard_goal_on_full_craftax_plays_the_full_catalogue(tmp_path: Path) -> None:
-    env = CrafTextEnv(EnvConfig(variant=FULL, max_steps=6))
+    env = shared_env(EnvConfig(variant=FULL, max_steps=6))
     square = BuildSquareGoal(
         id="INSTRUCTION_CRAFTING_TABLE_3", scenario="hard", split="hard_train",
         instruction="A square of tables.", paraphrases=(), block="CRAFTING_TABLE", size=3,

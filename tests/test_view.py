@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from env import CrafTextEnv, EnvConfig, Variant, episode_key
+from env import CrafTextEnv, EnvConfig, Variant, episode_key, shared_env
 from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import EXIT_USER_ERROR, main
@@ -36,7 +36,7 @@ SCRIPT = "mock:hash:ACTION: DO|ACTION: LEFT|I go RIGHT|<action>UP</action>|ACTIO
 
 @pytest.fixture(scope="module")
 def classic_env() -> CrafTextEnv:
-    return CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    return shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
 
 
 def _settings(out: Path, **settings: Any) -> Any:

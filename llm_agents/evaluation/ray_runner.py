@@ -179,11 +179,11 @@ class EpisodeWorker:
         self._failure: WorkerFailure | None = None
         self._model: ModelAPI | None = None
         try:
-            from env import CrafTextEnv
+            from env import shared_env
             from llm_agents.agents import NoModel, agent_class
             from llm_agents.evaluation.runner import open_model
 
-            self._env = CrafTextEnv(config.env_config())
+            self._env = shared_env(config.env_config())
             self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()
         except Exception as err:  # reported by `ready`, where the driver can say it in one line
             self._failure = _failure(err)

@@ -300,10 +300,11 @@ def execute_run(
     """Play the prepared run with `model` (probed first with `probe`), writing as it goes.
 
     `model` must be the one the config names (see `check_model`). `env` may pass an existing
-    `CrafTextEnv` of the same variant and step cap (tests share one). Raises `BackendFailure`
+    `CrafTextEnv` of the same settings; without one the run plays on the process's
+    `env.shared_env` for them. Raises `BackendFailure`
     (after saving) when the backend failed too often in a row.
     """
-    from env import CrafTextEnv
+    from env import shared_env
 
     config = prepared.config
     check_model(config, model)
@@ -313,7 +314,7 @@ def execute_run(
             model.check_images()
     env_config = config.env_config()
     if env is None:
-        env = CrafTextEnv(env_config)
+        env = shared_env(env_config)
     elif env.config != env_config:
         raise ValueError("the env passed to run_eval does not match the config")
     return run_schedule(

@@ -321,11 +321,11 @@ def _replayer(run: LoadedRun, *, batch_size: int) -> Any:
 # benchmarks, a notebook) does it once per env.
 @functools.cache
 def _compiled_replayer(env_config_json: str, batch_size: int) -> Any:
-    from env import CrafTextEnv, EnvConfig
+    from env import EnvConfig, shared_env
     from env.replay import Replayer
 
     return Replayer(
-        CrafTextEnv(EnvConfig.model_validate_json(env_config_json)), batch_size=batch_size
+        shared_env(EnvConfig.model_validate_json(env_config_json)), batch_size=batch_size
     )
 
 
@@ -401,16 +401,21 @@ def _ground(name: str) -> str:
 def _minimap(
     marks: Any, board: np.ndarray, position: tuple[int, int], block_names: Sequence[str]
 ) -> dict[str, Any]:
-    """The checker's region as cells with their ground colour and classes, for the small map."""
+    """The checker's region for the small map: its size, the cell size in pixels, and its cells
+    as SVG squares with their ground colour, classes and a title naming the block."""
     shape = board.shape
     row0, column0, rows, columns = marks.region
+    # Smaller cells for a tall region, so the map fits beside the frames.
+    size = 9 if rows > 15 else 14
     classes = {
         **{tuple(cell): "block" for cell in marks.blocks},
         **{tuple(cell): "reference" for cell in marks.references},
     }
     targets = {tuple(cell) for cell in marks.targets}
     completed = {tuple(cell) for cell in marks.completed}
-    cells = []
+    # Written here, not looped over in the template: a region has hundreds of cells, and the
+    # template's loop over them took most of a page's rendering.
+    squares = []
     for r in range(row0, row0 + rows):
         for c in range(column0, column0 + columns):
             inside = 0 <= r < shape[0] and 0 <= c < shape[1]
@@ -422,17 +427,20 @@ def _minimap(
             if (r, c) == position:
                 names.append("player")
             name = block_names[int(board[r, c])] if inside else "outside the map"
-            cells.append(
-                {
-                    "x": c - column0,
-                    "y": r - row0,
-                    "cls": " ".join(names),
-                    "fill": _ground(name) if inside else "#ffffff",
-                    "name": name.lower().replace("_", " "),
-                    "at": [r, c],
-                }
+            fill = _ground(name) if inside else "#ffffff"
+            title = markupsafe.escape(f"row {r}, column {c}: {name.lower().replace('_', ' ')}")
+            squares.append(
+                f'<rect x="{1 + (c - column0) * size}" y="{1 + (r - row0) * size}" '
+                f'width="{size - 1}" height="{size - 1}" class="{" ".join(names)}" '
+                f'style="fill: {fill}"><title>{title}</title></rect>'
             )
-    return {"rows": rows, "columns": columns, "cells": cells, "origin": [row0, column0]}
+    return {
+        "rows": rows,
+        "columns": columns,
+        "cell": size,
+        "squares": markupsafe.Markup("".join(squares)),
+        "origin": [row0, column0],
+    }
 
 
 def _status(view: EpisodeView, replay: Any) -> ReplayStatus:
@@ -713,7 +721,10 @@ def _episode_context(
         "steps": steps,
         # Each step's recorded PNG once; a step's `sent` lists the frames its message carried.
         "frames": frames,
-        "checker": checker,
+        # The small map is drawn here, in the page; its script reads only the checker's marks.
+        "checker": None
+        if checker is None
+        else {key: value for key, value in checker.items() if key != "minimap"},
         "termination": record.termination,
         "sheet": None
         if sheet is None
