@@ -4,6 +4,7 @@ independence from the episodes in flight and answer timing, resume after SIGKILL
 from __future__ import annotations
 
 import contextlib
+import gc
 import hashlib
 import json
 import random
@@ -12,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +76,10 @@ def test_runs_of_the_same_settings_in_one_process_share_one_env(tmp_path: Path) 
             run_eval(cfg, model)
         traced.append(env.batched_step._cache_size())
     assert traced == [1, 1]
+    # Held weakly: an env nobody holds any more is freed with its compiled functions.
+    dropped = weakref.ref(shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=7)))
+    gc.collect()
+    assert dropped() is None
 
 
 def canonical(run_dir: Path) -> list[dict[str, Any]]:
