@@ -20,13 +20,12 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from env import CrafTextEnv, EnvConfig, Variant, episode_key
+from env import CrafTextEnv, EnvConfig, Variant, VectorEnv, episode_key
 from env.achievements import NUM_ACHIEVEMENTS
-from env.craftext_env import make_task
+from env.craftext_env import _row_outputs
 
 
 def python_work(iterations: int) -> None:
@@ -54,21 +53,18 @@ def timed(run: Callable[[], None], repeats: int) -> tuple[float, float]:
 
 
 def measure(variant: Variant, batch: int, work_ms: float | None, repeats: int) -> None:
-    env = CrafTextEnv(EnvConfig(variant=variant, max_steps=10_000))
-    required = np.zeros(NUM_ACHIEVEMENTS, bool)
-    required[0] = True
-    task = make_task(required, np.zeros_like(required))
-    # One world at a time, stacked, as `VectorEnv.reset` does.
-    worlds = [
-        jax.device_get(env.jitted_reset(episode_key(0, "bench", 0, row), task))
-        for row in range(batch)
-    ]
-    state: Any = jax.tree.map(lambda *leaves: jnp.asarray(np.stack(leaves)), *worlds)
+    vector = VectorEnv(CrafTextEnv(EnvConfig(variant=variant, max_steps=10_000)), batch)
+    required = np.zeros((batch, NUM_ACHIEVEMENTS), bool)
+    required[:, 0] = True
+    keys = np.stack([episode_key(0, "bench", 0, row) for row in range(batch)])
+    vector.reset(keys, required, np.zeros_like(required))
+    env, state = vector.env, vector._require_state()
     actions, active = jnp.ones(batch, jnp.int32), jnp.ones(batch, bool)
 
     def pull(stepped: tuple[Any, Any]) -> Any:
+        """The state after the step, once pulled to numpy as `VectorEnv.step` pulls it."""
         next_state, info = stepped
-        jax.device_get((next_state.game, next_state.termination, next_state.steps, info))
+        VectorEnv._to_host(next_state, _row_outputs(info))
         return next_state
 
     def step() -> None:

@@ -300,9 +300,8 @@ def execute_run(
     """Play the prepared run with `model` (probed first with `probe`), writing as it goes.
 
     `model` must be the one the config names (see `check_model`). `env` may pass an existing
-    `CrafTextEnv` of the same settings; without one the run plays on the process's
-    `env.shared_env` for them. Raises `BackendFailure`
-    (after saving) when the backend failed too often in a row.
+    `CrafTextEnv` of the same settings; without one the run plays on `env.shared_env`'s. Raises
+    `BackendFailure` (after saving) when the backend failed too often in a row.
     """
     from env import shared_env
 
