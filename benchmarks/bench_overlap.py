@@ -3,9 +3,9 @@
 The play loop steps the worlds, then textualizes, prompts and records, one after the other. JAX
 dispatches a step asynchronously, so the step could in principle be computed on another core
 while the host works. This times, for one batch of worlds: the step alone (dispatch, compute,
-pull to numpy, as `VectorEnv.step` does), some host work alone, the two one after the other, and
-the two overlapped: the step dispatched before the work and pulled after it, or run whole on a
-worker thread. Two kinds of work, side by side:
+pull to numpy, as `VectorEnv.step` does; each of the three also timed apart), some host work
+alone, the two one after the other, and the two overlapped: the step dispatched before the work
+and pulled after it, or run whole on a worker thread. Two kinds of work, side by side:
 - a fixed number of pure-Python loop iterations (about one step's time): the best case. It is a
   count, not a wall-clock wait: a busy loop that runs until a deadline finishes on time even
   while the step has its core, and so shows an overlap that a machine without a free core does
@@ -25,6 +25,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -80,9 +81,26 @@ def measure(variant: Variant, batch: int, work_ms: float | None, repeats: int) -
         step()
     step_ms, step_cpu = timed(step, repeats)
     iterations = iterations_for((work_ms or step_ms) / 1000)
+    phases = np.zeros(3)
+    for _ in range(repeats):
+        start = time.perf_counter()
+        stepped = env.batched_step(state, actions, active)
+        dispatched_at = time.perf_counter()
+        jax.block_until_ready(stepped)
+        computed_at = time.perf_counter()
+        state = pull(stepped)
+        phases += [
+            dispatched_at - start,
+            computed_at - dispatched_at,
+            time.perf_counter() - computed_at,
+        ]
+    dispatch_ms, compute_ms, pull_ms = phases / repeats * 1000
 
     print(f"{variant.value}, {batch} worlds")
-    print(f"  step + pull alone     {step_ms:7.2f} ms wall {step_cpu:7.2f} ms CPU")
+    print(
+        f"  step + pull alone     {step_ms:7.2f} ms wall {step_cpu:7.2f} ms CPU "
+        f"(dispatch {dispatch_ms:.2f}, compute {compute_ms:.2f}, pull to numpy {pull_ms:.2f} ms)"
+    )
     pool = ThreadPoolExecutor(1)
     runner_work = _runner_work(vector, batch)
     for label, work in (
