@@ -1,13 +1,18 @@
-"""How much of an env step this machine can hide behind the runner's Python work.
+"""How much of an env step this machine can hide behind the runner's host work.
 
 The play loop steps the worlds, then textualizes, prompts and records, one after the other. JAX
 dispatches a step asynchronously, so the step could in principle be computed on another core
-while Python works. This times, for one batch of worlds: the step alone (dispatch, compute, pull
-to numpy, as `VectorEnv.step` does), a fixed amount of pure-Python work alone, the two one after
-the other, and the two overlapped: the step dispatched before the work and pulled after it, or
-run whole on a worker thread. The work is a fixed number of loop iterations, not a wall-clock
-wait: a busy loop that runs until a deadline finishes on time even while the step has its core,
-and so shows an overlap that a machine without a free core does not give.
+while the host works. This times, for one batch of worlds: the step alone (dispatch, compute,
+pull to numpy, as `VectorEnv.step` does; each of the three also timed apart), some host work
+alone, the two one after the other, and the two overlapped: the step dispatched before the work
+and pulled after it, or run whole on a worker thread. Two kinds of work, side by side:
+- a fixed number of pure-Python loop iterations (about one step's time): the best case. It is a
+  count, not a wall-clock wait: a busy loop that runs until a deadline finishes on time even
+  while the step has its core, and so shows an overlap that a machine without a free core does
+  not give;
+- the runner's own work on the batch: textualizing every world and rendering its zero-shot
+  prompt (`observe_batch`, `ZeroShotAgent.prepare`), what a pipelined runner would do for one
+  half of its slots while the other half's worlds compute.
 
     python benchmarks/bench_overlap.py [--variant classic full] [--batch 32] [--work-ms 5]
 """
@@ -20,6 +25,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -75,38 +81,80 @@ def measure(variant: Variant, batch: int, work_ms: float | None, repeats: int) -
         step()
     step_ms, step_cpu = timed(step, repeats)
     iterations = iterations_for((work_ms or step_ms) / 1000)
-    work_wall, work_cpu = timed(lambda: python_work(iterations), repeats)
-
-    def serial() -> None:
-        step()
-        python_work(iterations)
-
-    def dispatched() -> None:
-        nonlocal state
+    phases = np.zeros(3)
+    for _ in range(repeats):
+        start = time.perf_counter()
         stepped = env.batched_step(state, actions, active)
-        python_work(iterations)
+        dispatched_at = time.perf_counter()
+        jax.block_until_ready(stepped)
+        computed_at = time.perf_counter()
         state = pull(stepped)
-
-    pool = ThreadPoolExecutor(1)
-
-    def threaded() -> None:
-        nonlocal state
-        future = pool.submit(lambda: pull(env.batched_step(state, actions, active)))
-        python_work(iterations)
-        state = future.result()
+        phases += [
+            dispatched_at - start,
+            computed_at - dispatched_at,
+            time.perf_counter() - computed_at,
+        ]
+    dispatch_ms, compute_ms, pull_ms = phases / repeats * 1000
 
     print(f"{variant.value}, {batch} worlds")
-    print(f"  step + pull alone     {step_ms:7.2f} ms wall {step_cpu:7.2f} ms CPU")
-    print(f"  Python work alone     {work_wall:7.2f} ms wall {work_cpu:7.2f} ms CPU")
-    serial_ms, serial_cpu = timed(serial, repeats)
-    print(f"  one after the other   {serial_ms:7.2f} ms wall {serial_cpu:7.2f} ms CPU")
-    for name, run in (("dispatched, then work", dispatched), ("on a worker thread", threaded)):
-        wall, cpu = timed(run, repeats)
-        print(
-            f"  {name:<21} {wall:7.2f} ms wall {cpu:7.2f} ms CPU: "
-            f"{(serial_ms - wall) / step_ms:5.0%} of the step hidden"
-        )
+    print(
+        f"  step + pull alone     {step_ms:7.2f} ms wall {step_cpu:7.2f} ms CPU "
+        f"(dispatch {dispatch_ms:.2f}, compute {compute_ms:.2f}, pull to numpy {pull_ms:.2f} ms)"
+    )
+    pool = ThreadPoolExecutor(1)
+    runner_work = _runner_work(vector, batch)
+    for label, work in (
+        ("pure-Python loop", lambda: python_work(iterations)),
+        ("runner's work (observe + prompt)", runner_work),
+    ):
+
+        def serial(work: Callable[[], None] = work) -> None:
+            step()
+            work()
+
+        def dispatched(work: Callable[[], None] = work) -> None:
+            nonlocal state
+            stepped = env.batched_step(state, actions, active)
+            work()
+            state = pull(stepped)
+
+        def threaded(work: Callable[[], None] = work) -> None:
+            nonlocal state
+            future = pool.submit(lambda: pull(env.batched_step(state, actions, active)))
+            work()
+            state = future.result()
+
+        work_wall, work_cpu = timed(work, repeats)
+        print(f"  {label}")
+        print(f"    work alone            {work_wall:7.2f} ms wall {work_cpu:7.2f} ms CPU")
+        serial_ms, serial_cpu = timed(serial, repeats)
+        print(f"    one after the other   {serial_ms:7.2f} ms wall {serial_cpu:7.2f} ms CPU")
+        for name, run in (("dispatched, then work", dispatched), ("on a worker thread", threaded)):
+            wall, cpu = timed(run, repeats)
+            print(
+                f"    {name:<21} {wall:7.2f} ms wall {cpu:7.2f} ms CPU: "
+                f"{(serial_ms - wall) / step_ms:5.0%} of the step hidden"
+            )
     pool.shutdown()
+
+
+def _runner_work(vector: VectorEnv, batch: int) -> Callable[[], None]:
+    """The runner's host work for every world of the batch, on its current state: observations,
+    then each episode's zero-shot step prompt."""
+    from llm_agents.agents.types import EpisodeStart
+    from llm_agents.agents.zero_shot import ZeroShotAgent
+    from textualizer import observe_batch
+
+    agent = ZeroShotAgent(vector.variant)
+    for slot in range(batch):
+        agent.start_episode(slot, EpisodeStart("collect wood", episode=f"bench-{slot}"))
+    game = vector._fresh_host().game
+
+    def work() -> None:
+        for slot, observation in enumerate(observe_batch(game, vector.variant)):
+            agent.prepare(slot, observation)
+
+    return work
 
 
 def main() -> None:
