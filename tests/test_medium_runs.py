@@ -140,11 +140,15 @@ def test_the_do_nothing_agent_meets_what_the_do_nothing_worlds_say_and_report_le
     assert again[f"medium_train/{OUT_OF_REACH}"] == 7
 
     monkeypatch_cache = pytest.MonkeyPatch()
-    # A project cache of its own for the do-nothing worlds, but JAX's compiles stay where they
-    # are: a fresh JAX cache would compile the env again (about 20 s).
     jax_cache = str(enable_compilation_cache())
-    monkeypatch_cache.setenv("CRAFTEXT_LLM_CACHE", str(tmp_path / "project-cache"))
-    monkeypatch_cache.setenv("JAX_COMPILATION_CACHE_DIR", jax_cache)
+
+    def own_project_cache() -> None:
+        # A project cache of its own for the do-nothing worlds, but JAX's compiles stay where
+        # they are: a fresh JAX cache would compile the env again (about 20 s).
+        monkeypatch_cache.setenv("CRAFTEXT_LLM_CACHE", str(tmp_path / "project-cache"))
+        monkeypatch_cache.setenv("JAX_COMPILATION_CACHE_DIR", jax_cache)
+
+    own_project_cache()
     try:
         capsys.readouterr()
         assert (
@@ -167,8 +171,7 @@ def test_the_do_nothing_agent_meets_what_the_do_nothing_worlds_say_and_report_le
 
     # The HTML report shows the same tables, in their own block. (Its episode pages are left
     # without their goals: what they show of a placing goal is not this test's business.)
-    monkeypatch_cache.setenv("CRAFTEXT_LLM_CACHE", str(tmp_path / "project-cache"))
-    monkeypatch_cache.setenv("JAX_COMPILATION_CACHE_DIR", jax_cache)
+    own_project_cache()
     monkeypatch_cache.setattr("llm_agents.viewer.run._goals", lambda *_: {})
     try:
         outcome = build_view(tmp_path / "run", progress=False, goal_status=True, worlds=1)
