@@ -3,7 +3,7 @@
 Every file is measured on the same instruction texts (instructions and paraphrases of the chosen
 splits, by default every split the dataset has, EASY, Medium and Hard), with the planner's own
 parser, limits and Craftax vocabulary, so a file we generated and CrafText's official GPT-4 file
-compare directly. `covered` says how many of a split's texts a file has a plan for (the README
+compare directly. `covered` says how many of a split's texts a file has a plan for (docs/commands/plan.md
 gives the official file's coverage of each split).
 
     python -m benchmarks.compare_plans OURS.json [--official FILE] [--dataset SOURCE]

@@ -1,5 +1,5 @@
 """The goals a do-nothing agent meets and the goals that cannot be met, per difficulty and
-variant, with why: the lists the README shows (issue 31).
+variant, with why: the lists docs/goal-status.md shows (issue 31).
 
 Do nothing: `NOOP` at every step in `--worlds` seeded worlds per goal, in the real env with the
 real checkers (`env.goal_status`, cached: a rerun only prints). Impossible: derived from each

@@ -1,7 +1,7 @@
 """The success checkers of every CrafText scenario, in JAX, one `lax.switch` over the goal kinds.
 
 Each checker reproduces what the official one at 1c518ae computes, quirks included, because
-published success rates were scored with them (the named rule `official`; docs in the README):
+published success rates were scored with them (the named rule `official`; docs/protocols/paper.md):
 
 - The official wrapper passes `[new state, previous state]`, so the checkers' `states[0]` is the
   state after the step. Conditional placing reads them the other way round: it succeeds when the

@@ -97,7 +97,7 @@ def vllm_serve(
     max_num_seqs: int,
     kv_cache_gib: int = 1,
 ) -> Iterator[str]:
-    """Run `vllm serve` (the command the README documents) until the block ends; yields the
+    """Run `vllm serve` (the command docs/backends/vllm.md documents) until the block ends; yields the
     server's /v1 URL once `/health` answers. Raises `ServerDidNotStart` otherwise."""
     port = free_port()
     command = [

@@ -208,7 +208,7 @@ class ChoiceSettings(ModelSettings):
     lm-evaluation-harness's acc_norm), pmi (minus the same after a content-free prompt) or
     letters (eval's zero-shot and few-shot agents: the actions listed under the letters A-Z,
     a-z in an order drawn per step from the seed, episode and step, and the model's next-token
-    probability of each letter; the order is recorded per step). See the README's Choices."""
+    probability of each letter; the order is recorded per step). See docs/agents/choice-scoring.md."""
 
     @model_validator(mode="after")
     def _scoring_with_loglik(self) -> ChoiceSettings:
@@ -295,9 +295,10 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     record_steps: bool = True
     """Write one JSON line per agent step (observation, raw output, parsed action, ...)."""
     protocol: Annotated[ProtocolName, CHANGES_RESULTS] = "default"
-    """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours) or
+    """Evaluation protocol whose settings fill in those not set explicitly: `default` (ours),
     `paper` (the official CrafText evaluation: Classic, official success rule and world, 0.7
-    temperature, 10 tokens, 4 actions shown); see the README's protocol table."""
+    temperature, 10 tokens, 4 actions shown) or `balrog` (BALROG's open-ended Crafter task); see
+    docs/protocols/index.md."""
     protocol_overrides: Annotated[tuple[str, ...], CHANGES_RESULTS] = Field(
         (), json_schema_extra={"flag": False}
     )

@@ -46,7 +46,7 @@ class ProtocolChoice(BaseModel):
     value: Any
     """The value the protocol gives it."""
     source: str
-    """Where the choice comes from (shown in the README's protocol table)."""
+    """Where the choice comes from (shown in docs/protocols/index.md's tables)."""
 
 
 class Protocol(BaseModel):
