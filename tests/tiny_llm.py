@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 HIDDEN = 32
 LAYERS = 1
@@ -15,7 +16,7 @@ INTERMEDIATE = 64
 CONTEXT = 2048
 
 
-def _tokenizer(tokenizer_dir: Path):  # type: ignore[no-untyped-def]
+def _tokenizer(tokenizer_dir: Path) -> Any:
     from transformers import AutoTokenizer
 
     return AutoTokenizer.from_pretrained(tokenizer_dir, local_files_only=True)

@@ -428,7 +428,7 @@ def local_model_path(backend: str, model_name: str) -> Path | None:
         return path
     if model_name.startswith((".", "/", "~")):
         raise UserError(f"{backend} model folder {model_name!r} does not exist")
-    if parse_hub_id(model_name) is None:
+    if _hub_id(backend, model_name) is None:
         raise UserError(
             f"{backend} model {model_name!r} is no named model, local folder or hub id "
             f"(ORG/NAME, or ORG/NAME:FILE{GGUF_SUFFIX})"
@@ -444,7 +444,20 @@ def hub_id_of(backend: str, model_name: str) -> HubId | None:
     path = Path(model_name).expanduser()
     if path.is_dir() or path.is_file():
         return None
-    return parse_hub_id(model_name)
+    return _hub_id(backend, model_name)
+
+
+def _hub_id(backend: str, model_name: str) -> HubId | None:
+    """`parse_hub_id`, refusing a misspelled named model rather than asking the hub for it."""
+    hub_id = parse_hub_id(model_name)
+    if hub_id is not None and "/" not in hub_id.repo_id:
+        close = difflib.get_close_matches(hub_id.repo_id, NAMED_MODELS, n=1, cutoff=0.8)
+        if close:
+            raise UserError(
+                f"{backend}:{model_name} is no named model; did you mean {backend}:{close[0]}? "
+                "(a hub id is ORG/NAME)"
+            )
+    return hub_id
 
 
 class ModelLocation(NamedTuple):
@@ -468,7 +481,7 @@ def locate_model(backend: str, model_name: str, revision: str | None) -> ModelLo
                 "hub id (leave the revision option out)"
             )
         return ModelLocation(path, None)
-    hub_id = parse_hub_id(model_name)
+    hub_id = _hub_id(backend, model_name)
     assert hub_id is not None  # local_model_path refused every other name
     fetched = fetch(hub_id, revision)
     assert fetched.path is not None

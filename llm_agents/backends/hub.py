@@ -19,6 +19,7 @@ from __future__ import annotations
 import errno
 import fnmatch
 import importlib
+import os
 import re
 import shutil
 import sys
@@ -169,11 +170,30 @@ def fetch(hub_id: HubId, revision: str | None = None) -> HubModel:
     _check_free_space(hub_id, missing)
     if missing:
         _download(hub_id, model.commit, missing)
+    _remember_revision(hub_id, model.revision, model.commit)
     first = hub_id.filename or next(iter(model.files))
     located = hub.try_to_load_from_cache(hub_id.repo_id, first, revision=model.commit)
     file = Path(str(located))
     path = file if hub_id.filename else _snapshot_of(file, first)
     return model.model_copy(update={"path": path})
+
+
+def _remember_revision(hub_id: HubId, revision: str, commit: str) -> None:
+    """Record in the cache's refs that `revision` (a branch or tag) is at `commit`, as the
+    client's own snapshot download does, so an offline run finds it. Files are downloaded by
+    their commit, which records no ref."""
+    if revision == commit:
+        return
+    from huggingface_hub.file_download import repo_folder_name
+
+    folder = repo_folder_name(repo_id=hub_id.repo_id, repo_type="model")
+    ref = cache_dir() / folder / "refs" / revision
+    if ref.is_file() and ref.read_text() == commit:
+        return
+    ref.parent.mkdir(parents=True, exist_ok=True)
+    partial = ref.with_name(f".{ref.name}.{os.getpid()}.tmp")
+    partial.write_text(commit)
+    partial.replace(ref)
 
 
 def _needed_files(hub_id: HubId, siblings: dict[str, int | None], commit: str) -> dict[str, Any]:
@@ -258,6 +278,15 @@ def _download(hub_id: HubId, commit: str, files: dict[str, int | None]) -> None:
     from tqdm import tqdm
 
     hub = _hub()
+    # The files' access is asked first (one HEAD), so a gated repository's refusal is told
+    # alone, not under a progress bar left at 0%.
+    try:
+        hub.get_hf_file_metadata(
+            hub.hf_hub_url(hub_id.repo_id, next(iter(files)), revision=commit),
+            timeout=HUB_TIMEOUT_S,
+        )
+    except Exception as err:
+        raise _hub_error(err, hub_id, commit) from None
     with tqdm(
         total=sum(size or 0 for size in files.values()),
         desc=f"downloading {hub_id.spec} ({commit[:12]})",
@@ -364,4 +393,3 @@ def _hub_error(err: BaseException, hub_id: HubId, revision: str) -> BaseExceptio
             "hub cache"
         )
     return err
-
