@@ -127,6 +127,12 @@ def hub_environment() -> Iterator[Callable[..., Path]]:
     importlib.reload(huggingface_hub.constants)
 
 
+def process_environment(base: dict[str, str], **variables: str) -> dict[str, str]:
+    """A child process's environment: `base` with only the given hub variables set."""
+    kept = {name: value for name, value in base.items() if name not in HUB_VARIABLES}
+    return kept | variables
+
+
 def invoke(argv: list[str], capsys: Any) -> tuple[int, str, float]:
     start = time.perf_counter()
     code = main(argv)
@@ -149,9 +155,9 @@ def snapshot(cache: Path, repo_id: str, commit: str) -> Path:
 def test_a_hub_id_downloads_into_an_empty_cache_then_evaluates(hub: Hub, tmp_path: Path) -> None:
     """As a user runs it: a fresh process, HF_ENDPOINT and an empty HF_HOME in its environment."""
     home, out = tmp_path / "hf-home", tmp_path / "run"
-    env = {**os.environ, "HF_HOME": str(home), "HF_ENDPOINT": hub.url, "PYTHONPATH": str(REPO)}
-    for name in ("HF_HUB_CACHE", "HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE", "HF_TOKEN"):
-        env.pop(name, None)
+    env = process_environment(
+        {**os.environ, "PYTHONPATH": str(REPO)}, HF_HOME=str(home), HF_ENDPOINT=hub.url
+    )
     done = subprocess.run(
         [sys.executable, "-m", "llm_agents.cli", *eval_args(f"hf:{TINY}", out)],
         env=env,
@@ -226,6 +232,63 @@ def test_vllm_is_handed_the_local_snapshot_and_its_commit(
     assert model_revision(f"vllm:{TINY}", {}) == hub.commits[TINY]
     assert model_revision("vllm:smollm2-135m", {}) is None
     assert model_revision(f"openai:{TINY}@http://127.0.0.1:1/v1", {}) is None
+
+
+#: Runs in the vLLM environment (spawned engine children re-import it: the __main__ guard).
+VLLM_SCRIPT = """
+import json, sys
+from llm_agents.backends import get_model, model_revision
+from llm_agents.backends.base import ChatMessage, GenerateConfig
+
+def main():
+    spec, out = sys.argv[1], sys.argv[2]
+    commit = model_revision(spec, {})
+    model = get_model(spec, GenerateConfig(max_tokens=2), enforce_eager=True, max_model_len=512)
+    [answer] = model.generate([[ChatMessage(role="user", content="Say OK.")]])
+    with open(out, "w") as file:
+        json.dump({"commit": commit, "info": model.info(), "answer": answer.model_dump()}, file)
+    model.close()
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+@pytest.mark.vllm
+@pytest.mark.slow
+def test_vllm_loads_a_hub_id_it_never_downloads_itself(hub: Hub, tmp_path: Path) -> None:
+    from vllm_serve import START_TIMEOUT_S, VLLM_VENV, vllm_environment, vllm_environment_ready
+
+    if not vllm_environment_ready():
+        pytest.skip(f"no vLLM environment at {VLLM_VENV}; build it with scripts/setup_vllm_cpu.sh")
+    script, out, home = tmp_path / "load.py", tmp_path / "out.json", tmp_path / "hf-home"
+    script.write_text(VLLM_SCRIPT)
+    env = process_environment(
+        vllm_environment() | {"VLLM_ENABLE_V1_MULTIPROCESSING": "0"},
+        HF_HOME=str(home),
+        HF_ENDPOINT=hub.url,
+    )
+    run = subprocess.run(
+        [str(VLLM_VENV / "bin" / "python"), str(script), f"vllm:{TINY}", str(out)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=START_TIMEOUT_S + 120,
+    )
+    assert run.returncode == 0, run.stderr[-4000:]
+    loaded = json.loads(out.read_text())
+    commit = hub.commits[TINY]
+    assert loaded["commit"] == commit
+    assert loaded["info"]["revision"] == commit
+    assert loaded["info"]["model_path"] == str(snapshot(home / "hub", TINY, commit))
+    assert loaded["answer"]["finish_reason"] in ("stop", "length"), loaded["answer"]
+    # Every request our code made, none of vLLM's own: model info, then the files by commit.
+    assert all(
+        request.path.startswith(("/api/models/", f"/{TINY}/resolve/{commit}/", "/cdn/"))
+        for request in hub.server.requests
+        if TINY in request.path or request.path.startswith("/cdn/")
+    )
 
 
 # ---------------------------------------------------------------------------- revisions
