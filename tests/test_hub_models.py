@@ -24,6 +24,7 @@ from typing import Any
 import pytest
 from hub_server import GRANTED_TOKEN, UNGRANTED_TOKEN, HubServer
 from tiny_llm import build_tiny_gguf, build_tiny_llm, folder_files
+from tqdm import tqdm
 
 from env.errors import UserError
 from llm_agents.backends import get_model, model_revision
@@ -172,7 +173,8 @@ def test_a_hub_id_downloads_into_an_empty_cache_then_evaluates(hub: Hub, tmp_pat
     total = sum(len(data) for data in folder_files(hub.folder).values())
     bar = done.stderr.replace("\r", "\n")
     assert f"downloading {TINY} ({commit[:12]})" in bar
-    assert f"{total / 1e6:.2f}M/{total / 1e6:.2f}M" in bar
+    shown = tqdm.format_sizeof(total)
+    assert f"100%|██████████| {shown}/{shown}" in bar
     # The standard hub cache under HF_HOME, the weights byte for byte.
     folder = snapshot(home / "hub", TINY, commit)
     assert (folder / "model.safetensors").read_bytes() == (
@@ -268,6 +270,7 @@ def test_vllm_loads_a_hub_id_it_never_downloads_itself(hub: Hub, tmp_path: Path)
         HF_HOME=str(home),
         HF_ENDPOINT=hub.url,
     )
+    asked = len(hub.server.requests)
     run = subprocess.run(
         [str(VLLM_VENV / "bin" / "python"), str(script), f"vllm:{TINY}", str(out)],
         cwd=tmp_path,
@@ -283,12 +286,18 @@ def test_vllm_loads_a_hub_id_it_never_downloads_itself(hub: Hub, tmp_path: Path)
     assert loaded["info"]["revision"] == commit
     assert loaded["info"]["model_path"] == str(snapshot(home / "hub", TINY, commit))
     assert loaded["answer"]["finish_reason"] in ("stop", "length"), loaded["answer"]
-    # Every request our code made, none of vLLM's own: model info, then the files by commit.
+    # Every request was our code's, none vLLM's own: the model info of `main`, then the files
+    # by their commit (beside the client's own telemetry, which asks for a list of agents).
+    paths = [
+        request.path
+        for request in hub.server.requests[asked:]
+        if request.path != "/api/agent-harnesses"
+    ]
+    assert paths[0] == f"/api/models/{TINY}/revision/main"
     assert all(
-        request.path.startswith(("/api/models/", f"/{TINY}/resolve/{commit}/", "/cdn/"))
-        for request in hub.server.requests
-        if TINY in request.path or request.path.startswith("/cdn/")
-    )
+        path.startswith((f"/api/models/{TINY}/revision/", f"/{TINY}/resolve/{commit}/", "/cdn/"))
+        for path in paths
+    ), paths
 
 
 # ---------------------------------------------------------------------------- revisions
