@@ -1,8 +1,9 @@
 """A hub id's first use, as a user meets it: `craftext-llm eval --model hf:ORG/NAME` from an
 empty hub cache, the model downloaded from a hub served on loopback (`tests/hub_server.py`,
 the real `huggingface_hub` client talking to it through `HF_ENDPOINT`), then the eval run; and
-the same command again with the model cached. Prints the wall time of each and the download's
-progress bar as stderr showed it.
+the same command again with the model cached; and, apart, the download alone (resolve and
+fetch into another empty cache, in a fresh process). Prints the wall time of each and the
+download's progress bar as stderr showed it.
 
 The model is the tests' tiny Llama (`tests/tiny_llm.py`: random weights, the embedded model's
 tokenizer), or any local model folder (`--model-dir`), served as `bench-org/NAME`.
@@ -26,6 +27,13 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from hub_server import HubServer  # noqa: E402
 from tiny_llm import build_tiny_llm, folder_files  # noqa: E402
+
+#: Resolves and downloads a model spec's hub id, as `eval` does before its run.
+FETCH = (
+    "import sys; from llm_agents.backends import model_revision, parse_model_spec; "
+    "from llm_agents.backends.base import locate_model; spec = sys.argv[1]; "
+    "model_revision(spec, {}); locate_model('hf', parse_model_spec(spec).name, None)"
+)
 
 
 def eval_command(model: str, out: Path, episodes: int, max_steps: int) -> list[str]:
@@ -79,6 +87,14 @@ def main() -> None:
                 print("progress bar, as stderr showed it:" if bar else "no download")
                 for line in bar:
                     print(f"  {line}")
+            fetch = [sys.executable, "-c", FETCH, f"hf:{repo_id}"]
+            start = time.perf_counter()
+            alone = {**env, "HF_HOME": str(root / "hf-home-alone")}
+            done = subprocess.run(fetch, env=alone, capture_output=True, text=True, cwd=REPO)
+            wall = time.perf_counter() - start
+            if done.returncode != 0:
+                sys.exit(f"the download failed ({done.returncode}):\n{done.stderr}")
+            print(f"\n== the download alone (a fresh process, imports included): {wall:.1f} s")
         print(f"\ncommand: {' '.join(command[1:])} (with HF_ENDPOINT={hub.url}, empty HF_HOME)")
 
 
