@@ -218,7 +218,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             print(banner, file=sys.stderr)
             outcome = run_on_ray(prepared, progress=progress)
         else:
-            with open_model(config) if needs_model else NoModel() as model:
+            commit = prepared.identity.model_revision
+            with open_model(config, commit) if needs_model else NoModel() as model:
                 print(banner, file=sys.stderr)
                 outcome = execute_run(prepared, model, progress=progress)
     except KeyboardInterrupt:
@@ -252,7 +253,7 @@ def cmd_ground(args: argparse.Namespace) -> int:
 
     config = _settings(args)
     prepared = prepare_grounding(config)
-    with open_model(config) as model:
+    with open_model(config, prepared.identity.model_revision) as model:
         print(
             f"grounding {len(prepared.instructions)} instruction texts of "
             f"{', '.join(config.categories)} with {config.model} -> {config.output_dir}",

@@ -612,11 +612,6 @@ def test_bad_options_are_one_line_user_errors(option: str, value: Any, named: st
     assert "\n" not in str(refused.value)
 
 
-def test_uncached_hub_model_is_a_user_error_not_a_hang() -> None:
-    with pytest.raises(UserError, match="local hub cache"):
-        HFModel("craftext-llm-tests/no-such-model")
-
-
 def test_cache_folder_follows_the_environment(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:

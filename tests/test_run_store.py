@@ -175,6 +175,19 @@ def test_identity_differences_name_each_change() -> None:
     assert before.differences(before) == []
 
 
+def test_identity_names_both_hub_commits_of_a_moved_model() -> None:
+    first, moved = "a" * 40, "b" * 40
+    before = RunIdentity(settings={}, templates={}, model_revision=first)
+    now = RunIdentity(settings={}, templates={}, model_revision=moved)
+    assert now.differences(before) == [f"model revision (commit {first} before, {moved} now)"]
+    # A run recorded before commits were (a hub id then came from the cache alone).
+    unrecorded = RunIdentity(settings={}, templates={})
+    assert now.differences(unrecorded) == [
+        f"model revision (commit none recorded before, {moved} now)"
+    ]
+    assert unrecorded.differences(unrecorded) == []
+
+
 def test_identity_compares_only_the_templates_the_run_renders() -> None:
     # Runs once hashed every packaged template; a template the agent does not render is none
     # of its business, one it renders that the older run did not hash is a change.

@@ -8,12 +8,13 @@ from __future__ import annotations
 import difflib
 import importlib
 import re
+from collections.abc import Mapping
 from typing import Any
 
 from pydantic import BaseModel
 
 from env.errors import UserError
-from llm_agents.backends.base import ChatMessage, GenerateConfig, ModelAPI, ModelOutput
+from llm_agents.backends.base import ChatMessage, GenerateConfig, ModelAPI, ModelOutput, hub_id_of
 from llm_agents.backends.cache import CachedModel
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "ModelOutput",
     "ModelSpec",
     "get_model",
+    "model_revision",
     "parse_model_spec",
 ]
 
@@ -117,3 +119,20 @@ def get_model(spec: str, config: GenerateConfig | None = None, **options: Any) -
         options.setdefault("base_url", parsed.base_url)
     cls.check_settings(config, options)
     return cls(parsed.name, config, **options)
+
+
+def model_revision(spec: str, options: Mapping[str, Any]) -> str | None:
+    """The hub commit a model spec's hub id is at now (its `revision` backend option, else
+    `main`; offline, as the local hub cache holds it), None for any other model: what a run's
+    identity records before the model is loaded. Downloads nothing; a hub that cannot say is a
+    `UserError` naming why."""
+    from llm_agents.backends.hub import resolve
+
+    parsed = parse_model_spec(spec)
+    hub_id = hub_id_of(parsed.backend, parsed.name)
+    if hub_id is None:
+        return None
+    revision = options.get("revision")
+    if revision is not None and not isinstance(revision, str):
+        raise UserError(f"the revision option is a branch, tag or commit name, not {revision!r}")
+    return resolve(hub_id, revision).commit

@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from env.errors import UserError
 from llm_agents.backends.embedded import NAMED_MODELS, named_model_dir
 from llm_agents.backends.endpoints import EndpointStats
+from llm_agents.backends.hub import GGUF_SUFFIX, HubId, HubModel, fetch, parse_hub_id
 
 logger = logging.getLogger(__name__)
 
@@ -406,23 +407,94 @@ def ranked_choices(
     return outputs
 
 
+#: The backends that load hub ids (`hub.py`): the others name models of their own servers.
+HUB_BACKENDS = frozenset({"hf", "vllm"})
+#: The `ModelAPI.info` key of the hub commit a hub-id model was loaded at.
+HUB_REVISION_KEY = "revision"
+
+
 def local_model_path(backend: str, model_name: str) -> Path | None:
-    """The local folder a model name means, or None for a hub id (the backend loads that from
-    the local hub cache).
+    """The local folder (or GGUF file) a model name means, or None for a hub id (`hub_id_of`).
 
     A name of `embedded.NAMED_MODELS` (`smollm2-135m`, the embedded default, and the
     Qwen2.5-Coder models) is fetched and converted on first use; an existing
-    folder is itself; a name written as a path (starting with `.`, `/` or `~`) that is no
-    folder is a `UserError` rather than a hub lookup.
+    folder is itself, and so is an existing `.gguf` file; a name written as a path (starting
+    with `.`, `/` or `~`) that is neither is a `UserError` rather than a hub lookup.
     """
     if model_name in NAMED_MODELS:
         return named_model_dir(model_name)
     path = Path(model_name).expanduser()
-    if path.is_dir():
+    if path.is_dir() or (path.is_file() and path.suffix == GGUF_SUFFIX):
         return path
     if model_name.startswith((".", "/", "~")):
         raise UserError(f"{backend} model folder {model_name!r} does not exist")
+    if _hub_id(backend, model_name) is None:
+        raise UserError(
+            f"{backend} model {model_name!r} is no named model, local folder or hub id "
+            f"(ORG/NAME, or ORG/NAME:FILE{GGUF_SUFFIX})"
+        )
     return None
+
+
+def hub_id_of(backend: str, model_name: str) -> HubId | None:
+    """The hub id a backend's model name spells (downloaded on first use, `hub.fetch`), or None
+    for a named model, a local path, or a backend that loads no hub ids. Touches no network."""
+    if backend not in HUB_BACKENDS or model_name in NAMED_MODELS:
+        return None
+    path = Path(model_name).expanduser()
+    if path.is_dir() or path.is_file():
+        return None
+    return _hub_id(backend, model_name)
+
+
+def _hub_id(backend: str, model_name: str) -> HubId | None:
+    """`parse_hub_id`, refusing a misspelled named model rather than asking the hub for it."""
+    hub_id = parse_hub_id(model_name)
+    if hub_id is not None and "/" not in hub_id.repo_id:
+        close = difflib.get_close_matches(hub_id.repo_id, NAMED_MODELS, n=1, cutoff=0.8)
+        if close:
+            raise UserError(
+                f"{backend}:{model_name} is no named model; did you mean {backend}:{close[0]}? "
+                "(a hub id is ORG/NAME)"
+            )
+    return hub_id
+
+
+class ModelLocation(NamedTuple):
+    """Where a hf or vllm model's files are, and the hub commit they are of."""
+
+    path: Path
+    """A model folder, or a GGUF file."""
+    hub_model: HubModel | None
+    """The hub id and commit it was resolved to; None for a named model or a local path."""
+
+
+def locate_model(backend: str, model_name: str, revision: str | None) -> ModelLocation:
+    """The local files of a model name: a named model or local path as `local_model_path`
+    finds it, a hub id downloaded at `revision` into the hub cache on first use (`hub.fetch`).
+    A revision is refused for anything but a hub id."""
+    path = local_model_path(backend, model_name)
+    if path is not None:
+        if revision is not None:
+            raise UserError(
+                f"revision={revision!r} pins a hub id's commit; {backend}:{model_name} is no "
+                "hub id (leave the revision option out)"
+            )
+        return ModelLocation(path, None)
+    hub_id = _hub_id(backend, model_name)
+    assert hub_id is not None  # local_model_path refused every other name
+    fetched = fetch(hub_id, revision)
+    assert fetched.path is not None
+    return ModelLocation(fetched.path, fetched)
+
+
+def hub_info(location: ModelLocation) -> dict[str, str]:
+    """What `ModelAPI.info` records of a hub model: its repository and the commit it played
+    (`HUB_REVISION_KEY`); nothing for a named model or a local path."""
+    model = location.hub_model
+    if model is None:
+        return {}
+    return {"hub_repo": model.hub_id.spec, HUB_REVISION_KEY: model.commit}
 
 
 def bad_options(backend: str, err: ValidationError) -> UserError:

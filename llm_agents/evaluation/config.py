@@ -66,13 +66,14 @@ class ModelSettings(BaseModel):
     """Old setting name -> current name, accepted in config files and recorded runs."""
 
     model: Annotated[str, CHANGES_RESULTS] = "hf:smollm2-135m"
-    """Model spec: hf:NAME_OR_PATH, vllm:NAME_OR_PATH, openai:MODEL@URL or mock:SCRIPT."""
+    """Model spec: hf:NAME_OR_PATH, vllm:NAME_OR_PATH (a hub id, ORG/NAME or
+    ORG/NAME:FILE.gguf, is downloaded on first use), openai:MODEL@URL or mock:SCRIPT."""
     generation: Annotated[GenerateConfig, CHANGES_RESULTS] = Field(default_factory=GenerateConfig)
     """Generation parameters passed to the backend."""
     backend_options: Annotated[dict[str, Any], CHANGES_RESULTS] = Field(default_factory=dict)
     """Backend option KEY=VALUE (repeatable; values read as JSON when they parse), e.g.
-    threads=2, device=cuda, dtype=float32 (hf), enforce_eager=true (vllm), api_key_env=MY_KEY
-    (openai)."""
+    threads=2, device=cuda, dtype=float32 (hf), enforce_eager=true (vllm), revision=v1.0 (a hub
+    id's branch, tag or commit; hf, vllm), api_key_env=MY_KEY (openai)."""
     cache: str | None = None
     """SQLite file caching model responses, so a repeated run does not pay twice."""
     limit: int | None = Field(None, ge=1)

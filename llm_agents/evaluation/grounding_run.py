@@ -53,7 +53,7 @@ from llm_agents.evaluation.config import (
     GroundingSettings,
     TextSelection,
 )
-from llm_agents.evaluation.runner import BackendFailure
+from llm_agents.evaluation.runner import BackendFailure, check_commit, hub_commit
 from llm_agents.run_data.grounding_metrics import GroundingSummary, Scored, summarize_groundings
 from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.readings import GoalReading, Grounding, reading_of
@@ -235,6 +235,7 @@ def prepare_grounding(config: GroundConfig) -> PreparedGrounding:
         dataset=dataset.source.sha256,
         goals=split_digests(dataset, config.categories, difficulty),
         examples=examples_digest(examples) if examples else None,
+        model_revision=hub_commit(config),
     )
     prepared = PreparedGrounding(
         config=config,
@@ -338,6 +339,7 @@ def execute_grounding(
     `max_consecutive_failures` times in a row."""
     config, out = prepared.config, prepared.output_dir
     difficulty = config.difficulty
+    check_commit(prepared.identity, model.info())
     make_output_dir(out)
     path = out / GROUNDINGS_FILE
     wanted = {i.key for i in prepared.instructions}

@@ -172,7 +172,7 @@ class _WorkerSink:
 class EpisodeWorker:
     """A Ray actor (see `run_on_ray`): its own env and model, playing the episodes it is given."""
 
-    def __init__(self, config: EvalConfig) -> None:
+    def __init__(self, config: EvalConfig, commit: str | None = None) -> None:
         self._config = config
         self._sink = _WorkerSink()
         self._player: threading.Thread | None = None
@@ -184,7 +184,9 @@ class EpisodeWorker:
             from llm_agents.evaluation.runner import open_model
 
             self._env = shared_env(config.env_config())
-            self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()
+            # A hub-id model is loaded at the commit the driver recorded (`hub_commit`).
+            needs_model = agent_class(config.agent).needs_model
+            self._model = open_model(config, commit) if needs_model else NoModel()
         except Exception as err:  # reported by `ready`, where the driver can say it in one line
             self._failure = _failure(err)
 
@@ -366,7 +368,8 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
             max_task_retries=0,
             scheduling_strategy="SPREAD",
         )
-        workers = [actor.remote(config) for _ in range(config.ray_workers)]
+        commit = prepared.identity.model_revision
+        workers = [actor.remote(config, commit) for _ in range(config.ray_workers)]
         ready: list[WorkerReady] = ray.get([worker.ready.remote() for worker in workers])
         for answer in ready:
             if answer.failure is not None:

@@ -40,7 +40,8 @@ from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.grounding import examples_digest, training_examples
 from llm_agents.agents.zero_shot import FRAMES_TEMPLATE
-from llm_agents.backends.base import ModelAPI
+from llm_agents.backends import model_revision
+from llm_agents.backends.base import HUB_REVISION_KEY, ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
@@ -172,6 +173,7 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     first = schedule[0]
     agent.check_templates(first.instruction.text, first.plan, first.instruction.goal)
     identity = RunIdentity(
+        model_revision=hub_commit(config) if agent.needs_model else None,
         settings=config.result_settings(),
         templates=_template_hashes(config, agent),
         plans=file_sha256(Path(config.plans), "plans file") if config.plans else None,
@@ -232,11 +234,20 @@ def run_eval(
     return execute_run(prepared, model, progress=progress, env=env, probe=config.probe)
 
 
-def open_model(settings: ModelSettings) -> ModelAPI:
-    """Load the model the settings name and check it answers (unless `probe` is off)."""
+def hub_commit(settings: ModelSettings) -> str | None:
+    """The hub commit the settings' model is at now (`backends.model_revision`): resolved when a
+    run is prepared, recorded in its identity, and the one its model is then loaded at."""
+    return model_revision(settings.model, settings.backend_options)
+
+
+def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
+    """Load the model the settings name and check it answers (unless `probe` is off). A hub-id
+    model is loaded at `commit` where given (the one the run's identity recorded, `hub_commit`),
+    else at its `revision` option's commit now."""
     from llm_agents.backends import get_model
 
-    model = get_model(settings.model, settings.generation, **settings.backend_options)
+    options = settings.backend_options | ({"revision": commit} if commit else {})
+    model = get_model(settings.model, settings.generation, **options)
     choice = getattr(settings, "choice", None)
     if choice is not None:
         model.check_choice_rule(choice)
@@ -289,6 +300,18 @@ def check_model(config: EvalConfig, model: ModelAPI) -> None:
         )
 
 
+def check_commit(identity: RunIdentity, model_info: dict[str, str]) -> None:
+    """Refuse a model loaded at another hub commit than the one the run recorded (the branch
+    moved between the run's preparation and the model's loading)."""
+    loaded = model_info.get(HUB_REVISION_KEY)
+    if identity.model_revision is not None and loaded != identity.model_revision:
+        raise UserError(
+            f"the model was loaded at hub commit {loaded}, the run was prepared at "
+            f"{identity.model_revision}: open it with open_model(config, "
+            "prepared.identity.model_revision), or prepare the run again"
+        )
+
+
 def execute_run(
     prepared: PreparedRun,
     model: ModelAPI,
@@ -307,6 +330,7 @@ def execute_run(
 
     config = prepared.config
     check_model(config, model)
+    check_commit(prepared.identity, model.info())
     if probe:
         model.probe()
         if config.observation != "text":

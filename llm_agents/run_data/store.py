@@ -218,6 +218,10 @@ class RunIdentity(BaseModel):
     examples: str | None = None
     """Digest of the worked-example list the run shows (`examples_digest`); None when it shows
     none."""
+    model_revision: str | None = None
+    """The hub commit a hub-id model (`hf:ORG/NAME`, `vllm:ORG/NAME`) resolved to when the run
+    started (`backends.model_revision`): a branch moved since is another model. None for every
+    other model (named, local, served)."""
 
     def differences(
         self,
@@ -258,6 +262,11 @@ class RunIdentity(BaseModel):
             unrecorded = other.examples is None and other.settings.get("grounding_shots")
             before = "not recorded" if unrecorded else _digest(other.examples)
             found.append(f"worked-example list ({before} before, {_digest(self.examples)} now)")
+        if self.model_revision != other.model_revision:
+            before = other.model_revision or "none recorded"
+            found.append(
+                f"model revision (commit {before} before, {self.model_revision or 'none'} now)"
+            )
         return found
 
 

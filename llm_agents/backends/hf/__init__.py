@@ -1,12 +1,9 @@
 """The transformers backend (see `model`): the model and generation (`model`), `loglik` choice
 scoring (`scoring`) and the thinking budget (`thinking`)."""
 
-import os
-
-# Set before transformers is imported (by any module of this package): the hub is unreachable
-# here and must not be waited on.
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
+# Transformers only ever reads local files here (every load passes `local_files_only`): a hub
+# id is downloaded first by `backends.hub`, which honours the user's HF_HUB_OFFLINE. Setting
+# that variable here would hide the user's choice from huggingface_hub, which reads it once.
 try:
     import torch  # noqa: F401
     import transformers  # noqa: F401

@@ -2,8 +2,9 @@
 
 Model names (`hf:<name>`): a named model (`smollm2-135m`, the embedded default,
 `qwen2.5-coder-0.5b`, `qwen2.5-coder-1.5b`; see `embedded.py`) is fetched on first use; a path
-loads any local model folder; any other name is a hub id, loaded only from the local hub cache
-(the hub is never contacted, so nothing hangs offline).
+loads any local model folder or GGUF file; any other name is a hub id (`ORG/NAME`, or
+`ORG/NAME:FILE.gguf`), downloaded into the hub cache on first use at the `revision` option's
+commit (`hub.py`). Transformers itself only ever reads local files.
 
 Free generation renders each conversation with the model's chat template and decodes a batch at
 once (left padding). Choices follow the `loglik` rule only (`guided` is refused): every
@@ -43,7 +44,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 import torch
 from jinja2 import TemplateError
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import ConfigDict, Field, ValidationError, field_validator
 from transformers import AutoConfig, AutoModelForCausalLM, AutoTokenizer, LogitsProcessorList
 
 from env.errors import UserError
@@ -62,7 +63,8 @@ from llm_agents.backends.base import (
     bad_options,
     content_free_conversation,
     end_of_turn_id,
-    local_model_path,
+    hub_info,
+    locate_model,
     needs_end,
     ranked_choices,
     scored_choices,
@@ -76,6 +78,7 @@ from llm_agents.backends.hf.scoring import (
     to_torch,
 )
 from llm_agents.backends.hf.thinking import ThinkingBudget
+from llm_agents.backends.hub import HubRevision
 from llm_agents.backends.reasoning import (
     THINK_CLOSE,
     THINK_OPEN,
@@ -98,7 +101,7 @@ LOGLIK_BFLOAT16 = (
 )
 
 
-class HFOptions(BaseModel):
+class HFOptions(HubRevision):
     """Options of the hf backend (keyword arguments of `get_model`)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -171,11 +174,17 @@ class HFModel(ModelAPI):
         self.device = torch.device(self.settings.device or default_device)
         self.dtype = _torch_dtype(self.settings.dtype, self.device)
         self.dtype_given = self.settings.dtype is not None
-        self.model_path = local_model_path("hf", model_name)
-        self._source = str(self.model_path) if self.model_path is not None else model_name
+        self.location = locate_model("hf", model_name, self.settings.revision)
+        self.model_path = self.location.path
+        # A GGUF file is read (and dequantized) by transformers from its folder.
+        gguf = self.model_path.is_file()
+        self._source = str(self.model_path.parent if gguf else self.model_path)
+        self._files: dict[str, Any] = {"local_files_only": True}
+        if gguf:
+            self._files["gguf_file"] = self.model_path.name
         try:
-            self.tokenizer = AutoTokenizer.from_pretrained(self._source, local_files_only=True)
-            model_config = AutoConfig.from_pretrained(self._source, local_files_only=True)
+            self.tokenizer = AutoTokenizer.from_pretrained(self._source, **self._files)
+            model_config = AutoConfig.from_pretrained(self._source, **self._files)
         except OSError as err:
             raise _load_error(model_name, err) from err
         #: An image-text model (`vision.py`): every answer goes through its processor.
@@ -224,7 +233,7 @@ class HFModel(ModelAPI):
                     vision.load_model(self._source, self.dtype)
                     if self.processor is not None
                     else AutoModelForCausalLM.from_pretrained(
-                        self._source, local_files_only=True, dtype=self.dtype
+                        self._source, dtype=self.dtype, **self._files
                     )
                 )
             except OSError as err:
@@ -262,7 +271,8 @@ class HFModel(ModelAPI):
 
         return {
             **super().info(),
-            "model_path": str(self.model_path or self.model_name),
+            "model_path": str(self.model_path),
+            **hub_info(self.location),
             "transformers": transformers.__version__,
             "torch": torch.__version__,
             "device": str(self.device),
@@ -562,8 +572,7 @@ def _load_error(model_name: str, err: OSError) -> UserError:
     names = ", ".join(f"hf:{name}" for name in NAMED_MODELS)
     return UserError(
         f"cannot load hf model {model_name!r}: {err}. Pass a local model folder "
-        f"(hf:/path/to/model), a named model ({names}), or a hub id already in the local "
-        "hub cache"
+        f"(hf:/path/to/model), a named model ({names}), or a hub id (hf:ORG/NAME)"
     )
 
 
