@@ -216,8 +216,11 @@ class RunIdentity(BaseModel):
     """Split -> digest of its goals as parsed (`Dataset.split_sha256`), for the splits the run
     reads: the same source parsed by other code can give other goals."""
     examples: str | None = None
-    """Digest of the worked-example list the run shows (`examples_digest`); None when it shows
-    none."""
+    """Digest of the worked-example list the run shows (`examples_digest`; the skills agent's
+    demonstrations, `demos_digest`); None when it shows none."""
+    grammar: str | None = None
+    """Digest of the grammar the run's answers are held to (the skills agent's catalogue under
+    `--choice guided`, `grammar_digest`); None when none holds them."""
 
     def differences(
         self,
@@ -258,6 +261,10 @@ class RunIdentity(BaseModel):
             unrecorded = other.examples is None and other.settings.get("grounding_shots")
             before = "not recorded" if unrecorded else _digest(other.examples)
             found.append(f"worked-example list ({before} before, {_digest(self.examples)} now)")
+        if self.grammar != other.grammar:
+            found.append(
+                f"answer grammar ({_digest(other.grammar)} before, {_digest(self.grammar)} now)"
+            )
         return found
 
 
