@@ -78,7 +78,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     instructions = load_dataset(args.dataset).instructions(
         ("one", "combo", "new_objects"), include_paraphrases=False, difficulty="easy"
     )
-    goals = {(run_category(i.goal), i.goal.id): i.goal for i in instructions}
+    goals: dict[tuple[str, str], AnyGoal] = {
+        (run_category(i.goal), i.goal.id): i.goal for i in instructions
+    }
     runs: dict[str, list[EpisodeRecord]] = {}
     for run in args.runs:
         episodes = read_episodes(run / "episodes.jsonl")
