@@ -18,6 +18,9 @@ import torch
 
 _END = -1
 """The trie key that marks a whole option."""
+#: Distinct option lists whose tries a backend keeps at once (a run asks under one or a few;
+#: the skills catalogue's grammar has thousands of options on Medium, encoded once).
+MAX_KEPT_TRIES = 8
 
 
 class OptionTrie:

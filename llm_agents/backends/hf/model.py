@@ -70,7 +70,7 @@ from llm_agents.backends.base import (
 )
 from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
-from llm_agents.backends.hf.guided import GuidedOptions, OptionTrie
+from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, GuidedOptions, OptionTrie
 from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     padded,
@@ -324,7 +324,7 @@ class HFModel(ModelAPI):
     ) -> list[ModelOutput]:
         """Each answer decoded under `GuidedOptions`: one of the options, or one cut short."""
         if choices.options not in self._tries:
-            if len(self._tries) >= MAX_KEPT_HEADS:
+            if len(self._tries) >= MAX_KEPT_TRIES:
                 del self._tries[next(iter(self._tries))]
             self._tries[choices.options] = OptionTrie(self._candidate_ids(choices.options))
         guide = GuidedOptions(self._tries[choices.options], self._eos_ids())
