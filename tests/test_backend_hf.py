@@ -146,10 +146,22 @@ def test_choice_mode_prefers_the_right_answer(model: HFModel) -> None:
     assert all(o.finish_reason == "choice" for o in outputs)
 
 
-def test_guided_choices_are_refused_with_the_alternatives(model: HFModel) -> None:
-    guided = ChoiceSet(options=("banana", "Paris"), rule="guided")
-    with pytest.raises(UserError, match=r"cannot choose by 'guided'.*loglik.*vllm"):
-        model.generate([FRANCE], choices=guided)
+def test_guided_choices_decode_one_option_of_the_models_own(model: HFModel) -> None:
+    # Options sharing their first tokens: the trie lets the model stop or go on after "Paris".
+    guided = ChoiceSet(options=("banana", "Paris", "Paris, France", "Lyon"), rule="guided")
+    outputs = model.generate([FRANCE, GREETINGS[0]], choices=guided)
+    assert all(o.text in guided.options and o.finish_reason == "choice" for o in outputs)
+    assert outputs[0].text.startswith("Paris")
+
+
+def test_guided_choices_are_refused_for_an_image_text_model(tmp_path: Path) -> None:
+    from tiny_vlm import build_tiny_vlm
+
+    from llm_agents.backends.embedded import embedded_model_dir
+
+    vlm = HFModel(str(build_tiny_vlm(tmp_path, embedded_model_dir())), threads=1)
+    with pytest.raises(UserError, match="cannot constrain"):
+        vlm.check_choice_rule("guided")
 
 
 @pytest.mark.slow

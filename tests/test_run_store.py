@@ -256,6 +256,7 @@ OTHER_VALUES: dict[str, object] = {
     "demos": "expert-run",
     "skill_steps": 20,
     "stuck_after": 0,
+    "skill_demos": 2,
     "grounding_shots": 4,
     "observation": "both",
     "frame_history": 1,
@@ -300,8 +301,8 @@ def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_change
     elif name == "choice_scoring":
         # It scores loglik choices only, and is refused with any other.
         base = EvalConfig(choice="loglik")
-    elif name == "stuck_after":
-        # Only the skills agent stops asking.
+    elif name in ("stuck_after", "skill_demos"):
+        # Only the skills agent stops asking, and is shown skill sequences.
         base = EvalConfig(agent="skills")
     else:
         base = EvalConfig()

@@ -109,6 +109,26 @@ MISTAKES: dict[str, Mistake] = {
     "skills with no step budget": Mistake(
         [*EVAL, "--agent", "skills", "--skill-steps", "0"], "skill"
     ),
+    "skill demos for an agent that takes none": Mistake(
+        [*EVAL, "--skill-demos", "2"], "skill_demos are shown to the skills agent"
+    ),
+    "more skill demos than the training split gives": Mistake(
+        [*EVAL, "--agent", "skills", "--skill-demos", "60"], "--skill-demos 60: the easy training"
+    ),
+    "a skills grammar for a backend that cannot constrain": Mistake(
+        [
+            *EVAL,
+            "--agent",
+            "skills",
+            "--choice",
+            "guided",
+            "--model",
+            "openai:m@http://127.0.0.1:9/v1",
+            "--backend-option",
+            "structured_choice=false",
+        ],
+        "cannot constrain decoding",
+    ),
     "dead server": Mistake(
         [*EVAL, "--model", "openai:m@http://127.0.0.1:9/v1"], "connection refused"
     ),

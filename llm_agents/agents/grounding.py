@@ -31,7 +31,7 @@ import json
 import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Protocol, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -72,6 +72,7 @@ _WORDS: dict[str, tuple[str, ...]] = {"side": SIDES, "cross": CROSS_TYPES}
 __all__ = [
     "GROUND_TEMPLATE",
     "GroundingExample",
+    "Withheld",
     "examples_digest",
     "examples_for",
     "goal_vocabulary",
@@ -146,11 +147,24 @@ def training_examples(dataset: Dataset, difficulty: Difficulty) -> tuple[Groundi
     return grounding_examples(dataset.split(category_split("train", difficulty)))
 
 
+class Withheld(Protocol):
+    """A worked example of some goal: withheld from a text that phrases that goal or whose own
+    reading is it (grounding's examples, the skills agent's demonstrations)."""
+
+    @property
+    def reading(self) -> GoalReading: ...
+    @property
+    def texts(self) -> frozenset[str]: ...
+
+
+Example = TypeVar("Example", bound=Withheld)
+
+
 def examples_for(
-    text: str, answer: GoalReading, examples: Sequence[GroundingExample], shots: int
-) -> tuple[GroundingExample, ...]:
+    text: str, answer: GoalReading, examples: Sequence[Example], shots: int
+) -> tuple[Example, ...]:
     """The first `shots` examples that neither phrase `text`'s goal nor read as `answer`, its
-    canonical reading."""
+    canonical reading: the one rule by which a text is never shown its own answer."""
     return tuple(
         example for example in examples if text not in example.texts and example.reading != answer
     )[:shots]

@@ -20,6 +20,7 @@ parameter that is not in the catalogue). The parser never raises on any text.
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -239,6 +240,55 @@ class SkillOffer:
             "noop: do nothing for one step",
         ]
         return forms
+
+    def grammar(self) -> tuple[str, ...]:
+        """Every skill the catalogue offers, written in its form (each reads back as itself):
+        the answers `--choice guided` holds the model to."""
+        return _grammar(self)
+
+
+@cache
+def _grammar(offer: SkillOffer) -> tuple[str, ...]:
+    skills: list[_Skill] = [
+        Collect(material=material, count=count)
+        for material in offer.materials
+        for count in range(1, _MAX_COUNT + 1)
+    ]
+    skills += [Place(block=block) for block in offer.placeable]
+    if offer.place_at:
+        skills += [
+            Place(block=block, side=side, distance=distance, reference=reference)
+            for block in offer.placeable
+            for side in SIDES
+            for distance in range(_MAX_DISTANCE + 1)
+            for reference in offer.blocks
+        ]
+    for shape in offer.shapes:
+        for block in offer.placeable:
+            for size in range(1, _MAX_SIZE + 1):
+                if shape == "line":
+                    skills += [
+                        Build(shape="line", block=block, size=size, diagonal=diagonal)
+                        for diagonal in (False, True)
+                    ]
+                elif shape == "star":
+                    skills += [
+                        Build(shape="star", block=block, size=size, cross=cross)
+                        for cross in CROSS_TYPES
+                    ]
+                else:
+                    skills.append(Build(shape="square", block=block, size=size))
+    skills += [Craft(item=item) for item in offer.items]
+    skills += [GoTo(block=block) for block in offer.blocks]
+    skills += [Attack(creature=creature) for creature in offer.creatures]
+    skills += [Simple(name=name) for name in ("eat", "drink", "sleep", "explore", "noop")]
+    return tuple(skill.text for skill in skills)
+
+
+def grammar_digest(offer: SkillOffer) -> str:
+    """SHA-256 of the catalogue's grammar (`SkillOffer.grammar`): part of the identity of a
+    run whose answers it holds."""
+    return hashlib.sha256("\n".join(offer.grammar()).encode()).hexdigest()
 
 
 @cache

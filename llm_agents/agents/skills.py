@@ -3,7 +3,11 @@ it out.
 
 At each decision the model sees the instruction, the rendered observation (inventory included)
 and the outcomes of its last skills (`skills.j2`), and names one skill of the catalogue
-(`skill_catalogue`; with `--choice`, the backend picks among the skills valid now). The skill
+(`skill_catalogue`). With `--choice loglik` the backend picks among the skills valid now; with
+`--choice guided` the model's own answer is held to the catalogue's grammar (every skill and
+parameter it offers, `SkillOffer.grammar`) by constrained decoding: it may still name a skill
+that cannot start, and is told why, but never one the catalogue lacks. With `--skill-demos K`
+each request first shows K worked skill sequences of other goals (`skill_demos`). The skill
 then runs (`skill_runner`), sending nothing to the model, until it succeeds, fails with a reason,
 is interrupted by an attack or spends its `skill_steps` budget; then the model chooses again.
 An answer that names no skill of the catalogue, or a skill that cannot start (a missing
@@ -25,12 +29,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from env.dataset import load_dataset
 from env.errors import UserError
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import action_id
 from llm_agents.agents.expert_navigation import ExpertEpisode
+from llm_agents.agents.grounding import training_examples
 from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.skill_catalogue import SkillOffer, parse_skill, skill_offer
+from llm_agents.agents.skill_demos import SkillDemo, demos_for, skill_demos
 from llm_agents.agents.skill_runner import Finished, SkillRun, valid_now
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
@@ -52,6 +59,8 @@ _CHECK_SLOT = -1
 @dataclass
 class _Episode:
     instruction: str
+    demos: tuple[SkillDemo, ...] = ()
+    """The worked skill sequences this episode's requests show (none of its own goal)."""
     expert: ExpertEpisode = field(default_factory=lambda: ExpertEpisode((), ()))
     """The controllers' memory of the map (no goal: the model's skills are theirs)."""
     run: SkillRun | None = None
@@ -85,6 +94,8 @@ class SkillsAgent:
         stuck_after: int = 3,
         choice_rule: ChoiceRule | None = None,
         choice_scoring: ChoiceScoring = "sum",
+        demos: tuple[SkillDemo, ...] = (),
+        shown_demos: int = 0,
     ):
         self.variant = as_variant(variant)
         self.offer: SkillOffer = skill_offer(self.variant, difficulty)
@@ -95,6 +106,14 @@ class SkillsAgent:
         self.stuck_after = stuck_after
         self.choice_rule = choice_rule
         self.choice_scoring = choice_scoring
+        self.demos = demos
+        self.shown_demos = shown_demos
+        #: `--choice guided`: the catalogue's grammar, the same at every request.
+        self.grammar = (
+            ChoiceSet(options=self.offer.grammar(), rule="guided")
+            if choice_rule == "guided"
+            else None
+        )
         self.fallback_id = action_id("NOOP", self.variant)
         self._render = importlib.import_module("textualizer").render
         self._episodes: dict[int, _Episode] = {}
@@ -111,11 +130,25 @@ class SkillsAgent:
             stuck_after=config.stuck_after,
             choice_rule=config.choice,
             choice_scoring=config.choice_scoring,
+            demos=training_demos(config.dataset, config.variant, config.difficulty)
+            if config.skill_demos
+            else (),
+            shown_demos=config.skill_demos,
         )
 
     def start_episode(self, slot: int, start: EpisodeStart) -> None:
-        """Begin an episode; only the instruction text is read (the model reads the goal)."""
-        self._episodes[slot] = _Episode(start.instruction)
+        """Begin an episode; the instruction text is the model's to read. The goal record is
+        read only to keep its own demonstrations out of the worked sequences shown."""
+        self._episodes[slot] = _Episode(
+            start.instruction, self._demos(start.instruction, start.goal)
+        )
+
+    def _demos(self, text: str, goal: AnyGoal | None) -> tuple[SkillDemo, ...]:
+        if not self.shown_demos:
+            return ()
+        if goal is None:
+            raise ValueError("skill demonstrations are chosen knowing the text's goal: pass it")
+        return demos_for(text, goal, self.demos, self.shown_demos)
 
     def end_episode(self, slot: int) -> None:
         self._episodes.pop(slot, None)
@@ -129,7 +162,7 @@ class SkillsAgent:
         self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
     ) -> None:
         """Render a decision's request after one recorded decision, as a run builds it."""
-        episode = _Episode(instruction)
+        episode = _Episode(instruction, self._demos(instruction, goal))
         episode.history.append(
             SkillRecord(
                 index=0,
@@ -161,8 +194,10 @@ class SkillsAgent:
                 }
                 for r in recent
             ],
-            "choice_mode": self.choice_rule is not None,
+            "choice_mode": self.choice_rule == "loglik",
+            "grammar_mode": self.choice_rule == "guided",
             "options": options,
+            "demos": [{"instruction": d.instruction, "skills": d.skills} for d in episode.demos],
         }
         blocks = render_blocks(SKILLS_TEMPLATE, context, self.templates_dir)
         return [ChatMessage(role=role, content=content) for role, content in blocks]
@@ -184,11 +219,15 @@ class SkillsAgent:
                 episode.pending = result
                 return silent
             self._close(episode, result)
-        options = valid_now(self.offer, episode.expert, observation) if self.choice_rule else []
+        options = (
+            valid_now(self.offer, episode.expert, observation)
+            if self.choice_rule == "loglik"
+            else []
+        )
         choices = (
-            ChoiceSet(options=tuple(options), rule=self.choice_rule, scoring=self.choice_scoring)
-            if self.choice_rule is not None
-            else None
+            ChoiceSet(options=tuple(options), rule="loglik", scoring=self.choice_scoring)
+            if self.choice_rule == "loglik"
+            else self.grammar
         )
         messages = self._messages(episode, text, options)
         return StepPrompt(
@@ -303,3 +342,11 @@ class SkillsAgent:
             fallback_used=fallback,
             skills=skills,
         )
+
+
+def training_demos(
+    dataset: str | None, variant: Variant, difficulty: Difficulty
+) -> tuple[SkillDemo, ...]:
+    """The worked skill sequences of `difficulty`'s training goals in `dataset` (the list a run
+    offers; its digest is part of the run's identity)."""
+    return skill_demos(training_examples(load_dataset(dataset), difficulty), variant, difficulty)

@@ -201,6 +201,16 @@ class OpenAIModel(ModelAPI):
         """
         self._portal.run(self._probe)
 
+    def check_choice_rule(self, rule: ChoiceRule) -> None:
+        """As `ModelAPI.check_choice_rule`; `guided` also needs structured outputs left on: with
+        `structured_choice=false` the answers come back in free text, held to nothing."""
+        super().check_choice_rule(rule)
+        if rule == "guided" and not self.settings.structured_choice:
+            raise UserError(
+                "the openai backend cannot constrain decoding with structured_choice=false: "
+                "--choice guided needs the server's structured outputs (leave that option out)"
+            )
+
     def check_images(self) -> None:
         """One one-token request carrying a small image: a server or model that takes no
         images refuses it, and the run stops before anything is written."""

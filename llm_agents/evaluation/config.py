@@ -198,10 +198,12 @@ class ChoiceSettings(ModelSettings):
     leaves a setting out where it changes nothing)."""
 
     choice: Annotated[ChoiceRule | None, CHANGES_RESULTS] = None
-    """Answer with one option (eval: an action name; ground: one of the chosen categories'
-    goals, as JSON), picked by this rule: loglik (the option the model finds likeliest after
-    the prompt; hf, vllm) or guided (constrained greedy decoding; vllm, openai); unset: free
-    text."""
+    """Answer with one option (eval: an action name; the skills agent: loglik picks among the
+    skills valid now, guided holds the answer to the catalogue's skills and parameters; ground:
+    one of the chosen categories' goals, as JSON), picked by this rule: loglik (the option the
+    model finds likeliest after the prompt; hf, vllm) or guided (constrained decoding: the
+    model's own answer held to the options; hf, vllm, openai with structured outputs); unset:
+    free text."""
     choice_scoring: Annotated[ChoiceScoring, CHANGES_RESULTS] = "pmi"
     """--choice loglik: how an option's log-probabilities make its score: sum (its tokens'
     total, no end of turn: favours the shortest option; runs recorded before this setting
@@ -359,6 +361,12 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     its end, a failure with the reason recorded (0: never; runs recorded before this setting
     never stopped)."""
 
+    skill_demos: Annotated[int, CHANGES_RESULTS] = Field(0, ge=0)
+    """skills: worked skill sequences shown before the instruction in each request: how the
+    expert's planner chained skills for the difficulty's training goals, in the catalogue's
+    words, never for the evaluated text's goal (no demonstration phrasing its goal or reading
+    as its goal); 0: none."""
+
     def result_settings(self) -> dict[str, Any]:
         """As `ChoiceSettings.result_settings`; `stuck_after` only for the skills agent, so
         runs of other agents, recorded before it or not, never differ by it."""
@@ -393,6 +401,11 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
             raise ValueError(
                 f"grounding_shots are shown to the guided agent's grounding request; the "
                 f"{self.agent} agent asks for none (leave --grounding-shots out)"
+            )
+        if self.skill_demos and self.agent != "skills":
+            raise ValueError(
+                f"skill_demos are shown to the skills agent; the {self.agent} agent chooses no "
+                "skills (leave --skill-demos out)"
             )
         return self
 

@@ -39,6 +39,8 @@ from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.grounding import examples_digest, training_examples
+from llm_agents.agents.skill_catalogue import grammar_digest, skill_offer
+from llm_agents.agents.skill_demos import check_demo_count, demos_digest, skill_demos
 from llm_agents.agents.zero_shot import FRAMES_TEMPLATE
 from llm_agents.backends import model_revision
 from llm_agents.backends.base import HUB_REVISION_KEY, ModelAPI
@@ -169,6 +171,18 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     schedule = build_schedule(config, instructions, plans)
     # Renders the system prompt and checks the fallback action; a step's messages are built
     # too, so a broken template fails here rather than on the first model call.
+    examples = (
+        examples_digest(training_examples(dataset, config.difficulty))
+        if config.grounding_shots
+        else None
+    )
+    if config.skill_demos:
+        demos = skill_demos(
+            training_examples(dataset, config.difficulty), config.variant, config.difficulty
+        )
+        scheduled = {(item.instruction.text, item.instruction.goal) for item in schedule}
+        check_demo_count(demos, config.skill_demos, scheduled, config.difficulty)
+        examples = demos_digest(demos)
     agent: Agent = build_agent(config)
     first = schedule[0]
     agent.check_templates(first.instruction.text, first.plan, first.instruction.goal)
@@ -179,8 +193,9 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
         plans=file_sha256(Path(config.plans), "plans file") if config.plans else None,
         dataset=dataset.source.sha256,
         goals=split_digests(dataset, config.categories, config.difficulty),
-        examples=examples_digest(training_examples(dataset, config.difficulty))
-        if config.grounding_shots
+        examples=examples,
+        grammar=grammar_digest(skill_offer(config.variant, config.difficulty))
+        if config.agent == "skills" and config.choice == "guided"
         else None,
     )
     return PreparedRun(

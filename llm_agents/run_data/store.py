@@ -216,12 +216,15 @@ class RunIdentity(BaseModel):
     """Split -> digest of its goals as parsed (`Dataset.split_sha256`), for the splits the run
     reads: the same source parsed by other code can give other goals."""
     examples: str | None = None
-    """Digest of the worked-example list the run shows (`examples_digest`); None when it shows
-    none."""
+    """Digest of the worked-example list the run shows (`examples_digest`; the skills agent's
+    demonstrations, `demos_digest`); None when it shows none."""
     model_revision: str | None = None
     """The hub commit a hub-id model (`hf:ORG/NAME`, `vllm:ORG/NAME`) resolved to when the run
     started (`backends.model_revision`): a branch moved since is another model. None for every
     other model (named, local, served)."""
+    grammar: str | None = None
+    """Digest of the grammar the run's answers are held to (the skills agent's catalogue under
+    `--choice guided`, `grammar_digest`); None when none holds them."""
 
     def differences(
         self,
@@ -266,6 +269,10 @@ class RunIdentity(BaseModel):
             before = other.model_revision or "none recorded"
             found.append(
                 f"model revision (commit {before} before, {self.model_revision or 'none'} now)"
+            )
+        if self.grammar != other.grammar:
+            found.append(
+                f"answer grammar ({_digest(other.grammar)} before, {_digest(self.grammar)} now)"
             )
         return found
 

@@ -7,7 +7,8 @@ loads any local model folder or GGUF file; any other name is a hub id (`ORG/NAME
 commit (`hub.py`). Transformers itself only ever reads local files.
 
 Free generation renders each conversation with the model's chat template and decodes a batch at
-once (left padding). Choices follow the `loglik` rule only (`guided` is refused): every
+once (left padding). `guided` choices decode the same way, held to the options' token trie
+(`guided.py`; not for image-text models). `loglik` choices: every
 candidate is scored by its log-likelihood after the prompt (`scoring.py`), with one prompt pass per batch: all
 candidates then go through a single pass over the prompt's cached keys and values, side by side
 in one sequence, each seeing only the prompt and its own earlier tokens (a block-diagonal
@@ -71,6 +72,7 @@ from llm_agents.backends.base import (
 )
 from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
+from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, GuidedOptions, OptionTrie
 from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     padded,
@@ -153,11 +155,7 @@ class HFModel(ModelAPI):
     backend_name = "hf"
     options_model = HFOptions
     honoured_config = ANSWER_FIELDS
-    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik"})
-    choice_rule_gaps: ClassVar[dict[ChoiceRule, str]] = {
-        "guided": "it ranks whole options by log-likelihood (loglik); guided decoding needs "
-        "the vllm or openai backend"
-    }
+    choice_rules: ClassVar[frozenset[ChoiceRule]] = frozenset({"loglik", "guided"})
     # transformers' own annotations of its model classes do not type-check cleanly.
     _model: Any = None
 
@@ -219,6 +217,7 @@ class HFModel(ModelAPI):
         )
         self._end_of_turn = end_of_turn_id(self.tokenizer)
         self._content_free = ContentFreeScores()
+        self._tries: dict[tuple[str, ...], OptionTrie] = {}
         # A longer prompt is a backend failure (`ContextLengthError`), read before the weights.
         positions = getattr(model_config, "max_position_embeddings", None)
         self.context_length: int | None = positions if isinstance(positions, int) else None
@@ -245,6 +244,11 @@ class HFModel(ModelAPI):
         """As `ModelAPI.check_choice_rule`; `loglik` also refuses a bfloat16 the user set and
         replaces a defaulted one by float32 (see the module docstring)."""
         super().check_choice_rule(rule)
+        if rule == "guided" and self.processor is not None:
+            raise UserError(
+                f"hf model {self.model_name!r} is an image-text model, whose decoding the hf "
+                "backend cannot constrain: --choice guided needs a text-only model here"
+            )
         if rule != "loglik" or self.dtype != torch.bfloat16:
             return
         if self.dtype_given:
@@ -282,6 +286,11 @@ class HFModel(ModelAPI):
     def _generate(
         self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
+        if choices is not None and choices.rule == "guided":
+            guided = choices
+            return self._in_batches(
+                conversations, lambda batch: self._generate_guided(batch, guided)
+            )
         if choices is not None:
             candidates = self._candidate_ids(choices.options)
             return self._in_batches(
@@ -320,7 +329,28 @@ class HFModel(ModelAPI):
             for output, was_opened in zip(raw, opened, strict=True)
         ]
 
-    def _generate_raw(self, prompts: list[np.ndarray], opened: list[bool]) -> list[ModelOutput]:
+    def _generate_guided(
+        self, conversations: Sequence[Conversation], choices: ChoiceSet
+    ) -> list[ModelOutput]:
+        """Each answer decoded under `GuidedOptions`: one of the options, or one cut short."""
+        if choices.options not in self._tries:
+            if len(self._tries) >= MAX_KEPT_TRIES:
+                del self._tries[next(iter(self._tries))]
+            self._tries[choices.options] = OptionTrie(self._candidate_ids(choices.options))
+        guide = GuidedOptions(self._tries[choices.options], self._eos_ids())
+        raw = self._generate_raw(
+            self._prompt_ids(conversations), [False] * len(conversations), guide
+        )
+        return [
+            output.model_copy(update={"finish_reason": "choice"})
+            if output.text in choices.options
+            else output
+            for output in raw
+        ]
+
+    def _generate_raw(
+        self, prompts: list[np.ndarray], opened: list[bool], guide: GuidedOptions | None = None
+    ) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
         # Left padding, as the tokenizer pads a batch for generation.
@@ -328,7 +358,7 @@ class HFModel(ModelAPI):
         input_ids, attention_mask = to_torch(ids, self.device), to_torch(mask, self.device)
         prompt_len = input_ids.shape[1]
         max_new = config.max_tokens
-        processors = []
+        processors: list[Any] = [guide] if guide is not None else []
         if config.reasoning_budget is not None and self._think_close_ids:
             # Thinking gets its own budget on top of the answer's max_tokens.
             max_new += config.reasoning_budget + len(self._think_close_ids)
