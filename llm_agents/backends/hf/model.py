@@ -69,11 +69,15 @@ from llm_agents.backends.base import (
 )
 from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
+from llm_agents.backends.hf.prefix import (
+    PrefixStore,
+    keep_prompts,
+    prepare_batch,
+    supports_prefix_reuse,
+)
 from llm_agents.backends.hf.scoring import (
     LoglikScorer,
-    padded,
     supports_split_attention,
-    to_torch,
 )
 from llm_agents.backends.hf.thinking import ThinkingBudget
 from llm_agents.backends.reasoning import (
@@ -112,6 +116,9 @@ class HFOptions(BaseModel):
     """Torch CPU threads; None: torch's own choice."""
     rows_per_forward: int = Field(16, ge=1)
     """Conversations per forward pass."""
+    prefix_cache_tokens: int = Field(32768, ge=0)
+    """Prompt tokens whose keys and values free generation keeps for later prompts that start
+    the same way (`prefix.py`); 0 computes every prompt from its first token."""
 
     @field_validator("device")
     @classmethod
@@ -208,6 +215,10 @@ class HFModel(ModelAPI):
         self.scorer = LoglikScorer(
             self.tokenizer.pad_token_id, split_attention=supports_split_attention(model_config)
         )
+        #: Keys and values of recent prompts' prefixes, for free generation (`prefix.py`).
+        self.prefixes = PrefixStore(
+            self.settings.prefix_cache_tokens if supports_prefix_reuse(model_config) else 0
+        )
         self._end_of_turn = end_of_turn_id(self.tokenizer)
         self._content_free = ContentFreeScores()
         # A longer prompt is a backend failure (`ContextLengthError`), read before the weights.
@@ -247,6 +258,7 @@ class HFModel(ModelAPI):
             # rather than upcast, so the weights are those a float32 load gives.
             self._model = None
             self.scorer.forget_prefix()
+            self.prefixes.forget()
             if self.device.type == "cuda":
                 torch.cuda.empty_cache()
 
@@ -313,10 +325,10 @@ class HFModel(ModelAPI):
     def _generate_raw(self, prompts: list[np.ndarray], opened: list[bool]) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
-        # Left padding, as the tokenizer pads a batch for generation.
-        ids, mask = padded(prompts, self.tokenizer.pad_token_id, left=True)
-        input_ids, attention_mask = to_torch(ids, self.device), to_torch(mask, self.device)
-        prompt_len = input_ids.shape[1]
+        # Left padding, as the tokenizer pads a batch for generation, after each row's reused
+        # prefix (`prefix.py`).
+        batch = prepare_batch(self.model, self.prefixes, prompts, self.tokenizer.pad_token_id)
+        prompt_len = batch.input_ids.shape[1]
         max_new = config.max_tokens
         processors = []
         if config.reasoning_budget is not None and self._think_close_ids:
@@ -337,9 +349,11 @@ class HFModel(ModelAPI):
             if config.sampling_seed is not None:
                 torch.manual_seed(config.sampling_seed)
         with torch.inference_mode():
-            generated = self.model.generate(
-                input_ids=input_ids,
-                attention_mask=attention_mask,
+            result = self.model.generate(
+                input_ids=batch.input_ids,
+                attention_mask=batch.attention_mask,
+                cache=batch.cache,
+                return_dict_in_generate=True,
                 max_new_tokens=max_new,
                 pad_token_id=self.tokenizer.pad_token_id,
                 logits_processor=LogitsProcessorList(processors),
@@ -347,10 +361,14 @@ class HFModel(ModelAPI):
                 tokenizer=self.tokenizer if config.stop else None,
                 **sampling,
             )
+        keep_prompts(self.prefixes, prompts, batch, result.cache)
+        generated = result.sequences
         latency = time.perf_counter() - start
         eos_ids = self._eos_ids()
         outputs = []
-        for row, prompt in zip(generated[:, prompt_len:], prompts, strict=True):
+        for row, prompt, computed in zip(
+            generated[:, prompt_len:], prompts, batch.computed, strict=True
+        ):
             tokens = row.tolist()
             ended = next((i for i, tok in enumerate(tokens) if tok in eos_ids), None)
             if ended is not None:
@@ -362,6 +380,7 @@ class HFModel(ModelAPI):
                 ModelOutput(
                     text=text,
                     prompt_tokens=len(prompt),
+                    computed_prompt_tokens=computed,
                     completion_tokens=len(tokens) + (ended is not None),
                     latency_s=latency,
                     finish_reason=finish,
