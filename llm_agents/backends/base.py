@@ -328,7 +328,7 @@ class ModelOutput(BaseModel):
     """Tokens in the prompt."""
     computed_prompt_tokens: int | None = None
     """Prompt tokens the backend computed for this answer, the rest taken from its prefix
-    cache; None where the backend does not say."""
+    cache (0 for an answer from the response cache); None where the backend does not say."""
     completion_tokens: int = 0
     """Tokens generated, reasoning included."""
     latency_s: float = 0.0

@@ -94,6 +94,16 @@ logger = logging.getLogger(__name__)
 #: Distinct system messages whose tokens are kept at once (an agent run has one or a few).
 MAX_KEPT_HEADS = 16
 
+#: Conversations per forward pass of `loglik` choices (one prompt pass shared by the batch).
+CHOICE_ROWS_PER_FORWARD = 16
+#: Conversations per forward pass of free generation by device type (others take cuda's),
+#: with prefix reuse on.
+#: CPU: measured by benchmarks/bench_rows_per_forward.py (real zero-shot Classic prompts,
+#: second step, prefixes kept; float32, one torch thread; CPU seconds per request):
+#: ROWS_CPU_FIGURES
+#: cuda: not measured (no GPU could load the Qwen models in this measurement); 16, as before.
+ROWS_PER_FORWARD = {"cpu": 4, "cuda": 16}
+
 #: Why `loglik` refuses a bfloat16 model, and what to use instead.
 LOGLIK_BFLOAT16 = (
     "hf loglik choices cannot be scored in bfloat16: its rounding alone moves a score by most "
@@ -114,8 +124,9 @@ class HFOptions(BaseModel):
     which refuse bfloat16 (see the module docstring)."""
     threads: int | None = Field(None, ge=1)
     """Torch CPU threads; None: torch's own choice."""
-    rows_per_forward: int = Field(16, ge=1)
-    """Conversations per forward pass."""
+    rows_per_forward: int | None = Field(None, ge=1)
+    """Conversations per forward pass; None: `CHOICE_ROWS_PER_FORWARD` for choices, the
+    device's `ROWS_PER_FORWARD` for free generation."""
     prefix_cache_tokens: int = Field(32768, ge=0)
     """Prompt tokens whose keys and values free generation keeps for later prompts that start
     the same way (`prefix.py`); 0 computes every prompt from its first token."""
@@ -173,9 +184,14 @@ class HFModel(ModelAPI):
             raise bad_options("hf", err) from None
         if self.settings.threads is not None:
             torch.set_num_threads(self.settings.threads)
-        self.rows_per_forward = self.settings.rows_per_forward
         default_device = "cuda" if torch.cuda.is_available() else "cpu"
         self.device = torch.device(self.settings.device or default_device)
+        #: Conversations per forward pass of free generation.
+        self.rows_per_forward = self.settings.rows_per_forward or ROWS_PER_FORWARD.get(
+            self.device.type, ROWS_PER_FORWARD["cuda"]
+        )
+        #: Conversations per forward pass of `loglik` choices.
+        self.choice_rows_per_forward = self.settings.rows_per_forward or CHOICE_ROWS_PER_FORWARD
         self.dtype = _torch_dtype(self.settings.dtype, self.device)
         self.dtype_given = self.settings.dtype is not None
         self.model_path = local_model_path("hf", model_name)
@@ -287,11 +303,15 @@ class HFModel(ModelAPI):
         if choices is not None:
             candidates = self._candidate_ids(choices.options)
             return self._in_batches(
-                conversations, lambda batch: self._choose(batch, choices, candidates)
+                conversations,
+                lambda batch: self._choose(batch, choices, candidates),
+                self.choice_rows_per_forward,
             )
-        outputs = self._in_batches(conversations, self._generate_split)
+        outputs = self._in_batches(conversations, self._generate_split, self.rows_per_forward)
         return resolve_truncated(
-            conversations, outputs, lambda batch: self._in_batches(batch, self._generate_split)
+            conversations,
+            outputs,
+            lambda batch: self._in_batches(batch, self._generate_split, self.rows_per_forward),
         )
 
     def choice_scores(
@@ -451,10 +471,11 @@ class HFModel(ModelAPI):
         self,
         conversations: Sequence[Conversation],
         run: Callable[[Sequence[Conversation]], list[ModelOutput]],
+        rows: int,
     ) -> list[ModelOutput]:
         outputs: list[ModelOutput] = []
-        for begin in range(0, len(conversations), self.rows_per_forward):
-            batch = conversations[begin : begin + self.rows_per_forward]
+        for begin in range(0, len(conversations), rows):
+            batch = conversations[begin : begin + rows]
             try:
                 outputs.extend(run(batch))
             except (RuntimeError, ValueError) as err:

@@ -67,6 +67,13 @@ class PrefixStore:
     def __len__(self) -> int:
         return len(self._kept)
 
+    def copy(self) -> PrefixStore:
+        """Another store holding the same prefixes (their tensors shared, never written)."""
+        other = PrefixStore(self.budget_tokens)
+        other._kept = OrderedDict(self._kept)
+        other._tokens = self._tokens
+        return other
+
     def forget(self) -> None:
         """Drop everything (the keys and values belong to the model that computed them)."""
         self._kept.clear()
