@@ -669,7 +669,7 @@ def test_running_out_of_memory_or_context_fails_the_batch_as_the_backends(
     def run(batch: Any) -> Any:
         raise error
 
-    outputs = HFModel._in_batches(SimpleNamespace(rows_per_forward=2), [FRANCE] * 3, run)  # type: ignore[arg-type]
+    outputs = HFModel._in_batches(SimpleNamespace(), [FRANCE] * 3, run, 2)  # type: ignore[arg-type]
     assert [o.finish_reason for o in outputs] == ["error"] * 3
     assert all(type(error).__name__ in (o.error or "") for o in outputs)
 
@@ -682,7 +682,7 @@ def test_any_other_error_of_a_forward_pass_is_a_bug_and_raised(error: Exception)
         raise error
 
     with pytest.raises(type(error), match=str(error).split("(")[0]):
-        HFModel._in_batches(SimpleNamespace(rows_per_forward=2), [FRANCE], run)  # type: ignore[arg-type]
+        HFModel._in_batches(SimpleNamespace(), [FRANCE], run, 2)  # type: ignore[arg-type]
 
 
 @pytest.mark.slow

@@ -397,3 +397,20 @@ def test_loglik_choices_are_refused_with_the_reason(server: FaultServer) -> None
     with pytest.raises(UserError, match=r"cannot choose by 'loglik'.*log-probabilities"):
         model(server).generate([conv("a")], choices=ChoiceSet(options=("DO",), rule="loglik"))
     assert server.requests == []
+
+
+def test_the_servers_cached_prompt_tokens_are_not_counted_as_computed() -> None:
+    from llm_agents.backends.openai import _parse_reply
+
+    def reply(usage: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "choices": [{"message": {"content": "DO"}, "finish_reason": "stop"}],
+            "usage": usage,
+        }
+
+    cached = {"prompt_tokens": 900, "prompt_tokens_details": {"cached_tokens": 768}}
+    assert _parse_reply(reply(cached), None).computed_prompt_tokens == 132
+    # A server that does not say leaves the count unknown rather than "all computed".
+    assert _parse_reply(reply({"prompt_tokens": 900}), None).computed_prompt_tokens is None
+    silent = {"prompt_tokens": 900, "prompt_tokens_details": None}
+    assert _parse_reply(reply(silent), None).computed_prompt_tokens is None

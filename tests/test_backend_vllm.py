@@ -202,6 +202,8 @@ def test_offline_engine_generates_free_text_and_constrained_choices(
     assert tokens[0] == tokens[2] < tokens[1] < tokens[3]
     assert free[0]["text"] == free[2]["text"]  # greedy decoding is deterministic
     assert free[3]["finish_reason"] == "length" and free[3]["completion_tokens"] == 12
+    # vLLM says how much of each prompt its prefix cache served.
+    assert all(0 <= o["computed_prompt_tokens"] <= o["prompt_tokens"] for o in free)
 
     choice = result["choice"]
     assert all(o["text"] in ACTIONS and o["finish_reason"] == "choice" for o in choice)
@@ -352,6 +354,11 @@ def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
     assert all(o.error is None and o.text.strip() for o in free), free
     assert all(0 < o.completion_tokens <= 12 and o.prompt_tokens > 0 for o in free)
     assert free[1].finish_reason == "length"
+    # The server's prefix cache serves a repeated prompt (--enable-prompt-tokens-details).
+    story = [ChatMessage(role="system", content=" ".join(ACTIONS * 8)), *conv("Which action?")]
+    first, again = (model.generate([story])[0] for _ in range(2))
+    assert first.computed_prompt_tokens is not None and again.computed_prompt_tokens is not None
+    assert again.computed_prompt_tokens < again.prompt_tokens == first.prompt_tokens
     # A model the server does not serve is a client error: reported, not retried.
     [missing] = OpenAIModel("no-such-model", config, base_url=vllm_server).generate([conv("hi")])
     assert missing.finish_reason == "error" and "HTTP 404" in (missing.error or "")

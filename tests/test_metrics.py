@@ -31,6 +31,7 @@ def episode(
     invalid: int = 0,
     prompt_tokens: int = 0,
     completion_tokens: int = 0,
+    computed_prompt_tokens: int | None = None,
 ) -> EpisodeRecord:
     return EpisodeRecord.model_validate(
         {
@@ -48,6 +49,7 @@ def episode(
             "invalid_actions": invalid,
             "prompt_tokens": prompt_tokens,
             "completion_tokens": completion_tokens,
+            "computed_prompt_tokens": computed_prompt_tokens,
         }
     )
 
@@ -174,6 +176,17 @@ def test_summary_rates_are_per_step_over_the_whole_run() -> None:
     assert summary.steps_to_success_mean is None
     assert summary.steps_to_success_median is None
     assert summary.terminations == {"success": 0, "death": 0, "timeout": 2}
+
+
+def test_the_computed_share_pools_prompt_tokens_and_needs_every_episodes_count() -> None:
+    counted = [
+        episode(0, prompt_tokens=1000, computed_prompt_tokens=100),
+        episode(1, prompt_tokens=3000, computed_prompt_tokens=900),
+    ]
+    # Pooled over tokens (1000 of 4000), not the mean of per-episode shares (0.2).
+    assert summarize(counted).computed_prompt_share == pytest.approx(0.25)
+    # An episode whose backend did not say makes the share unknown, not smaller.
+    assert summarize([*counted, episode(2, prompt_tokens=500)]).computed_prompt_share is None
 
 
 def test_summary_of_nothing_is_a_user_error() -> None:

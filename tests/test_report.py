@@ -179,6 +179,21 @@ def test_report_of_a_finished_run_names_the_model_and_draws_the_chart(tmp_path: 
     png_size(run_dir / "success.png")
 
 
+def test_the_report_gives_the_computed_share_of_prompt_tokens_where_it_is_known(
+    tmp_path: Path,
+) -> None:
+    counted = [
+        e.model_copy(update={"prompt_tokens": 1000, "computed_prompt_tokens": 300})
+        for e in episodes_with({"one": (1, 4)})
+    ]
+    assert "Prompt tokens computed: 30% (the rest reused" in report_run(
+        make_run(tmp_path / "counted", counted)
+    )
+    assert "Prompt tokens computed" not in report_run(
+        make_run(tmp_path / "unknown", episodes_with({"one": (1, 4)}))
+    )
+
+
 def test_report_of_a_partial_run_says_how_far_it_got_and_why_it_stopped(tmp_path: Path) -> None:
     episodes = episodes_with({"one": (1, 3)})
     errors = {"failed_calls": 9, "aborted_episodes": ["a", "b"], "last_error": "HTTP 503"}

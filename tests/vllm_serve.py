@@ -105,6 +105,8 @@ def vllm_serve(
         "--served-model-name", served_name, "--host", "127.0.0.1", "--port", str(port),
         "--enforce-eager", "--dtype", "float32", "--max-model-len", str(max_model_len),
         "--max-num-seqs", str(max_num_seqs),
+        # Usage then says how many prompt tokens the prefix cache served.
+        "--enable-prompt-tokens-details",
     ]  # fmt: skip
     with log_path.open("w") as log:
         server = subprocess.Popen(

@@ -327,6 +327,9 @@ class ModelOutput(BaseModel):
     """The model's reasoning (thinking) text, kept for logs; never parsed as the answer."""
     prompt_tokens: int = 0
     """Tokens in the prompt."""
+    computed_prompt_tokens: int | None = None
+    """Prompt tokens the backend computed for this answer, the rest taken from its prefix
+    cache (0 for an answer from the response cache); None where the backend does not say."""
     completion_tokens: int = 0
     """Tokens generated, reasoning included."""
     latency_s: float = 0.0

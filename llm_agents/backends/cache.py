@@ -96,7 +96,10 @@ class CachedModel(ModelAPI):
             ]
         )
         outputs: list[ModelOutput] = [
-            found[key].model_copy(update={"cached": True, "latency_s": 0.0})
+            # Nothing is computed for a cached answer now.
+            found[key].model_copy(
+                update={"cached": True, "latency_s": 0.0, "computed_prompt_tokens": 0}
+            )
             if key in found
             else ModelOutput(text="")
             for key in keys

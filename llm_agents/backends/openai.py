@@ -598,6 +598,17 @@ def _served_models(response: httpx.Response) -> list[str] | None:
         return None
 
 
+def _computed_prompt_tokens(usage: dict[str, Any], prompt_tokens: int) -> int | None:
+    """Prompt tokens the server computed: all but those its prefix cache served
+    (`usage.prompt_tokens_details.cached_tokens`, which OpenAI's API gives and `vllm serve`
+    gives when started with `--enable-prompt-tokens-details`); None where it does not say."""
+    details = usage.get("prompt_tokens_details")
+    cached = details.get("cached_tokens") if isinstance(details, dict) else None
+    if not isinstance(cached, int):
+        return None
+    return max(0, prompt_tokens - cached)
+
+
 def _parse_reply(reply: dict[str, Any], choices: list[str] | None) -> ModelOutput:
     """Read a chat completion; raises KeyError, TypeError or ValueError on any other shape."""
     choice = reply["choices"][0]
@@ -606,9 +617,11 @@ def _parse_reply(reply: dict[str, Any], choices: list[str] | None) -> ModelOutpu
     if not isinstance(text, str):
         raise TypeError("content is not text")
     usage = reply.get("usage") or {}
+    prompt_tokens = int(usage.get("prompt_tokens") or 0)
     output = ModelOutput(
         text=text,
-        prompt_tokens=int(usage.get("prompt_tokens") or 0),
+        prompt_tokens=prompt_tokens,
+        computed_prompt_tokens=_computed_prompt_tokens(usage, prompt_tokens),
         completion_tokens=int(usage.get("completion_tokens") or 0),
         finish_reason="length" if choice.get("finish_reason") == "length" else "stop",
     )

@@ -157,6 +157,9 @@ def merge_followup(first: ModelOutput, followup: ModelOutput) -> ModelOutput:
         update={
             "reasoning": "\n\n".join(reasoning) if reasoning else None,
             "prompt_tokens": first.prompt_tokens + followup.prompt_tokens,
+            "computed_prompt_tokens": None
+            if first.computed_prompt_tokens is None or followup.computed_prompt_tokens is None
+            else first.computed_prompt_tokens + followup.computed_prompt_tokens,
             "completion_tokens": first.completion_tokens + followup.completion_tokens,
             "latency_s": first.latency_s + followup.latency_s,
             "followups": first.followups + followup.followups + 1,

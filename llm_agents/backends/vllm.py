@@ -351,9 +351,13 @@ def _to_output(result: Any, choices: list[str] | None, latency_s: float) -> Mode
     text = completion.text
     if choices is not None and text in choices:
         finish = "choice"
+    prompt_tokens = len(result.prompt_token_ids or [])
+    # vLLM's prefix cache serves whole blocks of an earlier prompt's keys and values.
+    cached = getattr(result, "num_cached_tokens", None)
     output = ModelOutput(
         text=text,
-        prompt_tokens=len(result.prompt_token_ids or []),
+        prompt_tokens=prompt_tokens,
+        computed_prompt_tokens=None if cached is None else max(0, prompt_tokens - cached),
         completion_tokens=len(completion.token_ids),
         latency_s=latency_s,
         finish_reason=finish,

@@ -123,6 +123,9 @@ class GroundingRecord(BaseModel):
     """The reading is exactly the goal."""
     prompt_tokens: int = Field(0, ge=0)
     """Tokens in the prompt."""
+    computed_prompt_tokens: int | None = Field(None, ge=0)
+    """Prompt tokens the backend computed, the rest reused from its prefix cache; None where
+    the backend does not say."""
     completion_tokens: int = Field(0, ge=0)
     """Tokens generated."""
     latency_s: float = Field(0.0, ge=0.0)
@@ -305,6 +308,7 @@ def _record(instruction: Instruction, grounding: Grounding, output: Any) -> Grou
         grounding=grounding,
         correct=grounding.matches(truth),
         prompt_tokens=output.prompt_tokens,
+        computed_prompt_tokens=output.computed_prompt_tokens,
         completion_tokens=output.completion_tokens,
         latency_s=output.latency_s,
         cached=output.cached,

@@ -90,6 +90,8 @@ class _Tally:
     episode_return: float = 0.0
     invalid: int = 0
     prompt_tokens: int = 0
+    computed_prompt_tokens: int | None = 0
+    """None once some step's backend did not say."""
     completion_tokens: int = 0
     achievements: list[str] = field(default_factory=list)
     grounding: Grounding | None = None
@@ -105,6 +107,13 @@ class _Tally:
         self.episode_return += reward
         self.invalid += int(decision.fallback_used)
         self.prompt_tokens += decision.output.prompt_tokens
+        computed = decision.output.computed_prompt_tokens
+        if decision.prompt_hash != NO_PROMPT_HASH:
+            self.computed_prompt_tokens = (
+                None
+                if computed is None or self.computed_prompt_tokens is None
+                else self.computed_prompt_tokens + computed
+            )
         self.completion_tokens += decision.output.completion_tokens
         self.achievements.extend(new)
 
@@ -321,6 +330,7 @@ def _step_record(
         done=done,
         new_achievements=new,
         prompt_tokens=decision.output.prompt_tokens,
+        computed_prompt_tokens=decision.output.computed_prompt_tokens,
         completion_tokens=decision.output.completion_tokens,
         latency_s=decision.output.latency_s,
         finish_reason=decision.output.finish_reason,
@@ -361,6 +371,7 @@ def _episode_record(
         episode_return=tally.episode_return,
         invalid_actions=tally.invalid,
         prompt_tokens=tally.prompt_tokens,
+        computed_prompt_tokens=tally.computed_prompt_tokens,
         completion_tokens=tally.completion_tokens,
         achievements=tally.achievements,
         plan_given=spec.plan is not None,

@@ -197,6 +197,14 @@ def format_table(
         f"Tokens per step: {summary.prompt_tokens_per_step:.0f} prompt, "
         f"{summary.completion_tokens_per_step:.0f} completion.",
         *(
+            [
+                f"Prompt tokens computed: {summary.computed_prompt_share:.0%} "
+                "(the rest reused from the backend's prefix cache)."
+            ]
+            if summary.computed_prompt_share is not None
+            else []
+        ),
+        *(
             [f"Model calls per episode: {summary.model_calls_per_episode:.1f}."]
             if summary.model_calls_per_episode is not None
             else []

@@ -285,6 +285,9 @@ class Summary(BaseModel):
     """Prompt tokens per agent step, over all episodes."""
     completion_tokens_per_step: float = Field(ge=0.0)
     """Generated tokens (reasoning included) per agent step, over all episodes."""
+    computed_prompt_share: float | None = Field(None, ge=0.0, le=1.0)
+    """Share of the prompt tokens the backend computed, the rest reused from its prefix cache;
+    None when some episode's backend did not say (or its record predates the count)."""
     understanding: Understanding | None = None
     """The goals read before playing against the dataset's (`guided`); None for other agents."""
     model_calls_per_episode: float | None = None
@@ -302,6 +305,15 @@ def _success_rates(groups: dict[str, list[EpisodeRecord]]) -> dict[str, SuccessR
 def goal_key(episode: EpisodeRecord) -> str:
     """The key of an episode's goal among a run's (`Summary.by_goal`): its category and id."""
     return f"{episode.category}/{episode.goal_id}"
+
+
+def computed_share(episodes: Sequence[EpisodeRecord]) -> float | None:
+    """Computed prompt tokens over all prompt tokens (`Summary.computed_prompt_share`)."""
+    computed = [episode.computed_prompt_tokens for episode in episodes]
+    prompt = sum(episode.prompt_tokens for episode in episodes)
+    if not prompt or any(count is None for count in computed):
+        return None
+    return min(1.0, sum(count or 0 for count in computed) / prompt)
 
 
 def summarize(
@@ -357,6 +369,7 @@ def summarize(
         steps_to_success_median=statistics.median(success_steps) if success_steps else None,
         prompt_tokens_per_step=per_step(sum(episode.prompt_tokens for episode in episodes)),
         completion_tokens_per_step=per_step(sum(episode.completion_tokens for episode in episodes)),
+        computed_prompt_share=computed_share(episodes),
         understanding=understanding(episodes),
         model_calls_per_episode=statistics.fmean(calls)
         if (calls := [e.model_calls for e in episodes if e.model_calls is not None])

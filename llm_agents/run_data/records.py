@@ -86,6 +86,9 @@ class StepRecord(BaseModel):
     """Achievement names first unlocked on this step."""
     prompt_tokens: int = Field(0, ge=0)
     """Tokens in the prompt."""
+    computed_prompt_tokens: int | None = Field(None, ge=0)
+    """Prompt tokens the backend computed for this answer, the rest reused from its prefix
+    cache (hf's prefix store, vLLM's prefix caching); None where the backend does not say."""
     completion_tokens: int = Field(0, ge=0)
     """Tokens generated, reasoning included."""
     latency_s: float = Field(0.0, ge=0.0)
@@ -168,6 +171,9 @@ class EpisodeRecord(BaseModel):
     """Steps on which no action could be parsed and the fallback action was taken."""
     prompt_tokens: int = Field(0, ge=0)
     """Prompt tokens over all steps."""
+    computed_prompt_tokens: int | None = Field(None, ge=0)
+    """Prompt tokens the backend computed over all steps (the rest reused from its prefix
+    cache); None when some step's backend did not say."""
     completion_tokens: int = Field(0, ge=0)
     """Generated tokens over all steps, reasoning included."""
     achievements: list[str] = Field(default_factory=list)

@@ -73,11 +73,15 @@ from llm_agents.backends.base import (
 from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
 from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, GuidedOptions, OptionTrie
+from llm_agents.backends.hf.prefix import (
+    PrefixStore,
+    keep_prompts,
+    prepare_batch,
+    supports_prefix_reuse,
+)
 from llm_agents.backends.hf.scoring import (
     LoglikScorer,
-    padded,
     supports_split_attention,
-    to_torch,
 )
 from llm_agents.backends.hf.thinking import ThinkingBudget
 from llm_agents.backends.hub import HubRevision
@@ -94,6 +98,16 @@ logger = logging.getLogger(__name__)
 
 #: Distinct system messages whose tokens are kept at once (an agent run has one or a few).
 MAX_KEPT_HEADS = 16
+
+#: Conversations per forward pass of `loglik` choices (one prompt pass shared by the batch).
+CHOICE_ROWS_PER_FORWARD = 16
+#: Conversations per forward pass of free generation by device type (others take cuda's),
+#: with prefix reuse on.
+#: CPU: measured by benchmarks/bench_rows_per_forward.py (real zero-shot Classic prompts,
+#: second step, prefixes kept; float32, one torch thread; CPU seconds per request):
+#: ROWS_CPU_FIGURES
+#: cuda: not measured (no GPU could load the Qwen models in this measurement); 16, as before.
+ROWS_PER_FORWARD = {"cpu": 4, "cuda": 16}
 
 #: Why `loglik` refuses a bfloat16 model, and what to use instead.
 LOGLIK_BFLOAT16 = (
@@ -115,8 +129,12 @@ class HFOptions(HubRevision):
     which refuse bfloat16 (see the module docstring)."""
     threads: int | None = Field(None, ge=1)
     """Torch CPU threads; None: torch's own choice."""
-    rows_per_forward: int = Field(16, ge=1)
-    """Conversations per forward pass."""
+    rows_per_forward: int | None = Field(None, ge=1)
+    """Conversations per forward pass; None: `CHOICE_ROWS_PER_FORWARD` for choices, the
+    device's `ROWS_PER_FORWARD` for free generation."""
+    prefix_cache_tokens: int = Field(32768, ge=0)
+    """Prompt tokens whose keys and values free generation keeps for later prompts that start
+    the same way (`prefix.py`); 0 computes every prompt from its first token."""
 
     @field_validator("device")
     @classmethod
@@ -167,9 +185,14 @@ class HFModel(ModelAPI):
             raise bad_options("hf", err) from None
         if self.settings.threads is not None:
             torch.set_num_threads(self.settings.threads)
-        self.rows_per_forward = self.settings.rows_per_forward
         default_device = "cuda" if torch.cuda.is_available() else "cpu"
         self.device = torch.device(self.settings.device or default_device)
+        #: Conversations per forward pass of free generation.
+        self.rows_per_forward = self.settings.rows_per_forward or ROWS_PER_FORWARD.get(
+            self.device.type, ROWS_PER_FORWARD["cuda"]
+        )
+        #: Conversations per forward pass of `loglik` choices.
+        self.choice_rows_per_forward = self.settings.rows_per_forward or CHOICE_ROWS_PER_FORWARD
         self.dtype = _torch_dtype(self.settings.dtype, self.device)
         self.dtype_given = self.settings.dtype is not None
         self.location = locate_model("hf", model_name, self.settings.revision)
@@ -214,6 +237,10 @@ class HFModel(ModelAPI):
         self.reuse_prompt_tokens = True
         self.scorer = LoglikScorer(
             self.tokenizer.pad_token_id, split_attention=supports_split_attention(model_config)
+        )
+        #: Keys and values of recent prompts' prefixes, for free generation (`prefix.py`).
+        self.prefixes = PrefixStore(
+            self.settings.prefix_cache_tokens if supports_prefix_reuse(model_config) else 0
         )
         self._end_of_turn = end_of_turn_id(self.tokenizer)
         self._content_free = ContentFreeScores()
@@ -260,6 +287,7 @@ class HFModel(ModelAPI):
             # rather than upcast, so the weights are those a float32 load gives.
             self._model = None
             self.scorer.forget_prefix()
+            self.prefixes.forget()
             if self.device.type == "cuda":
                 torch.cuda.empty_cache()
 
@@ -294,11 +322,15 @@ class HFModel(ModelAPI):
         if choices is not None:
             candidates = self._candidate_ids(choices.options)
             return self._in_batches(
-                conversations, lambda batch: self._choose(batch, choices, candidates)
+                conversations,
+                lambda batch: self._choose(batch, choices, candidates),
+                self.choice_rows_per_forward,
             )
-        outputs = self._in_batches(conversations, self._generate_split)
+        outputs = self._in_batches(conversations, self._generate_split, self.rows_per_forward)
         return resolve_truncated(
-            conversations, outputs, lambda batch: self._in_batches(batch, self._generate_split)
+            conversations,
+            outputs,
+            lambda batch: self._in_batches(batch, self._generate_split, self.rows_per_forward),
         )
 
     def choice_scores(
@@ -353,10 +385,10 @@ class HFModel(ModelAPI):
     ) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
-        # Left padding, as the tokenizer pads a batch for generation.
-        ids, mask = padded(prompts, self.tokenizer.pad_token_id, left=True)
-        input_ids, attention_mask = to_torch(ids, self.device), to_torch(mask, self.device)
-        prompt_len = input_ids.shape[1]
+        # Left padding, as the tokenizer pads a batch for generation, after each row's reused
+        # prefix (`prefix.py`).
+        batch = prepare_batch(self.model, self.prefixes, prompts, self.tokenizer.pad_token_id)
+        prompt_len = batch.input_ids.shape[1]
         max_new = config.max_tokens
         processors: list[Any] = [guide] if guide is not None else []
         if config.reasoning_budget is not None and self._think_close_ids:
@@ -377,9 +409,11 @@ class HFModel(ModelAPI):
             if config.sampling_seed is not None:
                 torch.manual_seed(config.sampling_seed)
         with torch.inference_mode():
-            generated = self.model.generate(
-                input_ids=input_ids,
-                attention_mask=attention_mask,
+            result = self.model.generate(
+                input_ids=batch.input_ids,
+                attention_mask=batch.attention_mask,
+                cache=batch.cache,
+                return_dict_in_generate=True,
                 max_new_tokens=max_new,
                 pad_token_id=self.tokenizer.pad_token_id,
                 logits_processor=LogitsProcessorList(processors),
@@ -387,10 +421,14 @@ class HFModel(ModelAPI):
                 tokenizer=self.tokenizer if config.stop else None,
                 **sampling,
             )
+        keep_prompts(self.prefixes, prompts, batch, result.cache)
+        generated = result.sequences
         latency = time.perf_counter() - start
         eos_ids = self._eos_ids()
         outputs = []
-        for row, prompt in zip(generated[:, prompt_len:], prompts, strict=True):
+        for row, prompt, computed in zip(
+            generated[:, prompt_len:], prompts, batch.computed, strict=True
+        ):
             tokens = row.tolist()
             ended = next((i for i, tok in enumerate(tokens) if tok in eos_ids), None)
             if ended is not None:
@@ -402,6 +440,7 @@ class HFModel(ModelAPI):
                 ModelOutput(
                     text=text,
                     prompt_tokens=len(prompt),
+                    computed_prompt_tokens=computed,
                     completion_tokens=len(tokens) + (ended is not None),
                     latency_s=latency,
                     finish_reason=finish,
@@ -472,10 +511,11 @@ class HFModel(ModelAPI):
         self,
         conversations: Sequence[Conversation],
         run: Callable[[Sequence[Conversation]], list[ModelOutput]],
+        rows: int,
     ) -> list[ModelOutput]:
         outputs: list[ModelOutput] = []
-        for begin in range(0, len(conversations), self.rows_per_forward):
-            batch = conversations[begin : begin + self.rows_per_forward]
+        for begin in range(0, len(conversations), rows):
+            batch = conversations[begin : begin + rows]
             try:
                 outputs.extend(run(batch))
             except (RuntimeError, ValueError) as err:
