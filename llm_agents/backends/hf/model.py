@@ -74,6 +74,7 @@ from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
 from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, GuidedOptions, OptionTrie
 from llm_agents.backends.hf.prefix import (
+    CACHE_FIELD,
     PrefixStore,
     keep_prompts,
     prepare_batch,
@@ -317,7 +318,9 @@ class HFModel(ModelAPI):
         if choices is not None and choices.rule == "guided":
             guided = choices
             return self._in_batches(
-                conversations, lambda batch: self._generate_guided(batch, guided)
+                conversations,
+                lambda batch: self._generate_guided(batch, guided),
+                self.rows_per_forward,
             )
         if choices is not None:
             candidates = self._candidate_ids(choices.options)
@@ -412,7 +415,7 @@ class HFModel(ModelAPI):
             result = self.model.generate(
                 input_ids=batch.input_ids,
                 attention_mask=batch.attention_mask,
-                cache=batch.cache,
+                **{CACHE_FIELD: batch.cache},
                 return_dict_in_generate=True,
                 max_new_tokens=max_new,
                 pad_token_id=self.tokenizer.pad_token_id,
@@ -421,7 +424,7 @@ class HFModel(ModelAPI):
                 tokenizer=self.tokenizer if config.stop else None,
                 **sampling,
             )
-        keep_prompts(self.prefixes, prompts, batch, result.cache)
+        keep_prompts(self.prefixes, prompts, batch, getattr(result, CACHE_FIELD))
         generated = result.sequences
         latency = time.perf_counter() - start
         eos_ids = self._eos_ids()

@@ -35,6 +35,19 @@ from llm_agents.backends.hf.scoring import padded, to_torch
 LayerStates = list[tuple[torch.Tensor, torch.Tensor]]
 
 
+def _cache_field() -> str:
+    """The name a model's key-value cache goes by, as an argument of `forward` and `generate`
+    and a field of generation's output: transformers renamed `past_key_values`
+    to `cache` (5.2x); a GPU image may carry an older release."""
+    from transformers.generation.utils import GenerateDecoderOnlyOutput
+
+    fields = getattr(GenerateDecoderOnlyOutput, "__dataclass_fields__", {})
+    return "cache" if "cache" in fields else "past_key_values"
+
+
+CACHE_FIELD = _cache_field()
+
+
 def common_length(first: np.ndarray, second: np.ndarray) -> int:
     """How many tokens the two id arrays start with in common."""
     limit = min(len(first), len(second))
@@ -158,7 +171,7 @@ def prepare_batch(
     return PreparedBatch(
         input_ids=to_torch(np.concatenate([prefix_ids, tail_ids], 1), device),
         attention_mask=to_torch(np.concatenate([prefix_mask, tail_mask], 1), device),
-        cache=cache,
+        **{CACHE_FIELD: cache},
         prefix_width=width,
         reused=reused,
         computed=computed,
@@ -215,7 +228,7 @@ def _keep_common_prefix(model: Any, store: PrefixStore, prompts: Sequence[np.nda
     with torch.inference_mode():
         model(
             input_ids=to_torch(prefix[None, reused:], model.device),
-            cache=cache,
+            **{CACHE_FIELD: cache},
             use_cache=True,
             logits_to_keep=1,
         )
