@@ -40,6 +40,7 @@ from llm_agents.evaluation.runner import (
 )
 from llm_agents.evaluation.schedule import ScheduledEpisode
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.store import AgentIdentity
 
 if TYPE_CHECKING:
     from llm_agents.backends.base import ModelAPI
@@ -70,6 +71,9 @@ class WorkerReady(BaseModel):
     """What `versions(model)` says on that worker."""
     pid: int = 0
     """The worker's process id."""
+    agent: AgentIdentity | None = None
+    """The import path and version of the agent the worker plays, when it comes from outside
+    this package (`agent_identity`): the driver's, or the worker is refused."""
     failure: WorkerFailure | None = None
     """Set when the worker could not load its env or model."""
 
@@ -178,11 +182,14 @@ class EpisodeWorker:
         self._player: threading.Thread | None = None
         self._failure: WorkerFailure | None = None
         self._model: ModelAPI | None = None
+        self._agent: AgentIdentity | None = None
         try:
             from env import shared_env
             from llm_agents.agents import NoModel, agent_class
+            from llm_agents.agents.loading import agent_identity
             from llm_agents.evaluation.runner import open_model
 
+            self._agent = agent_identity(config.agent)
             self._env = shared_env(config.env_config())
             self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()
         except Exception as err:  # reported by `ready`, where the driver can say it in one line
@@ -191,7 +198,7 @@ class EpisodeWorker:
     def ready(self) -> WorkerReady:
         if self._failure is not None or self._model is None:
             return WorkerReady(failure=self._failure, pid=os.getpid())
-        return WorkerReady(versions=versions(self._model), pid=os.getpid())
+        return WorkerReady(versions=versions(self._model), pid=os.getpid(), agent=self._agent)
 
     def exchange(self, episodes: list[ScheduledEpisode]) -> WorkerReport:
         """Take more episodes; return the rounds played since the last call."""
@@ -349,6 +356,27 @@ def _check_resources(ray: Any, config: EvalConfig) -> None:
             )
 
 
+def _runtime_env(config: EvalConfig) -> dict[str, Any] | None:
+    """The workers' runtime environment: an outside agent's package shipped to them when it is
+    not installed (`agent_shipment`), so a cluster's nodes need not hold the driver's folders."""
+    from llm_agents.agents.loading import agent_shipment
+
+    shipped = agent_shipment(config.agent)
+    return {"py_modules": [shipped]} if shipped is not None else None
+
+
+def _check_worker_agent(answer: WorkerReady, driver: AgentIdentity | None) -> None:
+    """Refuse a worker whose outside agent is not the one the driver recorded (another version
+    installed on its node): its episodes would not be this run's."""
+    if answer.agent != driver:
+        theirs = answer.agent.described() if answer.agent else "built-in"
+        ours = driver.described() if driver else "built-in"
+        raise UserError(
+            f"a Ray worker plays agent {theirs}, the driver {ours}: install the same agent "
+            "version on every node"
+        )
+
+
 def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None) -> RunOutcome:
     """Play the prepared run on Ray workers, writing the run directory here (see the module)."""
     ray = _import_ray()
@@ -358,6 +386,7 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
     try:
         _check_resources(ray, config)
         actor = ray.remote(EpisodeWorker).options(
+            runtime_env=_runtime_env(config),
             num_cpus=1,
             num_gpus=config.ray_worker_gpus,
             # Unbounded for Ray: the driver counts deaths itself, since it also restarts a worker
@@ -371,6 +400,7 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
         for answer in ready:
             if answer.failure is not None:
                 raise UserError(f"a Ray worker could not start: {answer.failure.message}")
+            _check_worker_agent(answer, prepared.identity.agent)
         driver = _Driver(ray, workers, config)
         return run_schedule(
             prepared,

@@ -39,6 +39,7 @@ from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.grounding import examples_digest, training_examples
+from llm_agents.agents.loading import agent_identity
 from llm_agents.agents.zero_shot import FRAMES_TEMPLATE
 from llm_agents.backends.base import ModelAPI
 from llm_agents.backends.endpoints import EndpointStats
@@ -180,6 +181,7 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
         examples=examples_digest(training_examples(dataset, config.difficulty))
         if config.grounding_shots
         else None,
+        agent=agent_identity(config.agent),
     )
     return PreparedRun(
         config=config,

@@ -194,6 +194,34 @@ def with_current_names(
     return current
 
 
+AgentVersionSource = Literal["distribution", "attribute", "source"]
+"""Where an outside agent's version was read: its installed distribution's version, the class's
+`version` attribute, or a digest of the source of the module that defines it."""
+
+
+class AgentIdentity(BaseModel):
+    """Which agent from outside this package played a run: what a resumed run must match."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    path: str
+    """The class, as `package.module:Class` (an entry-point name resolved to what it points at)."""
+    version: str
+    """Its version, read from `version_from`."""
+    version_from: AgentVersionSource
+    """See `AgentVersionSource`."""
+    distribution: str | None = None
+    """The installed distribution the version is that of (`version_from` `distribution`)."""
+
+    def described(self) -> str:
+        """`path` and its version, as a line names them."""
+        if self.version_from == "distribution":
+            return f"{self.path} (distribution {self.distribution} {self.version})"
+        if self.version_from == "attribute":
+            return f"{self.path} (version {self.version})"
+        return f"{self.path} (source {self.version[:12]})"
+
+
 class RunIdentity(BaseModel):
     """What must be equal for two processes to write into one run directory."""
 
@@ -218,6 +246,10 @@ class RunIdentity(BaseModel):
     examples: str | None = None
     """Digest of the worked-example list the run shows (`examples_digest`); None when it shows
     none."""
+    agent: AgentIdentity | None = None
+    """The agent's import path and version when it comes from outside this package (`--agent
+    package.module:Class` or an entry point's name); None for a built-in agent, whose code is
+    this package's (recorded as the code version, never compared)."""
 
     def differences(
         self,
@@ -258,6 +290,10 @@ class RunIdentity(BaseModel):
             unrecorded = other.examples is None and other.settings.get("grounding_shots")
             before = "not recorded" if unrecorded else _digest(other.examples)
             found.append(f"worked-example list ({before} before, {_digest(self.examples)} now)")
+        if self.agent != other.agent:
+            before = other.agent.described() if other.agent else "built-in"
+            now = self.agent.described() if self.agent else "built-in"
+            found.append(f"agent ({before} before, {now} now)")
         return found
 
 
