@@ -21,7 +21,6 @@ import sys
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from types import ModuleType
 from typing import TYPE_CHECKING, Any, cast
 
 from env.errors import UserError
@@ -232,11 +231,12 @@ def _source_digest(cls: type) -> str:
 # ------------------------------------------------------------------------------ Ray
 
 
-def agent_shipment(spec: str) -> ModuleType | None:
-    """The top-level module or package of an outside agent that Ray workers need shipped
-    (`py_modules`): one that lives outside any site-packages folder (a checkout, a folder on
-    PYTHONPATH). An installed one is the cluster's to install, as this package is; a
-    namespace package spread over several folders is not shipped."""
+def agent_shipment(spec: str) -> Path | None:
+    """The folder of the top-level package (or the file of the top-level module) of an outside
+    agent that Ray workers need shipped (`py_modules`): one that lives outside any
+    site-packages folder (a checkout, a folder on PYTHONPATH). An installed one is the
+    cluster's to install, as this package is; a namespace package spread over several folders
+    is not shipped."""
     registration = _target(spec)
     if registration.origin == "built-in":
         return None
@@ -244,6 +244,5 @@ def agent_shipment(spec: str) -> ModuleType | None:
     places = list(getattr(top, "__path__", [])) or [getattr(top, "__file__", None)]
     if len(places) != 1 or places[0] is None:
         return None
-    if {"site-packages", "dist-packages"} & set(Path(places[0]).parts):
-        return None
-    return top
+    place = Path(places[0])
+    return None if {"site-packages", "dist-packages"} & set(place.parts) else place

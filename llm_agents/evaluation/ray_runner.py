@@ -8,6 +8,11 @@ plays with the runner's own play loop (`play_episodes`), `batch_size` episodes a
 the driver hands it episodes so that it always holds a batch beyond the one it plays, and
 collects each episode's records when it ends.
 
+An agent from outside this package that is not installed (a folder on the driver's path) is
+shipped to the workers: its package's files go with each worker's start, and the worker imports
+it from a folder of its own; a worker whose agent differs from the driver's (another version
+installed on its node) is refused.
+
 A worker ships an episode's steps only with its end, so a worker that dies leaves nothing of its
 unfinished episodes behind: the driver puts them back at the head of the schedule, where another
 worker takes them, and Ray restarts the dead actor (at most `MAX_RESTARTS` times). Every
@@ -18,10 +23,14 @@ local one. A driver killed and started again resumes from the run directory like
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
+import sys
+import tempfile
 import threading
 from collections import defaultdict, deque
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, Field
@@ -176,7 +185,8 @@ class _WorkerSink:
 class EpisodeWorker:
     """A Ray actor (see `run_on_ray`): its own env and model, playing the episodes it is given."""
 
-    def __init__(self, config: EvalConfig) -> None:
+    def __init__(self, config: EvalConfig, agent_files: dict[str, bytes] | None = None) -> None:
+        """`agent_files`: an outside agent's package, shipped by the driver (`shipped_agent`)."""
         self._config = config
         self._sink = _WorkerSink()
         self._player: threading.Thread | None = None
@@ -189,6 +199,8 @@ class EpisodeWorker:
             from llm_agents.agents.loading import agent_identity
             from llm_agents.evaluation.runner import open_model
 
+            if agent_files:
+                _unpack(agent_files)
             self._agent = agent_identity(config.agent)
             self._env = shared_env(config.env_config())
             self._model = open_model(config) if agent_class(config.agent).needs_model else NoModel()
@@ -356,13 +368,33 @@ def _check_resources(ray: Any, config: EvalConfig) -> None:
             )
 
 
-def _runtime_env(config: EvalConfig) -> dict[str, Any] | None:
-    """The workers' runtime environment: an outside agent's package shipped to them when it is
-    not installed (`agent_shipment`), so a cluster's nodes need not hold the driver's folders."""
+def shipped_agent(config: EvalConfig) -> dict[str, bytes]:
+    """The files of an outside agent's package that the workers need shipped (`agent_shipment`:
+    one that is not installed), by path relative to the folder it is imported from; empty when
+    there is none to ship."""
     from llm_agents.agents.loading import agent_shipment
 
-    shipped = agent_shipment(config.agent)
-    return {"py_modules": [shipped]} if shipped is not None else None
+    place = agent_shipment(config.agent)
+    if place is None:
+        return {}
+    files = [place] if place.is_file() else sorted(place.rglob("*"))
+    return {
+        path.relative_to(place.parent).as_posix(): path.read_bytes()
+        for path in files
+        if path.is_file() and "__pycache__" not in path.parts
+    }
+
+
+def _unpack(files: dict[str, bytes]) -> None:
+    """Write the shipped package into a folder of this worker and put it first on its path (a
+    node of a cluster need not hold the driver's folders)."""
+    root = Path(tempfile.mkdtemp(prefix="craftext-agent-"))
+    for name, data in files.items():
+        target = root / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+    sys.path.insert(0, str(root))
+    importlib.invalidate_caches()
 
 
 def _check_worker_agent(answer: WorkerReady, driver: AgentIdentity | None) -> None:
@@ -386,7 +418,6 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
     try:
         _check_resources(ray, config)
         actor = ray.remote(EpisodeWorker).options(
-            runtime_env=_runtime_env(config),
             num_cpus=1,
             num_gpus=config.ray_worker_gpus,
             # Unbounded for Ray: the driver counts deaths itself, since it also restarts a worker
@@ -395,7 +426,8 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
             max_task_retries=0,
             scheduling_strategy="SPREAD",
         )
-        workers = [actor.remote(config) for _ in range(config.ray_workers)]
+        agent_files = ray.put(shipped_agent(config))
+        workers = [actor.remote(config, agent_files) for _ in range(config.ray_workers)]
         ready: list[WorkerReady] = ray.get([worker.ready.remote() for worker in workers])
         for answer in ready:
             if answer.failure is not None:
