@@ -23,6 +23,7 @@ from outside_agents import (
     write_outside_package,
 )
 
+from env.errors import UserError
 from llm_agents.agents import AGENT_PROTOCOL_VERSION, agent_class
 from llm_agents.agents.loading import agent_identity, agent_shipment, registered_agents
 from llm_agents.cli import EXIT_USER_ERROR, main
@@ -131,7 +132,9 @@ def test_a_resume_under_another_version_of_the_agent_is_refused(
     out = tmp_path / "run"
     assert invoke(eval_argv(out, agent=agent, limit=1), capsys)[0] == 0
     module = folder / "resumable_agents" / "terse.py"
-    module.write_text(module.read_text().replace('version: ClassVar[str] = "1.0"', 'version = "1.1"'))
+    module.write_text(
+        module.read_text().replace('version: ClassVar[str] = "1.0"', 'version = "1.1"')
+    )
     monkeypatch.delitem(sys.modules, "resumable_agents.terse")
     before = snapshot(tmp_path)
 
@@ -139,9 +142,7 @@ def test_a_resume_under_another_version_of_the_agent_is_refused(
 
     assert code == EXIT_USER_ERROR
     assert err.count("\n") == 1, err
-    assert (
-        f"agent ({agent} (version 1.0) before, {agent} (version 1.1) now)" in err
-    ), err
+    assert f"agent ({agent} (version 1.0) before, {agent} (version 1.1) now)" in err, err
     assert snapshot(tmp_path) == before
 
 
@@ -302,3 +303,16 @@ def test_an_agent_from_a_folder_is_shipped_to_ray_workers_an_installed_one_is_no
     site = write_outside_package(tmp_path / "lib" / "site-packages", package="installed_agents")
     monkeypatch.syspath_prepend(str(site))
     assert agent_shipment("installed_agents.terse:TerseAgent") is None
+
+
+def test_a_ray_worker_with_another_version_of_the_agent_is_refused() -> None:
+    from llm_agents.evaluation.ray_runner import WorkerReady, _check_worker_agent
+    from llm_agents.run_data.store import AgentIdentity
+
+    driver = AgentIdentity(path=EXAMPLE_AGENT, version="1.0", version_from="attribute")
+    _check_worker_agent(WorkerReady(agent=driver), driver)
+    other = driver.model_copy(update={"version": "0.9"})
+    with pytest.raises(UserError, match=r"plays agent .*\(version 0\.9\), the driver .*1\.0\)"):
+        _check_worker_agent(WorkerReady(agent=other), driver)
+    with pytest.raises(UserError, match="plays agent built-in"):
+        _check_worker_agent(WorkerReady(), driver)

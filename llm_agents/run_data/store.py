@@ -8,7 +8,8 @@ off; whole files are replaced atomically, so a reader sees the old version or th
 
 The identity of a run is by content: the settings that change results, plus hashes of every
 template, the plans file, the dataset, the parsed goals of the splits it reads and the
-worked-example list it shows. A directory is resumed only under the same identity. The code
+worked-example list it shows, and the import path and version of an agent from outside this
+package. A directory is resumed only under the same identity. The code
 that ran is not part of it: a resume under other code is allowed, and each episode records the
 code version that played it (`code_version`), so the report can say so.
 """
