@@ -38,6 +38,14 @@ class FutureAgent(TerseAgent):
     protocol_version: ClassVar[int] = 2
 
 
+class HalfAgent(TerseAgent):
+    """A class with every member, whose `from_config` builds something that is not an agent."""
+
+    @classmethod
+    def from_config(cls, config):
+        return object()
+
+
 class UnversionedAgent(TerseAgent):
     """Declares no version: its module's source stands for it."""
 

@@ -270,6 +270,10 @@ MISTAKES = {
         "is not an agent: it lacks protocol_version, needs_model, templates, from_config, "
         "start_episode, end_episode, check_templates, decide",
     ),
+    "a class that builds what is not an agent": (
+        "bad_agents.kinds:HalfAgent",
+        "what its from_config builds lacks fallback_id, choices",
+    ),
     "an agent of another protocol version": (
         "bad_agents.kinds:FutureAgent",
         f"is written for agent protocol 2; this craftext-llm speaks protocol "
