@@ -242,6 +242,20 @@ def test_a_name_two_packages_register_is_an_error_naming_both(
     assert not (tmp_path / "run").exists()
 
 
+def test_an_entry_point_that_names_no_class_is_an_error_naming_it(
+    on_path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: Any
+) -> None:
+    write_distribution(tmp_path / "site", "vague-agents", "0.3", {"vague": "my_agents.terse"})
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+
+    code, err = invoke(eval_argv(tmp_path / "run", agent="vague"), capsys)
+
+    assert code == EXIT_USER_ERROR and err.count("\n") == 1, err
+    assert "entry point vague = my_agents.terse of distribution vague-agents" in err
+    assert "does not name a class as package.module:Class" in err
+    assert not (tmp_path / "run").exists()
+
+
 # ------------------------------------------------------------------------------ mistakes
 
 MISTAKES = {

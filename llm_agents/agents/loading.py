@@ -90,6 +90,8 @@ def registered_agents() -> dict[str, Registration]:
                 else other.origin
             )
             raise UserError(f"agent name {entry.name!r} is claimed twice: {origin}, and {claimed}")
+        if not _PATH.match(entry.value):
+            raise UserError(f"{origin} does not name a class as package.module:Class")
         found[entry.name] = Registration(entry.value, origin, dist)
     return found
 
