@@ -426,7 +426,9 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
             max_task_retries=0,
             scheduling_strategy="SPREAD",
         )
-        agent_files = ray.put(shipped_agent(config))
+        # Passed by value, not `ray.put`: Ray warns that a restarted actor cannot rebuild from
+        # an argument in the object store, and an agent's package is small.
+        agent_files = shipped_agent(config)
         workers = [actor.remote(config, agent_files) for _ in range(config.ray_workers)]
         ready: list[WorkerReady] = ray.get([worker.ready.remote() for worker in workers])
         for answer in ready:
