@@ -1,5 +1,6 @@
 """`eval --ray` on a real local Ray cluster (CPU only, two workers): the episodes of a local run,
-a worker killed mid-run, a driver killed and restarted, and the install hint without Ray."""
+a worker killed mid-run, a driver killed and restarted, an agent from outside the package shipped
+to the workers, and the install hint without Ray."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from typing import Any
 
 import pytest
 from fault_server import FaultServer
+from outside_agents import EXAMPLE_AGENT, write_outside_package
 
 from env import EnvConfig, Variant, shared_env
 from env.errors import UserError
@@ -249,6 +251,31 @@ def test_the_workers_counts_per_server_add_up_in_the_results(
         (servers[1].url, chats[1] - probes),
     ]
     assert sum(e.requests for e in results.endpoints) == len(steps(tmp_path))
+
+
+def test_an_agent_from_a_folder_is_shipped_to_the_workers_and_plays_as_locally(
+    cluster: str,
+    tmp_path_factory: pytest.TempPathFactory,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The folder is on the driver's path only: the workers import the agent from what the run
+    # ships them.
+    outside = write_outside_package(tmp_path_factory.mktemp("outside"))
+    monkeypatch.syspath_prepend(str(outside))
+    local = tmp_path / "local"
+    env = shared_env(EnvConfig(variant=Variant.CLASSIC, max_steps=MAX_STEPS))
+    with MockModel(SCRIPT.removeprefix("mock:")) as model:
+        run_eval(config(local, agent=EXAMPLE_AGENT, limit=4), model, env=env)
+    on_ray = tmp_path / "ray"
+    run_on_ray(prepare_run(config(on_ray, ray=True, agent=EXAMPLE_AGENT, limit=4)))
+    results = read_results(on_ray / "results.json")
+    assert results.status == "complete" and results.finished == 4
+    assert results.identity.agent == read_results(local / "results.json").identity.agent
+    assert results.identity.agent is not None
+    assert results.identity.agent.path == EXAMPLE_AGENT
+    assert episodes(on_ray) == episodes(local)
+    assert decisions(on_ray) == decisions(local)
 
 
 def test_workers_the_cluster_cannot_hold_are_refused(cluster: str, tmp_path: Path) -> None:

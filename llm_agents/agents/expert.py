@@ -49,6 +49,7 @@ from llm_agents.agents.expert_plan import (
     supply_task,
 )
 from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ModelOutput
 from textualizer.observation import Observation
@@ -68,6 +69,7 @@ _ORES = frozenset({"coal", "iron", "diamond"})
 class ExpertAgent:
     """A rule-based player: the planner's task, walked to by shortest paths, nothing forbidden."""
 
+    protocol_version: ClassVar[int] = AGENT_PROTOCOL_VERSION
     needs_model: ClassVar[bool] = False
     templates: ClassVar[tuple[str, ...]] = ()
     choices: ClassVar[None] = None

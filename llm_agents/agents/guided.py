@@ -33,6 +33,7 @@ from llm_agents.agents.grounding import (
     training_examples,
 )
 from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.run_data.readings import Grounding, reading_of
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
 class GuidedAgent:
     """Grounds each episode's instruction with the model, then plays the expert on that goal."""
 
+    protocol_version: ClassVar[int] = AGENT_PROTOCOL_VERSION
     needs_model: ClassVar[bool] = True
     templates: ClassVar[tuple[str, ...]] = (GROUND_TEMPLATE,)
     # Grounding answers are free JSON: action-name choices do not apply to them.

@@ -9,6 +9,7 @@ from env.goals import AnyGoal
 from env.variant import Variant, as_variant
 from llm_agents.agents.actions import action_id
 from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.registry import AgentSettings
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ModelOutput
@@ -21,6 +22,7 @@ _NOOP = "NOOP"
 class NoopAgent:
     """Takes `NOOP` at every step of every episode."""
 
+    protocol_version: ClassVar[int] = AGENT_PROTOCOL_VERSION
     needs_model: ClassVar[bool] = False
     templates: ClassVar[tuple[str, ...]] = ()
     choices: ClassVar[None] = None

@@ -1,9 +1,10 @@
-"""Agent strategy names -> the class that plays each, as `"module:Class"` strings, and the run
-settings agents are built from.
+"""The built-in agent strategies' names -> the class that plays each, as `"module:Class"`
+strings, the entry-point group through which installed packages add names of their own, and the
+run settings agents are built from.
 
 Plain data and a protocol, so the config can check an agent name without importing any agent,
 agents need nothing from the evaluation room above them, and `llm_agents.agents.agent_class`
-imports only the one a run uses.
+(`loading`) imports only the one a run uses.
 """
 
 from typing import Literal, Protocol
@@ -21,6 +22,9 @@ AGENTS: dict[str, str] = {
     "noop": "llm_agents.agents.noop:NoopAgent",
     "skills": "llm_agents.agents.skills:SkillsAgent",
 }
+#: The entry-point group an installed package registers agent names under (name =
+#: `package.module:Class`); a name a built-in has is refused.
+ENTRY_POINT_GROUP = "craftext_llm.agents"
 
 #: What the model is shown of the world each step (`--observation`).
 ObservationMode = Literal["text", "image", "both"]
@@ -34,7 +38,8 @@ LETTER_AGENTS = ("zero-shot", "few-shot")
 
 class AgentSettings(Protocol):
     """What agents read from a run's settings (`EvalConfig` holds all of it; its docstrings
-    say what each setting means)."""
+    say what each setting means). Part of the agent protocol (`protocol.AGENT_PROTOCOL_VERSION`):
+    removing a setting here, or changing its meaning, changes the protocol's version."""
 
     @property
     def agent(self) -> str: ...

@@ -36,6 +36,7 @@ from llm_agents.agents.actions import action_id
 from llm_agents.agents.expert_navigation import ExpertEpisode
 from llm_agents.agents.grounding import training_examples
 from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.skill_catalogue import SkillOffer, parse_skill, skill_offer
 from llm_agents.agents.skill_demos import SkillDemo, demos_for, skill_demos
 from llm_agents.agents.skill_runner import Finished, SkillRun, valid_now
@@ -78,6 +79,7 @@ class _Episode:
 class SkillsAgent:
     """Asks the model for a skill whenever none is running; the controllers play it."""
 
+    protocol_version: ClassVar[int] = AGENT_PROTOCOL_VERSION
     needs_model: ClassVar[bool] = True
     templates: ClassVar[tuple[str, ...]] = (SKILLS_TEMPLATE,)
     # With --choice each request carries the skills valid now (`StepPrompt.choices`).

@@ -23,6 +23,7 @@ from env.variant import Variant, as_variant
 from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
 from llm_agents.agents.lettered import LetteredOptions, label_choices, lettered
 from llm_agents.agents.parser import parse_action
+from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.registry import ObservationMode
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
@@ -151,6 +152,7 @@ def _textualizer_renderer(style: str) -> Renderer:
 class ZeroShotAgent:
     """Plays many episodes (slots) at once: `prepare` a slot's prompt, `decide` on the answer."""
 
+    protocol_version: ClassVar[int] = AGENT_PROTOCOL_VERSION
     needs_model: ClassVar[bool] = True
     step_template: ClassVar[str] = STEP_TEMPLATE
     """The template of the per-step user message (strategies built on this one swap it)."""

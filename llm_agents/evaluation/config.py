@@ -32,7 +32,8 @@ from env.open_ended import Task
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
-from llm_agents.agents.registry import AGENTS, IMAGE_AGENTS, LETTER_AGENTS, ObservationMode
+from llm_agents.agents.loading import check_agent_name
+from llm_agents.agents.registry import IMAGE_AGENTS, LETTER_AGENTS, ObservationMode
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
@@ -340,8 +341,10 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     agent: Annotated[str, CHANGES_RESULTS] = "zero-shot"
     """Agent strategy: `zero-shot`, `cot` (keeps its recent reasoning), `few-shot` (expert
     demonstrations first), `expert` (scripted, no model), `guided` (the model grounds the
-    instruction into a goal once, the expert plays that goal) or `noop` (`NOOP` at every step,
-    no model: the do-nothing floor)."""
+    instruction into a goal once, the expert plays that goal), `noop` (`NOOP` at every step,
+    no model: the do-nothing floor), `skills`; or an agent of your own: `package.module:Class`,
+    or the name an installed package registers under the `craftext_llm.agents` entry points
+    (see docs/writing-an-agent.md)."""
     cot_steps: Annotated[int, CHANGES_RESULTS] = Field(3, ge=1)
     """cot: how many of the model's last replies stay in the conversation."""
     cot_max_tokens: Annotated[int, CHANGES_RESULTS] = Field(384, ge=1)
@@ -378,8 +381,8 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     @field_validator("agent")
     @classmethod
     def _known_agent(cls, value: str) -> str:
-        if value not in AGENTS:
-            raise ValueError(f"unknown agent {value!r}; choose from {', '.join(AGENTS)}")
+        # A name or the form of a path only: the class is imported, and checked, by the run.
+        check_agent_name(value)
         return value
 
     @model_validator(mode="after")

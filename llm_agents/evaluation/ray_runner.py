@@ -8,6 +8,11 @@ plays with the runner's own play loop (`play_episodes`), `batch_size` episodes a
 the driver hands it episodes so that it always holds a batch beyond the one it plays, and
 collects each episode's records when it ends.
 
+An agent from outside this package that is not installed (a folder on the driver's path) is
+shipped to the workers: its package's files go with each worker's start, and the worker imports
+it from a folder of its own; a worker whose agent differs from the driver's (another version
+installed on its node) is refused.
+
 A worker ships an episode's steps only with its end, so a worker that dies leaves nothing of its
 unfinished episodes behind: the driver puts them back at the head of the schedule, where another
 worker takes them, and Ray restarts the dead actor (at most `MAX_RESTARTS` times). Every
@@ -18,10 +23,14 @@ local one. A driver killed and started again resumes from the run directory like
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
+import sys
+import tempfile
 import threading
 from collections import defaultdict, deque
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, Field
@@ -40,6 +49,7 @@ from llm_agents.evaluation.runner import (
 )
 from llm_agents.evaluation.schedule import ScheduledEpisode
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
+from llm_agents.run_data.store import AgentIdentity
 
 if TYPE_CHECKING:
     from llm_agents.backends.base import ModelAPI
@@ -70,6 +80,9 @@ class WorkerReady(BaseModel):
     """What `versions(model)` says on that worker."""
     pid: int = 0
     """The worker's process id."""
+    agent: AgentIdentity | None = None
+    """The import path and version of the agent the worker plays, when it comes from outside
+    this package (`agent_identity`): the driver's, or the worker is refused."""
     failure: WorkerFailure | None = None
     """Set when the worker could not load its env or model."""
 
@@ -172,17 +185,29 @@ class _WorkerSink:
 class EpisodeWorker:
     """A Ray actor (see `run_on_ray`): its own env and model, playing the episodes it is given."""
 
-    def __init__(self, config: EvalConfig, commit: str | None = None) -> None:
+    def __init__(
+        self,
+        config: EvalConfig,
+        commit: str | None = None,
+        agent_files: dict[str, bytes] | None = None,
+    ) -> None:
+        """`commit`: the hub commit the driver resolved the model to; `agent_files`: an outside
+        agent's package, shipped by the driver (`shipped_agent`)."""
         self._config = config
         self._sink = _WorkerSink()
         self._player: threading.Thread | None = None
         self._failure: WorkerFailure | None = None
         self._model: ModelAPI | None = None
+        self._agent: AgentIdentity | None = None
         try:
             from env import shared_env
             from llm_agents.agents import NoModel, agent_class
+            from llm_agents.agents.loading import agent_identity
             from llm_agents.evaluation.runner import open_model
 
+            if agent_files:
+                _unpack(agent_files)
+            self._agent = agent_identity(config.agent)
             self._env = shared_env(config.env_config())
             # A hub-id model is loaded at the commit the driver recorded (`hub_commit`).
             needs_model = agent_class(config.agent).needs_model
@@ -193,7 +218,7 @@ class EpisodeWorker:
     def ready(self) -> WorkerReady:
         if self._failure is not None or self._model is None:
             return WorkerReady(failure=self._failure, pid=os.getpid())
-        return WorkerReady(versions=versions(self._model), pid=os.getpid())
+        return WorkerReady(versions=versions(self._model), pid=os.getpid(), agent=self._agent)
 
     def exchange(self, episodes: list[ScheduledEpisode]) -> WorkerReport:
         """Take more episodes; return the rounds played since the last call."""
@@ -351,6 +376,47 @@ def _check_resources(ray: Any, config: EvalConfig) -> None:
             )
 
 
+def shipped_agent(config: EvalConfig) -> dict[str, bytes]:
+    """The files of an outside agent's package that the workers need shipped (`agent_shipment`:
+    one that is not installed), by path relative to the folder it is imported from; empty when
+    there is none to ship."""
+    from llm_agents.agents.loading import agent_shipment
+
+    place = agent_shipment(config.agent)
+    if place is None:
+        return {}
+    files = [place] if place.is_file() else sorted(place.rglob("*"))
+    return {
+        path.relative_to(place.parent).as_posix(): path.read_bytes()
+        for path in files
+        if path.is_file() and "__pycache__" not in path.parts
+    }
+
+
+def _unpack(files: dict[str, bytes]) -> None:
+    """Write the shipped package into a folder of this worker and put it first on its path (a
+    node of a cluster need not hold the driver's folders)."""
+    root = Path(tempfile.mkdtemp(prefix="craftext-agent-"))
+    for name, data in files.items():
+        target = root / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+    sys.path.insert(0, str(root))
+    importlib.invalidate_caches()
+
+
+def _check_worker_agent(answer: WorkerReady, driver: AgentIdentity | None) -> None:
+    """Refuse a worker whose outside agent is not the one the driver recorded (another version
+    installed on its node): its episodes would not be this run's."""
+    if answer.agent != driver:
+        theirs = answer.agent.described() if answer.agent else "built-in"
+        ours = driver.described() if driver else "built-in"
+        raise UserError(
+            f"a Ray worker plays agent {theirs}, the driver {ours}: install the same agent "
+            "version on every node"
+        )
+
+
 def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None) -> RunOutcome:
     """Play the prepared run on Ray workers, writing the run directory here (see the module)."""
     ray = _import_ray()
@@ -369,11 +435,15 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
             scheduling_strategy="SPREAD",
         )
         commit = prepared.identity.model_revision
-        workers = [actor.remote(config, commit) for _ in range(config.ray_workers)]
+        # Passed by value, not `ray.put`: Ray warns that a restarted actor cannot rebuild from
+        # an argument in the object store, and an agent's package is small.
+        agent_files = shipped_agent(config)
+        workers = [actor.remote(config, commit, agent_files) for _ in range(config.ray_workers)]
         ready: list[WorkerReady] = ray.get([worker.ready.remote() for worker in workers])
         for answer in ready:
             if answer.failure is not None:
                 raise UserError(f"a Ray worker could not start: {answer.failure.message}")
+            _check_worker_agent(answer, prepared.identity.agent)
         driver = _Driver(ray, workers, config)
         return run_schedule(
             prepared,

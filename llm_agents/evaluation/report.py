@@ -79,6 +79,8 @@ def report_run(
     played = recorded_rule(results)
     rule = success_rule or played
     notes = [success_rule_note(episodes, rule, played)]
+    if results.identity.agent is not None:
+        notes.append(f"Agent: {results.identity.agent.described()}, from outside craftext-llm.")
     mixed = code_note(episode.code for episode in episodes)
     if mixed:
         notes.append(mixed)

@@ -8,7 +8,8 @@ off; whole files are replaced atomically, so a reader sees the old version or th
 
 The identity of a run is by content: the settings that change results, plus hashes of every
 template, the plans file, the dataset, the parsed goals of the splits it reads and the
-worked-example list it shows. A directory is resumed only under the same identity. The code
+worked-example list it shows, and the import path and version of an agent from outside this
+package. A directory is resumed only under the same identity. The code
 that ran is not part of it: a resume under other code is allowed, and each episode records the
 code version that played it (`code_version`), so the report can say so.
 """
@@ -194,6 +195,34 @@ def with_current_names(
     return current
 
 
+AgentVersionSource = Literal["distribution", "attribute", "source"]
+"""Where an outside agent's version was read: its installed distribution's version, the class's
+`version` attribute, or a digest of the source of the module that defines it."""
+
+
+class AgentIdentity(BaseModel):
+    """Which agent from outside this package played a run: what a resumed run must match."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    path: str
+    """The class, as `package.module:Class` (an entry-point name resolved to what it points at)."""
+    version: str
+    """Its version, read from `version_from`."""
+    version_from: AgentVersionSource
+    """See `AgentVersionSource`."""
+    distribution: str | None = None
+    """The installed distribution the version is that of (`version_from` `distribution`)."""
+
+    def described(self) -> str:
+        """`path` and its version, as a line names them."""
+        if self.version_from == "distribution":
+            return f"{self.path} (distribution {self.distribution} {self.version})"
+        if self.version_from == "attribute":
+            return f"{self.path} (version {self.version})"
+        return f"{self.path} (source {self.version[:12]})"
+
+
 class RunIdentity(BaseModel):
     """What must be equal for two processes to write into one run directory."""
 
@@ -225,6 +254,10 @@ class RunIdentity(BaseModel):
     grammar: str | None = None
     """Digest of the grammar the run's answers are held to (the skills agent's catalogue under
     `--choice guided`, `grammar_digest`); None when none holds them."""
+    agent: AgentIdentity | None = None
+    """The agent's import path and version when it comes from outside this package (`--agent
+    package.module:Class` or an entry point's name); None for a built-in agent, whose code is
+    this package's (recorded as the code version, never compared)."""
 
     def differences(
         self,
@@ -274,6 +307,10 @@ class RunIdentity(BaseModel):
             found.append(
                 f"answer grammar ({_digest(other.grammar)} before, {_digest(self.grammar)} now)"
             )
+        if self.agent != other.agent:
+            before = other.agent.described() if other.agent else "built-in"
+            now = self.agent.described() if self.agent else "built-in"
+            found.append(f"agent ({before} before, {now} now)")
         return found
 
 
