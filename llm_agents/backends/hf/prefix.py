@@ -171,7 +171,7 @@ def prepare_batch(
     return PreparedBatch(
         input_ids=to_torch(np.concatenate([prefix_ids, tail_ids], 1), device),
         attention_mask=to_torch(np.concatenate([prefix_mask, tail_mask], 1), device),
-        **{CACHE_FIELD: cache},
+        cache=cache,
         prefix_width=width,
         reused=reused,
         computed=computed,
