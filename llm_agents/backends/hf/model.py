@@ -106,9 +106,13 @@ CHOICE_ROWS_PER_FORWARD = 16
 #: with prefix reuse on.
 #: CPU: measured by benchmarks/bench_rows_per_forward.py (real zero-shot Classic prompts,
 #: second step, prefixes kept; float32, one torch thread; CPU seconds per request):
-#: ROWS_CPU_FIGURES
-#: cuda: not measured (no GPU could load the Qwen models in this measurement); 16, as before.
-ROWS_PER_FORWARD = {"cpu": 4, "cuda": 16}
+#: Qwen2.5-Coder-0.5B, 4 requests of 231 computed tokens each, 32 answer tokens at most: rows
+#: 1, 2, 4 took 2.96, 2.80, 2.91 s; Qwen2.5-Coder-1.5B, the same requests, rows 1 and 4 took
+#: 9.00 and 10.25 s (2-core machine shared with other work, 2026-11-27). On a
+#: CPU a wider batch barely pays: the prompt's matrix products are wide already, and a row that
+#: has finished (or is padding) costs as much as one still decoding; 2 measured best.
+#: cuda: not measured (no lent GPU could load the Qwen models); 16, as before.
+ROWS_PER_FORWARD = {"cpu": 2, "cuda": 16}
 
 #: Why `loglik` refuses a bfloat16 model, and what to use instead.
 LOGLIK_BFLOAT16 = (
