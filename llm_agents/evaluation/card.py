@@ -27,7 +27,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from env.errors import UserError
-from env.goals import Difficulty
+from env.goals import DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SuccessRule
 from llm_agents.evaluation.goal_flags import run_goal_status
 from llm_agents.evaluation.protocol import PROTOCOL_NAMES, ProtocolName, protocol_for
@@ -518,7 +518,13 @@ def card_markdown(card: Card) -> str:
         "",
         "| Goal set | Success [95% interval clustered by goal] |",
         "|---|---|",
-        *(f"| {name} | {_rate(rate)} |" for name, rate in figures.success_by_category.items()),
+        *(
+            f"| {name} | {_rate(figures.success_by_category[name])} |"
+            for name in dict.fromkeys(
+                (*DIFFICULTY_CATEGORIES[protocol.difficulty], *figures.success_by_category)
+            )
+            if name in figures.success_by_category
+        ),
         f"| **overall** | {_rate(figures.success)} |",
         "",
         f"Scores over {figures.scores.achievement_list} achievements: progression "
