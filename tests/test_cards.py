@@ -291,7 +291,12 @@ def test_leaderboard_mistakes_are_one_line_and_write_nothing(
     assert "Traceback" not in capsys.readouterr().err
 
     shutil.copyfile(card, tmp_path / "same.json")
-    for twice in ([card, card], [card, tmp_path / "same.json"]):
+    # The same run's card written again differs in its writing time, so in its digest.
+    rewritten = json.loads(card.read_text())
+    rewritten["created_at"] = "2030-01-01T00:00:00Z"
+    _reseal(rewritten)
+    (tmp_path / "again.json").write_text(json.dumps(rewritten))
+    for twice in ([card, card], [card, tmp_path / "same.json"], [card, tmp_path / "again.json"]):
         assert main(["leaderboard", *map(str, twice), "--out", str(out)]) == 2
         assert "given twice" in _one_error(capsys)
     (tmp_path / "other").mkdir()
@@ -301,7 +306,7 @@ def test_leaderboard_mistakes_are_one_line_and_write_nothing(
     assert main(["leaderboard", str(card)]) == 2
     assert "--out DIR, --markdown FILE" in _one_error(capsys)
     assert not out.exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "same.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["again.json", "other", "same.json"]
 
 
 def test_leaderboard_refuses_a_card_its_run_does_not_give(

@@ -100,7 +100,9 @@ def _read(entries: Sequence[Entry]) -> list[tuple[Entry, Card]]:
         if entry.card.is_dir() and (entry.card / CARD_FILE).is_file():
             entry = entry.model_copy(update={"card": entry.card / CARD_FILE})
         card = read_card(entry.card)
-        for key in (str(entry.card.resolve()), card.digest):
+        # The same file, a copy of it, or another card of the same run (written again).
+        same_run = f"{card.settings_digest} {card.started_at.isoformat()}"
+        for key in (str(entry.card.resolve()), card.digest, same_run):
             if key in seen:
                 raise UserError(
                     f"card {entry.card} is given twice (also as {seen[key]}): give each once"
@@ -173,6 +175,8 @@ def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
         + figures.cost.completion_tokens_per_episode,
         "departures": departures,
         "code": card.code_version,
+        "about": f"code {card.code_version}; "
+        + (", ".join(f"{k} {v}" for k, v in card.hardware.items()) or "hardware not recorded"),
         "card": f"{CARDS_DIR}/{slug}.json",
         "card_md": f"{CARDS_DIR}/{slug}.md",
         "view": view,
