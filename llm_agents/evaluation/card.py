@@ -292,7 +292,10 @@ def _protocol(results: RunResults, rule: SuccessRule) -> CardProtocol:
         difficulty=difficulty,
         departures=departures,
         limit=config.get("limit"),
-        paper_differences=paper_differences(results, rule),
+        # The open-ended task plays no CrafText goal: the paper's numbers never sit beside it.
+        paper_differences=[]
+        if config.get("task") == "open_ended"
+        else paper_differences(results, rule),
     )
 
 
