@@ -138,7 +138,11 @@ def _verify(read: Sequence[tuple[Entry, Card]]) -> None:
 def _interval(rate: SuccessRate | None) -> dict[str, Any] | None:
     if rate is None:
         return None
+    # Shown as Python rounds it, so the page and the card's Markdown agree (JS's toFixed
+    # rounds some halves the other way).
     return {
+        "text": f"{rate.rate:.2f}",
+        "title": rate.cell(),
         "rate": rate.rate,
         "low": rate.low,
         "high": rate.high,
@@ -148,7 +152,20 @@ def _interval(rate: SuccessRate | None) -> dict[str, Any] | None:
 
 
 def _published_rate(value: float | None) -> dict[str, Any] | None:
-    return None if value is None else {"rate": value, "low": None, "high": None, "n": None}
+    if value is None:
+        return None
+    return {
+        "text": f"{value:.2f}",
+        "title": "published rate",
+        "rate": value,
+        "low": None,
+        "high": None,
+        "n": None,
+    }
+
+
+def _progression(mean: float, stderr: float) -> str:
+    return f"{mean:.1f} ± {stderr:.1f}"
 
 
 def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
@@ -168,8 +185,11 @@ def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
         "rates": {c: _interval(r) for c, r in figures.success_by_category.items()},
         "overall": _interval(figures.success),
         "progression": figures.scores.progression,
-        "progression_stderr": figures.scores.progression_stderr,
+        "progression_text": _progression(
+            figures.scores.progression, figures.scores.progression_stderr
+        ),
         "crafter_score": figures.scores.crafter_score,
+        "crafter_text": f"{figures.scores.crafter_score:.2f}",
         "episodes": figures.episodes,
         "tokens": figures.cost.prompt_tokens_per_episode
         + figures.cost.completion_tokens_per_episode,
@@ -214,7 +234,7 @@ def _balrog_rows() -> list[dict[str, Any]]:
             "rates": {},
             "overall": None,
             "progression": progression,
-            "progression_stderr": stderr,
+            "progression_text": _progression(progression, stderr),
         }
         for model, progression, stderr in BALROG_PUBLISHED
     ]
