@@ -351,13 +351,7 @@ def _figures(
         episodes=n,
         success=summary.overall,
         success_by_category=summary.by_category,
-        scores=CardScores(
-            achievement_list=scores.achievement_list,
-            progression=scores.progression,
-            progression_stderr=scores.progression_stderr,
-            crafter_score=scores.crafter_score,
-            craftaxlm_score=scores.craftaxlm_score,
-        ),
+        scores=CardScores.model_validate(scores.model_dump(include=set(CardScores.model_fields))),
         cost=CardCost(
             model_calls_per_episode=math.fsum(c for c in calls if c is not None) / n
             if all(c is not None for c in calls)
