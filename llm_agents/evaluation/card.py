@@ -115,7 +115,9 @@ class CardCost(BaseModel):
     prompt_tokens_per_episode: float
     completion_tokens_per_episode: float
     model_seconds_per_episode: float | None
-    """Summed answer latency of the episode's steps (step log); None without a step log."""
+    """Seconds the episode waited for its answers: the summed latency of its steps (step log;
+    None without one). Episodes answered in one batch wait together, so over a batched run this
+    exceeds the run's wall time per episode."""
     wall_seconds_per_episode: float | None
     """The run's start-to-finish time over its episodes (model loading and any pause before a
     resume included); None when the run recorded no finish time."""
@@ -531,8 +533,8 @@ def card_markdown(card: Card) -> str:
         f"Per episode: {_number(figures.cost.model_calls_per_episode)} model calls, "
         f"{_number(figures.cost.prompt_tokens_per_episode, 0)} prompt and "
         f"{_number(figures.cost.completion_tokens_per_episode, 0)} completion tokens, "
-        f"{_number(figures.cost.model_seconds_per_episode)} s answering, "
-        f"{_number(figures.cost.wall_seconds_per_episode)} s wall time.",
+        f"{_number(figures.cost.model_seconds_per_episode)} s waiting for answers; "
+        f"{_number(figures.cost.wall_seconds_per_episode)} s of the run's wall time.",
     ]
     if protocol.paper_differences:
         lines += ["", "Departs from the paper's protocol: " + "; ".join(protocol.paper_differences)]
