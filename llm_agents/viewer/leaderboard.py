@@ -170,6 +170,7 @@ def _progression(mean: float, stderr: float) -> str:
 
 def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
     figures = card.figures
+    tokens = figures.cost.prompt_tokens_per_episode + figures.cost.completion_tokens_per_episode
     departures = [
         f"{name} = {json.dumps(d['run'])}" for name, d in card.protocol.departures.items()
     ]
@@ -191,8 +192,8 @@ def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
         "crafter_score": figures.scores.crafter_score,
         "crafter_text": f"{figures.scores.crafter_score:.2f}",
         "episodes": figures.episodes,
-        "tokens": figures.cost.prompt_tokens_per_episode
-        + figures.cost.completion_tokens_per_episode,
+        "tokens": tokens,
+        "tokens_text": f"{tokens:,.0f}",
         "departures": departures,
         "code": card.code_version,
         "about": f"code {card.code_version}; "
