@@ -20,6 +20,8 @@ from env.errors import UserError
 from llm_agents.cli_flags import FlagTarget, add_settings_flags, given_settings
 from llm_agents.evaluation.config import EvalConfig, ModelSettings, build_settings, load_config_file
 
+#: A results card that its run's records do not give (`card --verify`, `leaderboard`).
+EXIT_VERIFY_FAILED = 1
 EXIT_USER_ERROR = 2
 EXIT_BACKEND_FAILURE = 3
 EXIT_INTERRUPTED = 130
@@ -105,6 +107,51 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("run_dir", help="a run's output directory")
     export.add_argument("out", help="the submission folder to write (absent or empty)")
     export.add_argument("--format", choices=["balrog"], required=True, help="the target format")
+
+    card = commands.add_parser(
+        "card",
+        help="write a complete run's results card (card.json, card.md), or --verify one",
+        description="Write RUN_DIR/card.json and card.md: what the run was (model, agent, "
+        "protocol and departures, digests, code, hardware) and every figure its records give. "
+        "With --verify CARD, recompute each figure from RUN_DIR's records and name those that "
+        "differ (exit 1).",
+    )
+    card.add_argument("run_dir", help="a complete run's output directory")
+    card.add_argument("--verify", metavar="CARD", help="check this card.json against RUN_DIR")
+    card.add_argument("--out", metavar="DIR", help="write the card here (default: RUN_DIR)")
+    card.add_argument(
+        "--goal-flags",
+        action="store_true",
+        help="also record the goals doing nothing meets or no agent can (plays the do-nothing "
+        "worlds once, cached)",
+    )
+    card.add_argument(
+        "--do-nothing-worlds",
+        type=int,
+        default=8,
+        metavar="N",
+        help="--goal-flags: seeded worlds per goal the do-nothing agent plays (default 8)",
+    )
+
+    leaderboard = commands.add_parser(
+        "leaderboard",
+        help="write a static leaderboard site from results cards (and a Markdown table)",
+        description="Set cards beside each other and beside the published numbers (the "
+        "CrafText paper's, BALROG's): one offline HTML page, a sortable table per difficulty "
+        "and protocol. Give a card as CARD=RUN_DIR to check it against its run and link the "
+        "run's `view` report.",
+    )
+    leaderboard.add_argument(
+        "cards", nargs="+", metavar="CARD[=RUN_DIR]", help="card.json files (each once)"
+    )
+    leaderboard.add_argument(
+        "--out",
+        metavar="DIR",
+        help="the site's folder (absent, empty, or an earlier leaderboard, replaced whole)",
+    )
+    leaderboard.add_argument(
+        "--markdown", metavar="FILE", help="also write the cards as a Markdown table"
+    )
 
     view = commands.add_parser(
         "view",
@@ -389,6 +436,55 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_card(args: argparse.Namespace) -> int:
+    from llm_agents.evaluation.card import build_card, read_card, verify_card, write_card
+
+    if args.do_nothing_worlds < 1:
+        raise UserError(f"--do-nothing-worlds must be at least 1, not {args.do_nothing_worlds}")
+    if args.verify is not None:
+        if args.out or args.goal_flags:
+            raise UserError("--verify checks a card: leave out --out and --goal-flags")
+        differences = verify_card(read_card(args.verify), args.run_dir)
+        if differences:
+            print(
+                f"{args.verify} does NOT match the run in {args.run_dir}: "
+                f"{len(differences)} figures differ",
+                file=sys.stderr,
+            )
+            for difference in differences:
+                print(f"  {difference}", file=sys.stderr)
+            return EXIT_VERIFY_FAILED
+        print(f"{args.verify} matches the run in {args.run_dir}: every figure recomputed")
+        return 0
+    card = build_card(
+        args.run_dir, goal_flags_worlds=args.do_nothing_worlds if args.goal_flags else None
+    )
+    json_path, md_path = write_card(card, args.out or args.run_dir)
+    figures = card.figures
+    print(
+        f"wrote {json_path} and {md_path}: success {figures.success.cell()}, "
+        f"progression {figures.scores.progression:.1f}"
+    )
+    return 0
+
+
+def cmd_leaderboard(args: argparse.Namespace) -> int:
+    from llm_agents.viewer.leaderboard import CardsRefused, build_leaderboard, parse_entries
+
+    if not args.out and not args.markdown:
+        raise UserError("leaderboard writes --out DIR, --markdown FILE or both: give one")
+    try:
+        outcome = build_leaderboard(parse_entries(args.cards), out=args.out, markdown=args.markdown)
+    except CardsRefused as refused:
+        print(f"craftext-llm: error: {refused}", file=sys.stderr)
+        for line in refused.details:
+            print(f"  {line}", file=sys.stderr)
+        return EXIT_VERIFY_FAILED
+    for line in outcome:
+        print(line)
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     from llm_agents.viewer import build_view, export_episode
 
@@ -486,6 +582,8 @@ COMMANDS = {
     "ground": cmd_ground,
     "data": cmd_data,
     "export": cmd_export,
+    "card": cmd_card,
+    "leaderboard": cmd_leaderboard,
 }
 
 

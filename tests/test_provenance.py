@@ -4,13 +4,14 @@ digest."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from llm_agents.run_data.provenance import PACKAGES, code_version, sources_digest
+from llm_agents.run_data.provenance import PACKAGES, code_version, hardware, sources_digest
 
 pytestmark = pytest.mark.skipif(shutil.which("git") is None, reason="git is not installed")
 
@@ -75,3 +76,15 @@ def test_the_running_code_is_this_checkout() -> None:
         pytest.skip("not run from a checkout")
     head = git(root, "describe", "--tags", "--always", "--abbrev=12")
     assert code_version().startswith(head)
+
+
+def test_hardware_names_this_machine() -> None:
+    found = hardware()
+    assert found["cpu_cores"] == str(len(os.sched_getaffinity(0)))
+    kib = next(
+        int(line.split()[1])
+        for line in Path("/proc/meminfo").read_text().splitlines()
+        if line.startswith("MemTotal:")
+    )
+    assert float(found["memory_gib"]) == pytest.approx(kib / 2**20, abs=0.05)
+    assert ("gpus" in found) == any(Path("/proc/driver/nvidia/gpus").glob("*/information"))

@@ -278,6 +278,27 @@ MISTAKES: dict[str, Mistake] = {
     "report of a directory without results": Mistake(
         ["report", "{tmp}/run"], "not a run directory", files={"run/": ""}
     ),
+    # card, leaderboard
+    "card of a missing directory": Mistake(["card", "{tmp}/nope"], "does not exist"),
+    "card of a directory without results": Mistake(
+        ["card", "{tmp}/run"], "not a run directory", files={"run/": ""}
+    ),
+    "verify a file that is not a card": Mistake(
+        ["card", "--verify", "{tmp}/card.json", "{tmp}/run"],
+        "not a results card",
+        files={"card.json": "[1, 2]", "run/": ""},
+    ),
+    "card with zero do-nothing worlds": Mistake(
+        ["card", "{tmp}/run", "--goal-flags", "--do-nothing-worlds", "0"], "at least 1"
+    ),
+    "leaderboard of a card that is not JSON": Mistake(
+        ["leaderboard", "{tmp}/card.json", "--out", "{tmp}/site"],
+        "not JSON",
+        files={"card.json": "{card"},
+    ),
+    "leaderboard of a missing card": Mistake(
+        ["leaderboard", "{tmp}/card.json", "--out", "{tmp}/site"], "cannot read card"
+    ),
     # plan
     "plan output is a directory": Mistake(
         [*PLAN, "--output", "{tmp}/out"], "is a directory", files={"out/": ""}

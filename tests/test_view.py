@@ -15,6 +15,7 @@ from typing import Any
 import jax
 import numpy as np
 import pytest
+from headless import launch_chromium, open_page
 from PIL import Image
 
 from env import CrafTextEnv, EnvConfig, Variant, episode_key, shared_env
@@ -308,40 +309,13 @@ def test_sprite_sheet_stores_each_distinct_frame_once() -> None:
 # ---------------------------------------------------------------- in a real browser
 
 
-def _chromium() -> str | None:
-    for name in ("chromium", "chromium-browser"):
-        if found := shutil.which(name):
-            return found
-    return None
-
-
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
-    executable = _chromium()
-    if executable is None:
-        pytest.skip("Chromium is not installed (scripts/setup_chromium.sh installs Debian's)")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        pytest.fail("playwright is missing: pip install -e '.[dev]'")
-    with sync_playwright() as playwright:
-        # --no-sandbox: the test may run as root (containers, CI), where the sandbox refuses.
-        chromium = playwright.chromium.launch(executable_path=executable, args=["--no-sandbox"])
-        yield chromium
-        chromium.close()
+    yield from launch_chromium()
 
 
 def _open(browser: Any, path: Path) -> tuple[Any, list[str]]:
-    page = browser.new_page(viewport={"width": 1280, "height": 1000})
-    problems: list[str] = []
-    page.on(
-        "console", lambda m: problems.append(m.text) if m.type in ("error", "warning") else None
-    )
-    page.on("pageerror", lambda error: problems.append(str(error)))
-    page.on("requestfailed", lambda request: problems.append(f"failed: {request.url}"))
-    page.goto(path.as_uri())
-    page.wait_for_load_state("load")
-    return page, problems
+    return open_page(browser, path)
 
 
 def _cell(rate: dict[str, Any]) -> str:

@@ -57,7 +57,7 @@ from llm_agents.evaluation.sink import (
     recorded_actions,
 )
 from llm_agents.run_data.metrics import Summary
-from llm_agents.run_data.provenance import code_version
+from llm_agents.run_data.provenance import code_version, hardware
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
@@ -395,6 +395,7 @@ def run_schedule(
         | {"missing_plans": len(prepared.missing_plans), "instructions": prepared.instructions},
         schedule=[spec.episode_id for spec in prepared.schedule],
         started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
+        hardware=hardware(),
     )
     sink = RunSink(
         out,

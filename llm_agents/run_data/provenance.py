@@ -14,6 +14,8 @@ import functools
 import hashlib
 import importlib.metadata
 import logging
+import os
+import platform
 import subprocess
 from collections import Counter
 from collections.abc import Iterable, Mapping
@@ -30,7 +32,14 @@ _SOURCE_SUFFIXES = frozenset({".py", ".j2", ".css"})
 _ROOT = Path(__file__).resolve().parents[2]
 _DIGEST_CHARS = 12
 
-__all__ = ["PACKAGES", "code_note", "code_version", "note_other_code", "sources_digest"]
+__all__ = [
+    "PACKAGES",
+    "code_note",
+    "code_version",
+    "hardware",
+    "note_other_code",
+    "sources_digest",
+]
 
 
 def sources_digest(root: Path = _ROOT) -> str:
@@ -121,3 +130,37 @@ def code_note(versions: Iterable[str | None], what: str = "episodes") -> str | N
         return None
     listed = ", ".join(f"{version} ({count})" for version, count in counts.most_common())
     return f"Note: the {what} of this run came from different code: {listed}."
+
+
+def _first_line_value(path: Path, key: str) -> str | None:
+    """The value of the first `key: value` line of a /proc-style file; None when unreadable."""
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        name, sep, value = line.partition(":")
+        if sep and name.strip() == key:
+            return value.strip()
+    return None
+
+
+def hardware() -> dict[str, str]:
+    """The machine this process runs on, as a results card shows it: CPU model and cores,
+    memory, and the NVIDIA GPUs the driver lists. Read from /proc (no GPU library imported);
+    what cannot be read is left out."""
+    found = {"platform": f"{platform.system()} {platform.machine()}"}
+    cpu = _first_line_value(Path("/proc/cpuinfo"), "model name") or platform.processor()
+    if cpu:
+        found["cpu"] = cpu
+    found["cpu_cores"] = str(
+        len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    )
+    memory = _first_line_value(Path("/proc/meminfo"), "MemTotal")
+    if memory and memory.split()[0].isdigit():
+        found["memory_gib"] = f"{int(memory.split()[0]) / 2**20:.1f}"
+    gpus = sorted(Path("/proc/driver/nvidia/gpus").glob("*/information"))
+    names = [name for gpu in gpus if (name := _first_line_value(gpu, "Model"))]
+    if names:
+        found["gpus"] = ", ".join(names)
+    return found

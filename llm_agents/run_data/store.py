@@ -452,6 +452,9 @@ class RunResults(ResultsBase):
     """When the run started."""
     finished_at: datetime | None = None
     """When the run completed; None until then."""
+    hardware: dict[str, str] = Field(default_factory=dict)
+    """The machine that last played episodes of the run (`provenance.hardware`): CPU, cores,
+    memory, GPUs; empty in runs recorded before it was kept."""
 
 
 _Results = TypeVar("_Results", bound=ResultsBase)

@@ -1,0 +1,436 @@
+"""Results cards and the leaderboard: a card holds what a real (mock-backend) run's records give,
+`card --verify` names every figure a changed record or an edited card no longer agrees with,
+mistakes are one line with nothing written, and the leaderboard page works in Chromium."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from headless import launch_chromium, open_page
+
+from llm_agents.agents import NoModel
+from llm_agents.backends import get_model
+from llm_agents.cli import main
+from llm_agents.evaluation.card import model_size_billions
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.published import PUBLISHED, PUBLISHED_MEDIUM
+from llm_agents.evaluation.runner import run_eval
+from llm_agents.run_data.metrics import clustered_rate
+
+MAX_STEPS = 30
+SCRIPT = "mock:hash:ACTION: DO|ACTION: LEFT|I go RIGHT|<action>UP</action>|ACTION: DO|hmm|DOWN"
+
+
+def _config(out: Path, **settings: Any) -> Any:
+    return build_config(
+        {
+            "protocol": "paper",
+            "categories": ["combo", "new_objects"],
+            "max_steps": MAX_STEPS,
+            "batch_size": 4,
+            "output_dir": str(out),
+            **settings,
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def model_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "mock-zero-shot"
+    config = _config(out, model=SCRIPT, limit=6)
+    with get_model(config.model, config.generation) as model:
+        run_eval(config, model)
+    return out
+
+
+@pytest.fixture(scope="module")
+def expert_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "expert"
+    run_eval(_config(out, agent="expert", limit=4), NoModel())
+    return out
+
+
+def _copy(run: Path, tmp_path: Path, name: str | None = None) -> Path:
+    copy = tmp_path / (name or run.name)
+    shutil.copytree(run, copy, ignore=shutil.ignore_patterns("card.*", "report"))
+    return copy
+
+
+def _card(run: Path, capsys: Any) -> dict[str, Any]:
+    assert main(["card", str(run)]) == 0
+    capsys.readouterr()
+    data: dict[str, Any] = json.loads((run / "card.json").read_text())
+    return data
+
+
+def _episodes(run: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in (run / "episodes.jsonl").read_text().splitlines()]
+
+
+def _reseal(card: dict[str, Any]) -> None:
+    """Give an edited card the digest of its new content, as a careful forger would."""
+    body = {key: value for key, value in card.items() if key != "digest"}
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    card["digest"] = hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def _one_error(capsys: Any) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert "Traceback" not in captured.err
+    return lines[0]
+
+
+# ---------------------------------------------------------------- cards
+
+
+def test_a_card_holds_what_the_run_records_give(
+    model_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(model_run, tmp_path)
+    card = _card(run, capsys)
+    episodes = _episodes(run)
+    results = json.loads((run / "results.json").read_text())
+    figures = card["figures"]
+
+    assert card["schema_version"] == 1 and card["agent"] == "zero-shot"
+    assert card["model"]["spec"] == SCRIPT and card["model"]["pinned_digest"] is None
+    assert card["protocol"]["name"] == "paper" and card["protocol"]["difficulty"] == "easy"
+    # The step cap and goal sets were set against the protocol's; the limit is recorded beside.
+    assert card["protocol"]["departures"] == {
+        "categories": {
+            "protocol": ["one", "combo", "new_objects"],
+            "run": ["combo", "new_objects"],
+        },
+        "max_steps": {"protocol": 250, "run": MAX_STEPS},
+    }
+    assert card["protocol"]["limit"] == 6
+    assert card["code_version"] == results["versions"]["code"]
+    assert card["hardware"] == results["hardware"] and int(card["hardware"]["cpu_cores"]) >= 1
+    assert card["dataset_digest"] == results["identity"]["dataset"]
+
+    assert figures["episodes"] == len(episodes) == 6
+    assert figures["success"]["successes"] == sum(e["success"] for e in episodes)
+    goals: Counter[tuple[str, str]] = Counter()
+    wins: Counter[tuple[str, str]] = Counter()
+    for e in episodes:
+        goals[(e["category"], e["goal_id"])] += 1
+        wins[(e["category"], e["goal_id"])] += e["success"]
+    expected = clustered_rate({goal: (wins[goal], goals[goal]) for goal in goals})
+    assert figures["success"]["low"] == pytest.approx(expected.low)
+    assert figures["success"]["high"] == pytest.approx(expected.high)
+    assert set(figures["success_by_category"]) == {e["category"] for e in episodes}
+    for category, rate in figures["success_by_category"].items():
+        mine = [e for e in episodes if e["category"] == category]
+        assert rate["episodes"] == len(mine)
+        assert rate["successes"] == sum(e["success"] for e in mine)
+    cost = figures["cost"]
+    assert cost["prompt_tokens_per_episode"] == pytest.approx(
+        sum(e["prompt_tokens"] for e in episodes) / 6
+    )
+    assert cost["prompt_tokens_per_episode"] > 0
+    assert cost["model_calls_per_episode"] == pytest.approx(
+        sum(e["model_calls"] for e in episodes) / 6
+    )
+    steps = [json.loads(line) for line in (run / "steps.jsonl").read_text().splitlines()]
+    assert cost["model_seconds_per_episode"] == pytest.approx(
+        sum(s["latency_s"] for s in steps) / 6
+    )
+    unlocked = [{a.upper() for a in e["achievements"]} for e in episodes]
+    assert figures["scores"]["progression"] == pytest.approx(
+        100 * sum(len(u) for u in unlocked) / 6 / 22
+    )
+
+    md = (run / "card.md").read_text()
+    overall = figures["success"]
+    assert f"{overall['rate']:.2f} [{overall['low']:.2f}, {overall['high']:.2f}]" in md
+    assert "max_steps = 30 (protocol: 250)" in md
+
+
+def test_cards_of_other_runs_differ_where_their_settings_do(
+    model_run: Path, expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    ours = _card(_copy(model_run, tmp_path), capsys)
+    again = _card(_copy(model_run, tmp_path, "again"), capsys)
+    expert = _card(_copy(expert_run, tmp_path), capsys)
+    assert ours["settings_digest"] == again["settings_digest"]
+    assert ours["figures"] == again["figures"]
+    assert expert["settings_digest"] != ours["settings_digest"]
+    assert expert["model"] == {
+        "spec": None,
+        "resolved_revision": None,
+        "pinned_digest": None,
+        "size_billions": None,
+    }
+    assert expert["figures"]["cost"]["model_calls_per_episode"] == 0
+
+
+def test_verify_accepts_the_card_and_names_each_figure_a_changed_record_moves(
+    model_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(model_run, tmp_path)
+    _card(run, capsys)
+    assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 0
+    assert "matches" in capsys.readouterr().out
+
+    # One episode's outcome changed in the records after the card was written.
+    episodes = _episodes(run)
+    flipped = episodes[0]
+    flipped["success"] = not flipped["success"]
+    flipped["termination"] = "success" if flipped["success"] else "timeout"
+    (run / "episodes.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 1
+    err = capsys.readouterr().err
+    assert "figures.success.successes" in err
+    assert f"figures.success_by_category.{flipped['category']}.successes" in err
+    assert "figures.terminations.success" in err
+    assert "figures.scores" not in err  # the achievements did not change
+
+
+def test_an_edited_card_is_refused_and_a_resealed_one_fails_verification(
+    model_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(model_run, tmp_path)
+    card = _card(run, capsys)
+    card["figures"]["success"]["rate"] = 0.99
+    path = run / "card.json"
+    path.write_text(json.dumps(card))
+    assert main(["card", "--verify", str(path), str(run)]) == 2
+    assert "changed after it was written" in _one_error(capsys)
+
+    _reseal(card)
+    path.write_text(json.dumps(card))
+    assert main(["card", "--verify", str(path), str(run)]) == 1
+    err = capsys.readouterr().err
+    assert "figures.success.rate: card 0.99" in err
+    assert "1 figures differ" in err
+
+
+def test_a_card_of_another_schema_version_is_refused(
+    model_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(model_run, tmp_path)
+    card = _card(run, capsys)
+    card["schema_version"] = 2
+    _reseal(card)
+    (run / "card.json").write_text(json.dumps(card))
+    assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 2
+    assert "schema version 2" in _one_error(capsys)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"status": "partial", "finished_at": None}, "only for a complete run"),
+        ({"config": "no protocol"}, "records no protocol"),
+    ],
+)
+def test_no_card_for_an_incomplete_run_or_one_without_protocol(
+    model_run: Path, tmp_path: Path, capsys: Any, change: dict[str, Any], message: str
+) -> None:
+    run = _copy(model_run, tmp_path)
+    results = json.loads((run / "results.json").read_text())
+    if change.get("config"):
+        del results["config"]["protocol"]
+    else:
+        results.update(change)
+    (run / "results.json").write_text(json.dumps(results))
+    before = sorted(p.name for p in run.iterdir())
+    assert main(["card", str(run)]) == 2
+    assert message in _one_error(capsys)
+    assert sorted(p.name for p in run.iterdir()) == before
+
+
+@pytest.mark.parametrize(
+    ("name", "billions"),
+    [
+        ("hf:smollm2-135m", 0.135),
+        ("hf:qwen2.5-coder-0.5b", 0.5),
+        ("Qwen2.5-7B-it", 7.0),
+        ("Llama-3.2-1B-it", 1.0),
+        ("DeepSeek-R1-Distill-Qwen-32B", 32.0),
+        ("GPT-4o", None),
+        ("mock:hash:ACTION: DO", None),
+    ],
+)
+def test_model_size_is_read_from_the_name(name: str, billions: float | None) -> None:
+    assert model_size_billions(name) == billions
+
+
+# ---------------------------------------------------------------- the leaderboard
+
+
+@pytest.fixture(scope="module")
+def carded(
+    model_run: Path, expert_run: Path, tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, Path]:
+    """Copies of both runs, each with its card."""
+    root = tmp_path_factory.mktemp("carded")
+    runs = {name: _copy(run, root) for name, run in (("model", model_run), ("expert", expert_run))}
+    for run in runs.values():
+        assert main(["card", str(run)]) == 0
+    return runs
+
+
+def test_leaderboard_mistakes_are_one_line_and_write_nothing(
+    carded: dict[str, Path], tmp_path: Path, capsys: Any
+) -> None:
+    out = tmp_path / "site"
+    card = carded["model"] / "card.json"
+    with pytest.raises(SystemExit) as exited:
+        main(["leaderboard", "--out", str(out)])
+    assert exited.value.code == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+    shutil.copyfile(card, tmp_path / "same.json")
+    # The same run's card written again differs in its writing time, so in its digest.
+    rewritten = json.loads(card.read_text())
+    rewritten["created_at"] = "2030-01-01T00:00:00Z"
+    _reseal(rewritten)
+    (tmp_path / "again.json").write_text(json.dumps(rewritten))
+    for twice in ([card, card], [card, tmp_path / "same.json"], [card, tmp_path / "again.json"]):
+        assert main(["leaderboard", *map(str, twice), "--out", str(out)]) == 2
+        assert "given twice" in _one_error(capsys)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    assert main(["leaderboard", str(card), "--out", str(tmp_path / "other")]) == 2
+    assert "holds other files" in _one_error(capsys)
+    assert main(["leaderboard", str(card)]) == 2
+    assert "--out DIR, --markdown FILE" in _one_error(capsys)
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["again.json", "other", "same.json"]
+
+
+def test_leaderboard_refuses_a_card_its_run_does_not_give(
+    carded: dict[str, Path], tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(carded["expert"], tmp_path)
+    episodes = _episodes(run)
+    episodes[-1]["achievements"] = [*episodes[-1]["achievements"], "COLLECT_DIAMOND"]
+    (run / "episodes.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    card = carded["expert"] / "card.json"
+    out = tmp_path / "site"
+    code = main(
+        ["leaderboard", f"{carded['model'] / 'card.json'}", f"{card}={run}", "--out", str(out)]
+    )
+    assert code == 1
+    err = capsys.readouterr().err
+    assert f"refused 1 card(s) that their runs' records do not give: {card}" in err
+    assert "figures.scores.progression" in err
+    assert not out.exists()
+
+
+def test_the_markdown_table_has_a_row_per_card(
+    carded: dict[str, Path], tmp_path: Path, capsys: Any
+) -> None:
+    target = tmp_path / "results.md"
+    cards = [carded[name] / "card.json" for name in ("model", "expert")]
+    assert main(["leaderboard", *map(str, cards), "--markdown", str(target)]) == 0
+    table = target.read_text().splitlines()
+    assert len(table) == 2 + len(cards)
+    for path in cards:
+        card = json.loads(path.read_text())
+        row = next(line for line in table if line.startswith(f"| {card['run']} |"))
+        rate = card["figures"]["success"]
+        assert f"| {rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] |" in row
+        assert f"`{card['code_version']}`" in row
+    assert not (tmp_path / "site").exists()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    yield from launch_chromium()
+
+
+def _board_rows(page: Any, section: str) -> list[str]:
+    return [
+        name.strip()
+        for name in page.locator(
+            f"#table-{section} tbody tr td:first-child .name"
+        ).all_inner_texts()
+    ]
+
+
+@pytest.mark.slow
+def test_leaderboard_page_in_chromium_sorts_filters_and_links(
+    carded: dict[str, Path], tmp_path: Path, browser: Any, capsys: Any
+) -> None:
+    from llm_agents.viewer import build_view
+
+    expert = carded["expert"]
+    build_view(expert, progress=False)
+    out = tmp_path / "site"
+    arguments = [str(carded["model"] / "card.json"), f"{expert / 'card.json'}={expert}"]
+    assert main(["leaderboard", *arguments, "--out", str(out)]) == 0
+    # A rebuild replaces the earlier site whole.
+    assert main(["leaderboard", *arguments, "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert not [p for p in tmp_path.iterdir() if p.name != "site"]
+
+    page, problems = open_page(browser, out / "index.html")
+    cards = {name: json.loads((carded[name] / "card.json").read_text()) for name in carded}
+    runs = {card["run"]: card for card in cards.values()}
+
+    # EASY paper: both cards, then the paper's zero-shot rows, marked published.
+    names = _board_rows(page, "easy-paper")
+    # Sorted by the overall rate, highest first (ties in the order given).
+    assert names[:2] == sorted(runs, key=lambda r: -runs[r]["figures"]["success"]["rate"])
+    assert names[2:] == [p.model for p in PUBLISHED]
+    published = page.locator("#table-easy-paper tr.published")
+    assert published.count() == len(PUBLISHED)
+    assert published.locator(".badge").all_inner_texts() == ["published"] * len(PUBLISHED)
+    assert _board_rows(page, "medium-paper") == [p.model for p in PUBLISHED_MEDIUM]
+    # The intervals are drawn for cards (a bar per goal set and overall), not published rows.
+    card_rows = page.locator("#table-easy-paper tr.card")
+    assert card_rows.first.locator("line.ci").count() >= 2
+    assert published.first.locator("line.ci").count() == 0
+
+    # Sorting: by `combo` ascending, then descending; rows without the figure stay last.
+    header = page.locator("#table-easy-paper th[data-key='rate:combo']")
+    header.click()
+    descending = _board_rows(page, "easy-paper")
+    header.click()
+    ascending = _board_rows(page, "easy-paper")
+    assert header.get_attribute("aria-sort") == "ascending"
+
+    def combo(name: str) -> float:
+        if name in runs:
+            return float(runs[name]["figures"]["success_by_category"]["combo"]["rate"])
+        return next(p.rates["combo"] for p in PUBLISHED if p.model == name)
+
+    assert [combo(n) for n in ascending] == sorted(combo(n) for n in ascending)
+    assert [combo(n) for n in descending] == sorted((combo(n) for n in descending), reverse=True)
+
+    # Filters: by agent, and by model size (the expert has no model; the paper's are 24-32B).
+    page.locator("#agent-filter input[value='expert']").uncheck()
+    assert "expert" not in _board_rows(page, "easy-paper")
+    page.locator("#agent-filter input[value='expert']").check()
+    page.select_option("#size-filter", "none")
+    assert _board_rows(page, "easy-paper") == ["expert"]
+    page.select_option("#size-filter", "large")
+    assert sorted(_board_rows(page, "easy-paper")) == sorted(p.model for p in PUBLISHED)
+    page.select_option("#size-filter", "all")
+
+    # Links: each card row to its card in the site; the expert's, given its run, to its report.
+    for name, card in runs.items():
+        row = page.locator("#table-easy-paper tr.card", has_text=name).first
+        href = row.locator("a.card-link").get_attribute("href")
+        assert json.loads((out / href).read_text())["digest"] == card["digest"]
+        assert (out / row.locator("a.card-md-link").get_attribute("href")).is_file()
+    expert_row = page.locator("#table-easy-paper tr.card", has_text="expert").first
+    view = expert_row.locator("a.view-link").get_attribute("href")
+    assert (out / view).resolve() == (expert / "report" / "index.html").resolve()
+    model_row = page.locator("#table-easy-paper tr.card", has_text=cards["model"]["run"]).first
+    assert model_row.locator("a.view-link").count() == 0
+    expert_row.locator("a.view-link").click()
+    page.wait_for_load_state("load")
+    assert page.url == (expert / "report" / "index.html").resolve().as_uri()
+    assert problems == []
