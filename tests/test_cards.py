@@ -20,7 +20,7 @@ from llm_agents.backends import get_model
 from llm_agents.cli import main
 from llm_agents.evaluation.card import model_size_billions
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.published import PUBLISHED, PUBLISHED_MEDIUM
+from llm_agents.evaluation.published import PUBLISHED, PUBLISHED_MEDIUM, PUBLISHED_TRAINED_EASY
 from llm_agents.evaluation.runner import run_eval
 from llm_agents.run_data.metrics import clustered_rate
 
@@ -379,14 +379,16 @@ def test_leaderboard_page_in_chromium_sorts_filters_and_links(
     cards = {name: json.loads((carded[name] / "card.json").read_text()) for name in carded}
     runs = {card["run"]: card for card in cards.values()}
 
-    # EASY paper: both cards, then the paper's zero-shot rows, marked published.
+    # EASY paper: both cards, then the paper's zero-shot rows and its trained agent, marked
+    # published.
+    easy_published = [*PUBLISHED, *PUBLISHED_TRAINED_EASY]
     names = _board_rows(page, "easy-paper")
     # Sorted by the overall rate, highest first (ties in the order given).
     assert names[:2] == sorted(runs, key=lambda r: -runs[r]["figures"]["success"]["rate"])
-    assert names[2:] == [p.model for p in PUBLISHED]
+    assert names[2:] == [p.model for p in easy_published]
     published = page.locator("#table-easy-paper tr.published")
-    assert published.count() == len(PUBLISHED)
-    assert published.locator(".badge").all_inner_texts() == ["published"] * len(PUBLISHED)
+    assert published.count() == len(easy_published)
+    assert published.locator(".badge").all_inner_texts() == ["published"] * len(easy_published)
     assert _board_rows(page, "medium-paper") == [p.model for p in PUBLISHED_MEDIUM]
     # The intervals are drawn for cards (a bar per goal set and overall), not published rows.
     card_rows = page.locator("#table-easy-paper tr.card")
@@ -404,7 +406,7 @@ def test_leaderboard_page_in_chromium_sorts_filters_and_links(
     def combo(name: str) -> float:
         if name in runs:
             return float(runs[name]["figures"]["success_by_category"]["combo"]["rate"])
-        return next(p.rates["combo"] for p in PUBLISHED if p.model == name)
+        return next(p.rates["combo"] for p in easy_published if p.model == name)
 
     assert [combo(n) for n in ascending] == sorted(combo(n) for n in ascending)
     assert [combo(n) for n in descending] == sorted((combo(n) for n in descending), reverse=True)
@@ -414,7 +416,8 @@ def test_leaderboard_page_in_chromium_sorts_filters_and_links(
     assert "expert" not in _board_rows(page, "easy-paper")
     page.locator("#agent-filter input[value='expert']").check()
     page.select_option("#size-filter", "none")
-    assert _board_rows(page, "easy-paper") == ["expert"]
+    no_model = ["expert", *(p.model for p in PUBLISHED_TRAINED_EASY)]
+    assert sorted(_board_rows(page, "easy-paper")) == sorted(no_model)
     page.select_option("#size-filter", "large")
     assert sorted(_board_rows(page, "easy-paper")) == sorted(p.model for p in PUBLISHED)
     page.select_option("#size-filter", "all")

@@ -38,6 +38,7 @@ from llm_agents.evaluation.published import (
     BALROG_PUBLISHED,
     PUBLISHED_BY_DIFFICULTY,
     PUBLISHED_KIND,
+    PUBLISHED_TRAINED_EASY,
 )
 from llm_agents.run_data.metrics import SuccessRate
 from llm_agents.run_data.store import atomic_write_text
@@ -205,11 +206,16 @@ def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
 
 
 def _published_rows(difficulty: Difficulty) -> list[dict[str, Any]]:
-    trained = difficulty != "easy"
+    zero_shot = difficulty == "easy"
+    kind = PUBLISHED_KIND[difficulty]
+    published = [(result, not zero_shot, kind) for result in PUBLISHED_BY_DIFFICULTY[difficulty]]
+    if zero_shot:
+        trained_kind = "the paper's trained agent, EASY split"
+        published += [(result, True, trained_kind) for result in PUBLISHED_TRAINED_EASY]
     return [
         {
             "published": True,
-            "source": f"CrafText paper ({PUBLISHED_KIND[difficulty]})",
+            "source": f"CrafText paper ({source})",
             "name": result.model,
             "agent": "trained agent (paper)" if trained else "zero-shot LLM (paper)",
             "model": result.model,
@@ -218,7 +224,7 @@ def _published_rows(difficulty: Difficulty) -> list[dict[str, Any]]:
             "rates": {c: _published_rate(result.rate(c)) for c in result.rates},
             "overall": None,
         }
-        for result in PUBLISHED_BY_DIFFICULTY[difficulty]
+        for result, trained, source in published
     ]
 
 
