@@ -39,9 +39,10 @@ def test_a_repeated_request_is_served_without_calling_the_model(tmp_path: Path) 
     # Only the one new conversation reached the model on the second call.
     assert [request[0][-1].content for request in inner.requests] == ["a", "b", "c"]
     hit = again[0]
-    assert hit.model_dump(exclude={"cached", "latency_s"}) == first[1].model_dump(
-        exclude={"cached", "latency_s"}
-    )
+    # The same answer; what it cost differs: a cache hit computes no prompt token.
+    cost = {"cached", "latency_s", "computed_prompt_tokens"}
+    assert hit.model_dump(exclude=cost) == first[1].model_dump(exclude=cost)
+    assert hit.computed_prompt_tokens == 0
 
 
 def test_the_cache_survives_a_new_process_view(tmp_path: Path) -> None:

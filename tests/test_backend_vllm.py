@@ -354,8 +354,9 @@ def test_openai_backend_against_vllm_serve(vllm_server: str) -> None:
     assert all(o.error is None and o.text.strip() for o in free), free
     assert all(0 < o.completion_tokens <= 12 and o.prompt_tokens > 0 for o in free)
     assert free[1].finish_reason == "length"
-    # The server's prefix cache serves a repeated prompt (--enable-prompt-tokens-details).
-    story = [ChatMessage(role="system", content=" ".join(ACTIONS * 8)), *conv("Which action?")]
+    # The server's prefix cache serves a repeated prompt (--enable-prompt-tokens-details). It
+    # keeps whole blocks only (128 tokens on the CPU), so the prompt spans more than two.
+    story = [ChatMessage(role="system", content=" ".join(ACTIONS * 30)), *conv("Which action?")]
     first, again = (model.generate([story])[0] for _ in range(2))
     assert first.computed_prompt_tokens is not None and again.computed_prompt_tokens is not None
     assert again.computed_prompt_tokens < again.prompt_tokens == first.prompt_tokens
