@@ -172,15 +172,14 @@ def prepare_run(config: EvalConfig) -> PreparedRun:
     schedule = build_schedule(config, instructions, plans)
     # Renders the system prompt and checks the fallback action; a step's messages are built
     # too, so a broken template fails here rather than on the first model call.
-    examples = (
-        examples_digest(training_examples(dataset, config.difficulty))
-        if config.grounding_shots
-        else None
+    training = (
+        training_examples(dataset, config.difficulty)
+        if config.grounding_shots or config.skill_demos
+        else ()
     )
+    examples = examples_digest(training) if config.grounding_shots else None
     if config.skill_demos:
-        demos = skill_demos(
-            training_examples(dataset, config.difficulty), config.variant, config.difficulty
-        )
+        demos = skill_demos(training, config.variant, config.difficulty)
         scheduled = {(item.instruction.text, item.instruction.goal) for item in schedule}
         check_demo_count(demos, config.skill_demos, scheduled, config.difficulty)
         examples = demos_digest(demos)
@@ -263,7 +262,7 @@ def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
     else at its `revision` option's commit now."""
     from llm_agents.backends import get_model
 
-    options = settings.backend_options | ({"revision": commit} if commit else {})
+    options = settings.backend_options | ({HUB_REVISION_KEY: commit} if commit else {})
     model = get_model(settings.model, settings.generation, **options)
     choice = getattr(settings, "choice", None)
     if choice is not None:
