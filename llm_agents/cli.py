@@ -553,6 +553,14 @@ def view_selection(args: argparse.Namespace) -> Any:
     )
 
 
+def _planner_tokens(summary: Any) -> str:
+    line = f"prompt tokens: {summary.prompt_tokens}"
+    if summary.computed_prompt_tokens is not None and summary.prompt_tokens:
+        share = summary.computed_prompt_tokens / summary.prompt_tokens
+        line += f" ({summary.computed_prompt_tokens} computed, {share:.0%})"
+    return line + f"; completion tokens: {summary.completion_tokens}"
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     from llm_agents.evaluation.runner import open_model
     from llm_agents.planning import PlannerConfig, plan_instructions, planned_instructions
@@ -566,6 +574,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(
         f"{summary.instructions} instructions: {summary.valid} valid, {summary.repaired} repaired, "
         f"{summary.failed} failed, {summary.errors} backend errors, {summary.resumed} resumed\n"
+        f"{_planner_tokens(summary)}\n"
         f"plans: {summary.output}\nsidecar: {summary.sidecar}"
     )
     if summary.errors:

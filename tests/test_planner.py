@@ -200,6 +200,14 @@ def test_plans_are_valid_repaired_or_failed(tmp_path: Path) -> None:
     assert any("smelter" in p and "Find the smelter" in p for p in repair_prompts)
 
 
+def test_token_totals_leave_computed_unset_where_the_backend_does_not_say(
+    tmp_path: Path,
+) -> None:
+    summary = plan_instructions(INSTRUCTIONS, CountingModel(scripted), config(tmp_path))
+    assert summary.prompt_tokens > 0
+    assert summary.computed_prompt_tokens is None
+
+
 def test_drop_failed_and_no_repair(tmp_path: Path) -> None:
     model = CountingModel(scripted)
     summary = plan_instructions(

@@ -171,6 +171,22 @@ def test_single_requests_reuse_their_shared_system_prompt(
     assert_reused(second, 0.4)
 
 
+@pytest.mark.slow
+def test_planner_totals_say_how_much_of_the_prompts_was_computed(
+    model: HFModel, tmp_path: Path
+) -> None:
+    from llm_agents.planning import PlannerConfig, plan_instructions
+
+    model.prefixes = PrefixStore(32768)
+    config = PlannerConfig.model_validate(
+        {"output": tmp_path / "plans.json", "requests_per_call": 1, "repair": False}
+    )
+    summary = plan_instructions(INSTRUCTIONS, model, config)
+    # The second request reuses the first one's system prompt.
+    assert summary.computed_prompt_tokens is not None
+    assert 0 < summary.computed_prompt_tokens < 0.8 * summary.prompt_tokens
+
+
 def test_free_generation_rows_follow_the_device_and_choices_keep_theirs() -> None:
     from llm_agents.backends.hf import model as hf_model
 

@@ -116,6 +116,9 @@ class PlanSummary(BaseModel):
     """Plans in the plans file (it may also hold plans of other splits from earlier runs)."""
     prompt_tokens: int = 0
     """Prompt tokens spent in this run."""
+    computed_prompt_tokens: int | None = None
+    """Of those, the tokens the backend computed, the rest reused from its prefix cache; None
+    where the backend did not say for some answer."""
     completion_tokens: int = 0
     """Completion tokens spent in this run."""
     wall_s: float = 0.0
@@ -184,6 +187,8 @@ def _groups(items: Sequence[str], size: int) -> Iterator[Sequence[str]]:
 @dataclass
 class _Usage:
     prompt_tokens: int = 0
+    # None once any answer's backend does not say, so a partial count never reads as a share.
+    computed_prompt_tokens: int | None = 0
     completion_tokens: int = 0
     errors: int = 0
 
@@ -191,6 +196,13 @@ class _Usage:
         for output in outputs:
             self.prompt_tokens += output.prompt_tokens
             self.completion_tokens += output.completion_tokens
+            if (
+                self.computed_prompt_tokens is not None
+                and output.computed_prompt_tokens is not None
+            ):
+                self.computed_prompt_tokens += output.computed_prompt_tokens
+            else:
+                self.computed_prompt_tokens = None
 
 
 def _plan_group(
@@ -283,6 +295,7 @@ def plan_instructions(
         errors=usage.errors,
         in_file=len(plans),
         prompt_tokens=usage.prompt_tokens,
+        computed_prompt_tokens=usage.computed_prompt_tokens if usage.prompt_tokens else None,
         completion_tokens=usage.completion_tokens,
         wall_s=round(time.perf_counter() - started, 3),
         failed_instructions=[
