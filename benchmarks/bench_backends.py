@@ -108,8 +108,11 @@ def build_workload(max_tokens: int) -> Workload:
     return Workload(conversations=conversations, choices=names, max_tokens=max_tokens)
 
 
-def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
-    """Real agent conversations: `steps` successive steps of `slots` episodes, step-major."""
+def build_realistic_steps(
+    variant: str, slots: int, steps: int, choice_rule: str | None = "loglik"
+) -> Workload:
+    """Real agent conversations: `steps` successive steps of `slots` episodes, step-major,
+    under `choice_rule` (None: free text, the prompt that asks for a short thought first)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -125,8 +128,10 @@ def build_realistic_steps(variant: str, slots: int, steps: int) -> Workload:
     required[0] = True
     task = env.make_task(required, np.zeros(22, dtype=bool))
     reset, step = jax.jit(craftext.reset), jax.jit(craftext.step_from_episode_key)
-    agent = ZeroShotAgent(variant=variant, choice_rule="loglik")
-    names = list(agent.choices.options if agent.choices else [])
+    from llm_agents.agents.actions import action_names
+
+    agent = ZeroShotAgent(variant=variant, choice_rule=choice_rule)
+    names = list(action_names(agent.variant))
     states = []
     for slot in range(slots):
         states.append(reset(jnp.asarray(env.episode_key(0, "g", 0, slot)), task))

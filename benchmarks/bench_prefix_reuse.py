@@ -171,8 +171,8 @@ def main() -> None:
     same = sum(a == b for a, b in zip(without.answers, with_reuse.answers, strict=True))
     print(
         f"\nhf:{args.model} zero-shot free text, Classic, {args.episodes} episodes x "
-        f"{args.steps} steps, max_tokens {config.max_tokens}, rows per forward "
-        f"{model.rows_per_forward}, device {model.device} ({model.dtype}), torch threads "
+        f"{args.steps} steps, max_tokens {config.max_tokens}, rows decoded together "
+        f"{model.rows_per_forward} (prompts per forward pass {model.prefill_rows}), device {model.device} ({model.dtype}), torch threads "
         f"{torch.get_num_threads()}, load average {os.getloadavg()[0]:.1f}"
     )
     print(

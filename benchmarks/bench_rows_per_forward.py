@@ -1,16 +1,21 @@
-"""Seconds per request of hf free generation with prefix reuse, by rows per forward pass.
+"""Seconds per request of hf free generation with prefix reuse, by rows decoded together and
+prompts computed per forward pass.
 
 Real zero-shot Classic prompts (`bench_backends.build_realistic_steps`: `--requests` episodes,
-two steps each). The prefix store is warmed on the first step (system prompt and each
-episode's prompt kept, as a run has them by its second step); each rows-per-forward setting
-then answers the second step's prompts from a copy of that warmed store, so all of them
-compute the same tokens. Greedy, `--max-tokens` tokens at most per answer. Printed per
-setting: CPU seconds (this process, all threads) and wall seconds per request, and whether the
-answers equal those of one row per forward. The hf backend's per-device default
-(`ROWS_PER_FORWARD` in llm_agents/backends/hf/model.py) comes from this measurement.
+two steps each; free text by default, the prompt that asks for a short thought before the
+action, or `--choice-prompt` for the one that asks for the action's name only). The prefix
+store is warmed on the first step (system prompt and each episode's prompt kept, as a run has
+them by its second step); each setting then answers the second step's prompts from a copy of
+that warmed store, so all of them compute the same tokens. Greedy, `--max-tokens` tokens at
+most per answer. Printed per setting (`--rows` decoded together x `--prefill-rows` prompts per
+forward pass, at most the rows): CPU seconds (this process, all threads) and wall seconds per
+request, and whether the answers equal the first setting's. The hf backend's per-device
+defaults (`ROWS_PER_FORWARD`, `PREFILL_ROWS` in llm_agents/backends/hf/model.py) come from this
+measurement.
 
     nice python benchmarks/bench_rows_per_forward.py [--model qwen2.5-coder-0.5b]
-        [--device cpu] [--rows 1 2 4 8] [--requests 8] [--max-tokens 48] [--threads 1]
+        [--device cpu] [--rows 1 2 4 8 16] [--prefill-rows 1 2 16] [--requests 16]
+        [--max-tokens 256] [--threads 1] [--choice-prompt]
 """
 
 from __future__ import annotations
@@ -28,9 +33,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="qwen2.5-coder-0.5b", help="hf model name")
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda, ...)")
-    parser.add_argument("--rows", type=int, nargs="+", default=[1, 2, 4, 8])
-    parser.add_argument("--requests", type=int, default=8, help="episodes (requests per pass)")
-    parser.add_argument("--max-tokens", type=int, default=48)
+    parser.add_argument("--rows", type=int, nargs="+", default=[1, 2, 4, 8, 16])
+    parser.add_argument("--prefill-rows", type=int, nargs="+", default=[1, 2, 16])
+    parser.add_argument("--requests", type=int, default=16, help="episodes (requests per pass)")
+    parser.add_argument("--max-tokens", type=int, default=256)
+    parser.add_argument(
+        "--choice-prompt", action="store_true", help="the prompt asking for the name only"
+    )
     # One thread: on a shared CPU, idle threads of a pool spin and count as CPU seconds.
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (cpu)")
     args = parser.parse_args()
@@ -45,22 +54,30 @@ def main() -> None:
     if args.device == "cpu":
         options["threads"] = args.threads
     model = HFModel(args.model, GenerateConfig(max_tokens=args.max_tokens), **options)
-    built = build_realistic_steps("classic", args.requests, 2)
+    rule = "loglik" if args.choice_prompt else None
+    built = build_realistic_steps("classic", args.requests, 2, choice_rule=rule)
     first, second = built.conversations[: args.requests], built.conversations[args.requests :]
-    model.rows_per_forward = args.requests
+    model.rows_per_forward = model.prefill_rows = args.requests
     warm_config = model.config
     model.config = GenerateConfig(max_tokens=1)
     model.generate(first)
     model.config = warm_config
     warmed = model.prefixes
+    prompt = "choice prompt" if args.choice_prompt else "free text"
     print(
-        f"hf:{args.model} free text, {args.requests} requests, max_tokens {args.max_tokens}, "
+        f"hf:{args.model} {prompt}, {args.requests} requests, max_tokens {args.max_tokens}, "
         f"device {model.device} ({model.dtype}), torch threads {torch.get_num_threads()}"
     )
-    print(f"{'rows':>5}{'CPU s/request':>15}{'wall s/request':>16}{'computed':>10}{'same':>6}")
+    print(
+        f"{'rows':>5}{'prefill':>8}{'CPU s/request':>15}{'wall s/request':>16}"
+        f"{'computed':>10}{'answer tok':>11}{'same':>6}"
+    )
     reference = None
-    for rows in args.rows:
-        model.rows_per_forward = rows
+    settings = sorted(
+        {(rows, min(prefill, rows)) for rows in args.rows for prefill in args.prefill_rows}
+    )
+    for rows, prefill in settings:
+        model.rows_per_forward, model.prefill_rows = rows, prefill
         model.prefixes = warmed.copy()
         cpu, wall = time.process_time(), time.perf_counter()
         outputs = model.generate(second)
@@ -70,9 +87,10 @@ def main() -> None:
         answers = [o.text for o in outputs]
         reference = reference or answers
         computed = sum(o.computed_prompt_tokens or 0 for o in outputs) / len(outputs)
+        answered = sum(o.completion_tokens for o in outputs) / len(outputs)
         print(
-            f"{rows:>5}{cpu / len(outputs):>15.2f}{wall / len(outputs):>16.2f}{computed:>10.0f}"
-            f"{'yes' if answers == reference else 'no':>6}",
+            f"{rows:>5}{prefill:>8}{cpu / len(outputs):>15.2f}{wall / len(outputs):>16.2f}"
+            f"{computed:>10.0f}{answered:>11.1f}{'yes' if answers == reference else 'no':>6}",
             flush=True,
         )
 

@@ -46,7 +46,7 @@ import numpy as np
 import torch
 from jinja2 import TemplateError
 from pydantic import ConfigDict, Field, ValidationError, field_validator
-from transformers import AutoConfig, AutoModelForCausalLM, AutoTokenizer, LogitsProcessorList
+from transformers import AutoConfig, AutoModelForCausalLM, AutoTokenizer
 
 from env.errors import UserError
 from llm_agents.backends.base import (
@@ -72,9 +72,9 @@ from llm_agents.backends.base import (
 )
 from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
+from llm_agents.backends.hf.decode import decode, generation_processors, merge, prefill
 from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, GuidedOptions, OptionTrie
 from llm_agents.backends.hf.prefix import (
-    CACHE_FIELD,
     PrefixStore,
     keep_prompts,
     prepare_batch,
@@ -102,17 +102,13 @@ MAX_KEPT_HEADS = 16
 
 #: Conversations per forward pass of `loglik` choices (one prompt pass shared by the batch).
 CHOICE_ROWS_PER_FORWARD = 16
-#: Conversations per forward pass of free generation by device type (others take cuda's),
-#: with prefix reuse on.
-#: CPU: measured by benchmarks/bench_rows_per_forward.py (real zero-shot Classic prompts,
-#: second step, prefixes kept; float32, one torch thread; CPU seconds per request):
-#: Qwen2.5-Coder-0.5B, 4 requests of 231 computed tokens each, 32 answer tokens at most: rows
-#: 1, 2, 4 took 2.96, 2.80, 2.91 s; Qwen2.5-Coder-1.5B, the same requests, rows 1 and 4 took
-#: 9.00 and 10.25 s (2-core machine shared with other work, 2026-11-27). On a
-#: CPU a wider batch barely pays: the prompt's matrix products are wide already, and a row that
-#: has finished (or is padding) costs as much as one still decoding; 2 measured best.
-#: cuda: not measured (no lent GPU could load the Qwen models); 16, as before.
-ROWS_PER_FORWARD = {"cpu": 2, "cuda": 16}
+#: Conversations decoded together in free generation, by device type (others take cuda's),
+#: and of them, prompts computed per forward pass (`decode.py`): measured by
+#: benchmarks/bench_rows_per_forward.py (real zero-shot free-text Classic prompts, second step,
+#: prefixes kept; float32, one torch thread; CPU seconds per request). See `docs/prefix-reuse.md`.
+#: cuda: not measured (no lent GPU this stop); a whole batch per pass, as `generate` had it.
+ROWS_PER_FORWARD = {"cpu": 16, "cuda": 16}
+PREFILL_ROWS = {"cpu": 1, "cuda": 16}
 
 #: Why `loglik` refuses a bfloat16 model, and what to use instead.
 LOGLIK_BFLOAT16 = (
@@ -242,6 +238,13 @@ class HFModel(ModelAPI):
         self.reuse_prompt_tokens = True
         self.scorer = LoglikScorer(
             self.tokenizer.pad_token_id, split_attention=supports_split_attention(model_config)
+        )
+        #: Of them, prompts computed per forward pass; a cache that is not plain per-token
+        #: layers cannot be laid beside another (`decode.merge`), so its rows go in one.
+        self.prefill_rows = (
+            PREFILL_ROWS.get(self.device.type, PREFILL_ROWS["cuda"])
+            if supports_prefix_reuse(model_config)
+            else self.rows_per_forward
         )
         #: Keys and values of recent prompts' prefixes, for free generation (`prefix.py`).
         self.prefixes = PrefixStore(
@@ -392,10 +395,16 @@ class HFModel(ModelAPI):
     ) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
-        # Left padding, as the tokenizer pads a batch for generation, after each row's reused
-        # prefix (`prefix.py`).
-        batch = prepare_batch(self.model, self.prefixes, prompts, self.tokenizer.pad_token_id)
-        prompt_len = batch.input_ids.shape[1]
+        groups = []
+        for begin in range(0, len(prompts), self.prefill_rows):
+            rows = prompts[begin : begin + self.prefill_rows]
+            batch = prepare_batch(self.model, self.prefixes, rows, self.tokenizer.pad_token_id)
+            group = prefill(self.model, batch)
+            keep_prompts(self.prefixes, rows, batch, group.cache)
+            groups.append((group, batch.computed))
+        computed_tokens = [count for _, counts in groups for count in counts]
+        prefilled = merge([group for group, _ in groups], self.model, self.tokenizer.pad_token_id)
+        prompt_width = prefilled.input_ids.shape[1]
         max_new = config.max_tokens
         processors: list[Any] = [guide] if guide is not None else []
         if config.reasoning_budget is not None and self._think_close_ids:
@@ -403,7 +412,7 @@ class HFModel(ModelAPI):
             max_new += config.reasoning_budget + len(self._think_close_ids)
             processors.append(
                 ThinkingBudget(
-                    prompt_len=prompt_len,
+                    prompt_len=prompt_width,
                     budget=config.reasoning_budget,
                     open_ids=self._encode(THINK_OPEN),
                     close_ids=self._think_close_ids,
@@ -415,28 +424,32 @@ class HFModel(ModelAPI):
             sampling = {"do_sample": True, "temperature": config.temperature, "top_p": config.top_p}
             if config.sampling_seed is not None:
                 torch.manual_seed(config.sampling_seed)
-        with torch.inference_mode():
-            result = self.model.generate(
-                input_ids=batch.input_ids,
-                attention_mask=batch.attention_mask,
-                **{CACHE_FIELD: batch.cache},
-                return_dict_in_generate=True,
-                max_new_tokens=max_new,
-                pad_token_id=self.tokenizer.pad_token_id,
-                logits_processor=LogitsProcessorList(processors),
-                stop_strings=config.stop or None,
-                tokenizer=self.tokenizer if config.stop else None,
-                **sampling,
-            )
-        keep_prompts(self.prefixes, prompts, batch, getattr(result, CACHE_FIELD))
-        generated = result.sequences
-        latency = time.perf_counter() - start
+        chain, sample = generation_processors(
+            self.model,
+            {**sampling, "max_new_tokens": max_new, "pad_token_id": self.tokenizer.pad_token_id},
+            processors,
+            prompt_width,
+        )
         eos_ids = self._eos_ids()
+        stops = config.stop
+
+        def stopped(tokens: list[int]) -> bool:
+            text = self.tokenizer.decode(tokens, skip_special_tokens=True)
+            return any(stop in text for stop in stops)
+
+        answers = decode(
+            self.model,
+            prefilled,
+            max_new=max_new,
+            processors=chain,
+            sample=sample,
+            ends=eos_ids,
+            pad_id=self.tokenizer.pad_token_id,
+            stopped=stopped if stops else None,
+        )
+        latency = time.perf_counter() - start
         outputs = []
-        for row, prompt, computed in zip(
-            generated[:, prompt_len:], prompts, batch.computed, strict=True
-        ):
-            tokens = row.tolist()
+        for tokens, prompt, computed in zip(answers, prompts, computed_tokens, strict=True):
             ended = next((i for i, tok in enumerate(tokens) if tok in eos_ids), None)
             if ended is not None:
                 tokens = tokens[:ended]
