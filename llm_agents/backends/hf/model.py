@@ -241,17 +241,16 @@ class HFModel(ModelAPI):
         self.scorer = LoglikScorer(
             self.tokenizer.pad_token_id, split_attention=supports_split_attention(model_config)
         )
+        plain_cache = supports_prefix_reuse(model_config)
         #: Of them, prompts computed per forward pass; a cache that is not plain per-token
         #: layers cannot be laid beside another (`decode.merge`), so its rows go in one.
         self.prefill_rows = (
             PREFILL_ROWS.get(self.device.type, PREFILL_ROWS["cuda"])
-            if supports_prefix_reuse(model_config)
+            if plain_cache
             else self.rows_per_forward
         )
         #: Keys and values of recent prompts' prefixes, for free generation (`prefix.py`).
-        self.prefixes = PrefixStore(
-            self.settings.prefix_cache_tokens if supports_prefix_reuse(model_config) else 0
-        )
+        self.prefixes = PrefixStore(self.settings.prefix_cache_tokens if plain_cache else 0)
         self._end_of_turn = end_of_turn_id(self.tokenizer)
         self._content_free = ContentFreeScores()
         self._tries: dict[tuple[str, ...], OptionTrie] = {}

@@ -126,7 +126,7 @@ class PrefixStore:
 
 @dataclass
 class PreparedBatch:
-    """A batch laid out for `generate` over reused prefixes."""
+    """A batch laid out over reused prefixes, for `decode.prefill`."""
 
     input_ids: torch.Tensor
     """(rows, width): each row's reused prefix (ids only for show: the cache holds it),
@@ -145,7 +145,7 @@ class PreparedBatch:
 def prepare_batch(
     model: Any, store: PrefixStore, prompts: Sequence[np.ndarray], pad_id: int
 ) -> PreparedBatch:
-    """`prompts` laid out for `generate`, each starting from the longest kept prefix it
+    """`prompts` laid out for `decode.prefill`, each starting from the longest kept prefix it
     begins with; the batch's common prefix is computed (once) and kept first where no kept
     prefix covers it."""
     device = model.device
@@ -181,8 +181,8 @@ def prepare_batch(
 def keep_prompts(
     store: PrefixStore, prompts: Sequence[np.ndarray], batch: PreparedBatch, cache: Any
 ) -> None:
-    """Keep every row's prompt keys and values from `cache`, the cache `generate` ended with
-    (its prompt columns are those `batch` laid out)."""
+    """Keep every row's prompt keys and values from `cache`, the cache `decode.prefill` filled
+    (its columns are those `batch` laid out)."""
     if not store.budget_tokens or cache is None:
         return
     layers = _plain_layers(cache)
