@@ -12,9 +12,9 @@ alone (causal attention), whatever follows them.
 A batch (`prepare_batch`) first computes its prompts' common prefix once where no kept prefix
 covers it (the system prompt, once per run), then lays every row out as its reused prefix,
 padding, then its own tokens, left-padded so all rows end in one column: the padding is masked
-out and the positions count real tokens only (transformers derives them from the mask), so
-every row computes what it would alone. After generation each row's prompt keys and values
-are kept (`keep_prompts`): the next step of that episode reuses them through its instruction.
+out and the positions count real tokens only (derived from the mask), so every row computes
+what it would alone. Once the prompts are computed, each row's keys and values are kept
+(`keep_prompts`): the next step of that episode reuses them through its instruction.
 """
 
 from __future__ import annotations
