@@ -107,7 +107,8 @@ CHOICE_ROWS_PER_FORWARD = 16
 #: benchmarks/bench_rows_per_forward.py (real zero-shot free-text Classic prompts, second step,
 #: prefixes kept; float32, one torch thread; CPU seconds per request): Qwen2.5-Coder-0.5B, 16
 #: requests of 256 computed and 13.5 answer tokens, rows x prompts per pass 1 x 1: 3.90 s,
-#: 4 x 1: 3.34, 4 x 4: 3.55, 16 x 1: 2.78, 16 x 16: 3.43 (2-core machine, load 3, 2026-11-27).
+#: 4 x 1: 3.34, 4 x 4: 3.55, 16 x 1: 2.78, 16 x 16: 3.43; Qwen2.5-Coder-1.5B 1 x 1: 12.08,
+#: 16 x 1: 9.09 (2-core machine, load 3, 2026-11-27).
 #: cuda: not measured (no lent GPU this stop); a whole batch per pass, as `generate` had it.
 ROWS_PER_FORWARD = {"cpu": 16, "cuda": 16}
 PREFILL_ROWS = {"cpu": 1, "cuda": 16}
