@@ -42,7 +42,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from vllm_serve import VLLM_VENV  # noqa: E402
 
 from llm_agents.backends import GenerateConfig, get_model  # noqa: E402
-from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput  # noqa: E402
+from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceSet, ModelOutput  # noqa: E402
 
 DEFAULT_VLLM_PYTHON = VLLM_VENV / "bin" / "python"
 
@@ -109,7 +109,7 @@ def build_workload(max_tokens: int) -> Workload:
 
 
 def build_realistic_steps(
-    variant: str, slots: int, steps: int, choice_rule: str | None = "loglik"
+    variant: str, slots: int, steps: int, choice_rule: ChoiceRule | None = "loglik"
 ) -> Workload:
     """Real agent conversations: `steps` successive steps of `slots` episodes, step-major,
     under `choice_rule` (None: free text, the prompt that asks for a short thought first)."""

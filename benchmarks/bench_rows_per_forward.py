@@ -54,8 +54,9 @@ def main() -> None:
     if args.device == "cpu":
         options["threads"] = args.threads
     model = HFModel(args.model, GenerateConfig(max_tokens=args.max_tokens), **options)
-    rule = "loglik" if args.choice_prompt else None
-    built = build_realistic_steps("classic", args.requests, 2, choice_rule=rule)
+    built = build_realistic_steps(
+        "classic", args.requests, 2, choice_rule="loglik" if args.choice_prompt else None
+    )
     first, second = built.conversations[: args.requests], built.conversations[args.requests :]
     model.rows_per_forward = model.prefill_rows = args.requests
     warm_config = model.config
