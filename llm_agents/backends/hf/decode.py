@@ -109,23 +109,22 @@ def decode(
     active = torch.arange(rows, device=device)  # rows still decoding, in the cache's order
     mask, logits, cache = start.attention_mask, start.logits, start.cache
     positions = mask.sum(-1)
-    for step in range(max_new):
+    # Every row's tokens so far, finished rows padded: a processor sees the whole batch.
+    sequences = start.input_ids
+    for _ in range(max_new):
         scores = logits
         if processors:
-            # Every row's tokens so far, finished rows padded: a processor sees the whole batch.
-            so_far = torch.tensor(
-                [answer + [pad_id] * (step - len(answer)) for answer in answers],
-                dtype=start.input_ids.dtype,
-                device=device,
-            ).reshape(rows, step)
             full = logits.new_zeros((rows, logits.shape[1]))
             full[active] = logits
-            sequences = cast(torch.LongTensor, torch.cat([start.input_ids, so_far], 1))
-            scores = processors(sequences, full)[active]
+            scores = processors(cast(torch.LongTensor, sequences), full)[active]
         if sample:
             chosen = torch.multinomial(F.softmax(scores, dim=-1), num_samples=1).squeeze(1)
         else:
             chosen = torch.argmax(scores, dim=-1)
+        if processors:
+            column = sequences.new_full((rows, 1), pad_id)
+            column[active, 0] = chosen
+            sequences = torch.cat([sequences, column], 1)
         going = []
         for place, (row, token) in enumerate(zip(active.tolist(), chosen.tolist(), strict=True)):
             answer = answers[row]
