@@ -26,20 +26,24 @@ import importlib
 import importlib.abc
 import importlib.machinery
 import inspect
+import itertools
 import re
 import sys
 import textwrap
 import types
 import typing
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 ROOT = Path(__file__).resolve().parent.parent
+if TYPE_CHECKING:
+    from llm_agents.backends.base import ModelAPI
+
 REFERENCE = "reference"
 #: The nav section (a title of mkdocs.yml's `nav`) the command pages are added to.
 NAV_SECTION = "Reference"
@@ -92,7 +96,7 @@ def attribute_docs(cls: type) -> dict[str, str]:
         if not body or not isinstance(body[0], ast.ClassDef):
             continue
         statements = body[0].body
-        for statement, after in zip(statements, statements[1:], strict=False):
+        for statement, after in itertools.pairwise(statements):
             name = _assigned_name(statement)
             if (
                 name
@@ -126,7 +130,7 @@ def _code(text: object) -> str:
     return f"`{value}`" if value else ""
 
 
-def _table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
+def _table(header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     return "\n".join(lines)
@@ -286,7 +290,7 @@ def command_page(name: str, command: argparse.ArgumentParser, summary: str) -> s
     defaults = _settings_defaults(command)
     for title, actions in flag_rows(command):
         heading = "Options" if title in ("options", "optional arguments") else f"`{title}` options"
-        rows = []
+        table_rows: list[tuple[str, ...]] = []
         for action in actions:
             help_text = _help(action, prog)
             if action.dest in defaults:
@@ -298,7 +302,7 @@ def command_page(name: str, command: argparse.ArgumentParser, summary: str) -> s
                 default = ""
             if isinstance(default, str) and len(default) > 60:
                 default = default[:57] + "..."
-            rows.append(
+            table_rows.append(
                 (
                     _cell(_spelling(action)),
                     _cell(help_text),
@@ -306,7 +310,12 @@ def command_page(name: str, command: argparse.ArgumentParser, summary: str) -> s
                     ", ".join(_code(choice) for choice in action.choices or ()),
                 )
             )
-        lines += [f"## {heading}", "", _table(("flag", "meaning", "default", "choices"), rows), ""]
+        lines += [
+            f"## {heading}",
+            "",
+            _table(("flag", "meaning", "default", "choices"), table_rows),
+            "",
+        ]
     return "\n".join(lines)
 
 
@@ -356,11 +365,11 @@ def _missing_modules_stubbed(roots: set[str]) -> Iterator[None]:
 OPTIONAL_IMPORTS = {"vllm", "torch", "transformers", "httpx", "anyio", "accelerate", "gguf"}
 
 
-def backend_classes() -> dict[str, type]:
+def backend_classes() -> dict[str, type[ModelAPI]]:
     """Each backend's name -> its class, imported even where its extra is not installed."""
     from llm_agents.backends import BACKENDS
 
-    classes: dict[str, type] = {}
+    classes: dict[str, type[ModelAPI]] = {}
     with _missing_modules_stubbed(OPTIONAL_IMPORTS):
         for name, target in BACKENDS.items():
             module, _, attribute = target.partition(":")
@@ -374,7 +383,7 @@ def backend_classes() -> dict[str, type]:
 def model_table(model: type[BaseModel], link: Callable[[type[BaseModel]], str]) -> str:
     """A row per field of a pydantic model: name, type, default, meaning."""
     docs = attribute_docs(model)
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for name, field in model.model_fields.items():
         nested = _nested_models(field.annotation)
         kind = _code(_type_name(field.annotation))
@@ -445,7 +454,7 @@ def records_page() -> str:
     from llm_agents.run_data.records import EpisodeRecord, StepRecord
     from llm_agents.run_data.store import EPISODES_FILE, RESULTS_FILE, STEPS_FILE, RunResults
 
-    files = [
+    files: list[tuple[str, type[BaseModel], str, str]] = [
         (
             RESULTS_FILE,
             RunResults,
@@ -516,7 +525,7 @@ def backends_page() -> str:
         "",
     ]
     classes = backend_classes()
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for name, cls in classes.items():
         rules = ", ".join(f"`{rule}`" for rule in sorted(cls.choice_rules)) or "none"
         images = "yes" if cls.check_images is not ModelAPI.check_images else "no"
@@ -577,7 +586,7 @@ def _class_members(cls: type, names: tuple[str, ...]) -> list[tuple[str, str, st
     """(name, what, doc) for each member: an attribute's annotation, a method's signature."""
     docs = attribute_docs(cls)
     hints = getattr(cls, "__annotations__", {})
-    rows = []
+    rows: list[tuple[str, str, str]] = []
     for name in names:
         member = inspect.getattr_static(cls, name, None)
         if isinstance(member, classmethod | staticmethod):
@@ -593,8 +602,8 @@ def _class_members(cls: type, names: tuple[str, ...]) -> list[tuple[str, str, st
 def _dataclass_table(cls: type) -> str:
     docs = attribute_docs(cls)
     hints = typing.get_type_hints(cls, include_extras=False, localns=_agent_namespace())
-    rows = []
-    for field in dataclasses.fields(cls):  # type: ignore[arg-type]
+    rows: list[tuple[str, ...]] = []
+    for field in dataclasses.fields(cls):
         if field.default is not dataclasses.MISSING:
             default = _code(_default(field.default))
         elif field.default_factory is not dataclasses.MISSING:
@@ -640,7 +649,10 @@ def agent_api_page() -> str:
     ]
     members = _class_members(protocol.Agent, (*protocol.CLASS_MEMBERS, *protocol.INSTANCE_MEMBERS))
     lines += [
-        _table(("member", "signature", "meaning"), [(f"`{n}`", _code(s), _cell(d)) for n, s, d in members]),
+        _table(
+            ("member", "signature", "meaning"),
+            [(f"`{n}`", _code(s), _cell(d)) for n, s, d in members],
+        ),
         "",
     ]
     for cls in (EpisodeStart, StepPrompt):
@@ -666,10 +678,14 @@ def agent_api_page() -> str:
         if isinstance(member, property) and not name.startswith("_")
     ]
     hints = typing.get_type_hints(AgentSettings)
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for name in settings:
         field = EvalConfig.model_fields.get(name)
-        kind = _code(_type_name(typing.get_type_hints(vars(AgentSettings)[name].fget).get("return", hints.get(name))))
+        kind = _code(
+            _type_name(
+                typing.get_type_hints(vars(AgentSettings)[name].fget).get("return", hints.get(name))
+            )
+        )
         flag = f"`--{name.replace('_', '-')}`" if field is not None else ""
         rows.append((f"`{name}`", kind, flag, _cell(field.description if field else "")))
     lines += [_table(("setting", "type", "flag", "meaning"), rows), ""]

@@ -2,17 +2,22 @@
 `--strict`, so a broken link or anchor, or a page left out of the nav, fails the suite.
 
 The site is built by the real `mkdocs` (the `dev` extra), into a temporary folder; the checks
-that it fails are real builds of a copy of the site with one fault added.
+that it fails are real builds of a copy of the site with one fault added. The reference pages
+are generated from the code as the site builds (scripts/docs_reference.py, an mkdocs hook): the
+tests check that they cover every flag of the parser, and that the hand-written pages name only
+flags the parser has.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -21,6 +26,7 @@ from llm_agents.cli import COMMANDS, build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
+HOOK = ROOT / "scripts" / "docs_reference.py"
 README_MAX_LINES = 300
 #: A Markdown link's target: `[text](target)`, the target up to `)` or a space.
 LINK = re.compile(r"\]\(([^)\s]+)\)")
@@ -38,10 +44,34 @@ def build_site(project: Path, site: Path) -> subprocess.CompletedProcess[str]:
 
 
 def copy_site_sources(target: Path) -> Path:
-    """The mkdocs.yml and docs/ of this checkout, copied under `target`."""
+    """What the site is built from (mkdocs.yml, docs/, the reference hook and the changelog it
+    reads), copied under `target`."""
     shutil.copy2(ROOT / "mkdocs.yml", target / "mkdocs.yml")
+    shutil.copy2(ROOT / "CHANGELOG.md", target / "CHANGELOG.md")
     shutil.copytree(ROOT / "docs", target / "docs")
+    (target / "scripts").mkdir()
+    shutil.copy2(HOOK, target / "scripts" / HOOK.name)
     return target
+
+
+def reference_generator() -> Any:
+    """scripts/docs_reference.py, the hook that generates the reference pages, as a module."""
+    spec = importlib.util.spec_from_file_location("docs_reference", HOOK)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def generated() -> dict[str, str]:
+    """Every generated page, by its path under docs/."""
+    return reference_generator().pages()
+
+
+def hand_pages() -> list[Path]:
+    """The pages written by hand: docs/ and the README."""
+    return [*sorted((ROOT / "docs").rglob("*.md")), README]
 
 
 def nav_pages() -> list[str]:
@@ -162,19 +192,162 @@ def _long_options(parser: argparse.ArgumentParser) -> dict[str, set[str]]:
     }
 
 
-@pytest.mark.parametrize("command", sorted(COMMANDS))
-def test_every_flag_is_documented(command: str) -> None:
-    docs = "\n".join(
-        path.read_text(encoding="utf-8") for path in sorted((ROOT / "docs").rglob("*.md"))
-    )
-    options = _long_options(build_parser())[command]
-    undocumented = sorted(
-        option
-        for option in options
-        # a boolean flag is documented by either spelling (`--paraphrases`, `--no-paraphrases`)
-        if not any(
-            re.search(rf"{re.escape(spelling)}(?![\w-])", docs)
-            for spelling in {option, option.replace("--no-", "--", 1), "--no-" + option[2:]}
-        )
-    )
-    assert not undocumented, f"craftext-llm {command}: flags no docs page names: {undocumented}"
+def _flags_on(page: str) -> set[str]:
+    """The flags a reference page's tables name (each row's first cell)."""
+    return {
+        flag
+        for line in page.splitlines()
+        if line.startswith("| `--")
+        for flag in re.findall(r"`(--[\w-]+)`", line.split(" | ")[0])
+    }
+
+
+@pytest.mark.parametrize("command", sorted(_long_options(build_parser())))
+def test_every_flag_of_the_parser_is_on_its_command_page(
+    command: str, generated: dict[str, str]
+) -> None:
+    page = generated.get(f"reference/cli/{command}.md")
+    assert page is not None, f"craftext-llm {command} has no generated reference page"
+    missing = sorted(_long_options(build_parser())[command] - _flags_on(page))
+    assert not missing, f"craftext-llm {command}: flags its reference page lacks: {missing}"
+
+
+def test_a_new_command_and_flag_get_a_page_with_no_edit() -> None:
+    """What another command would get: the generator reads whatever the parser holds."""
+    generator = reference_generator()
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    extra = commands.add_parser("brand-new", help="a command added later")
+    extra.add_argument("--brand-new-flag", type=int, default=3, choices=[3, 4], help="its help")
+    page = generator.command_page("brand-new", extra, "a command added later")
+    [row] = [line for line in page.splitlines() if line.startswith("| `--brand-new-flag`")]
+    assert "its help" in row and "`3`" in row and "`4`" in row
+    assert "brand-new" in generator.subcommands(parser)
+
+
+#: A flag a hand page names after `craftext-llm COMMAND`, up to the end of that command (a
+#: comment, a pipe, `;`, `&&`, or the end of the code span or line).
+_COMMAND_LINE = re.compile(r"craftext-llm\s+([a-z][\w-]*)([^`#|;&\n]*)")
+
+
+def _commands_written(text: str) -> list[tuple[str, str]]:
+    """(command, the rest of its line) for every `craftext-llm COMMAND ...` a page writes, a
+    shell line continued by `\\` joined first."""
+    joined = re.sub(r"\\\n\s*", " ", text)
+    return _COMMAND_LINE.findall(joined)
+
+
+def _unknown_flags(text: str, options: dict[str, set[str]]) -> list[str]:
+    """`COMMAND --FLAG` for each flag `text` writes after `craftext-llm COMMAND` that the
+    command's parser lacks."""
+    return [
+        f"{command} {flag}"
+        for command, rest in _commands_written(text)
+        if command in options
+        for flag in re.findall(r"(?<![\w-])--[a-z][\w-]*", rest)
+        if flag not in options[command] | {"--help", "--verbose"}
+    ]
+
+
+def test_hand_pages_name_only_flags_their_command_has() -> None:
+    options = _long_options(build_parser())
+    wrong = [
+        f"{path.relative_to(ROOT)}: craftext-llm {found}"
+        for path in hand_pages()
+        for found in _unknown_flags(path.read_text(encoding="utf-8"), options)
+    ]
+    assert not wrong, wrong
+
+
+def test_the_check_of_hand_pages_finds_a_flag_that_does_not_exist() -> None:
+    options = _long_options(build_parser())
+    text = "```bash\ncraftext-llm eval --model m \\\n    --no-such-flag 3   # --not-this\n```"
+    assert _unknown_flags(text, options) == ["eval --no-such-flag"]
+    assert _unknown_flags("`craftext-llm report RUN --success-rule official`", options) == []
+
+
+def test_every_backend_option_is_on_the_backends_page(generated: dict[str, str]) -> None:
+    page = generated["reference/backends.md"]
+    for name, cls in reference_generator().backend_classes().items():
+        assert f"## {name}" in page
+        for option in cls.accepted_options():
+            assert f"`{option}`" in page, f"{name} option {option} is not documented"
+
+
+@pytest.mark.parametrize(
+    ("record", "field"),
+    [
+        ("EpisodeRecord", "episode_id"),
+        ("EpisodeRecord", "instruction_variant"),
+        ("StepRecord", "raw_output"),
+        ("StepRecord", "action_id"),
+        ("StepRecord", "computed_prompt_tokens"),
+        ("EpisodeRecord", "goal_at_game_over"),
+    ],
+)
+def test_record_fields_are_documented_with_their_meaning(
+    record: str, field: str, generated: dict[str, str]
+) -> None:
+    page = generated["reference/records.md"]
+    section = page.split(f"### {record}\n", 1)[1].split("\n### ", 1)[0]
+    [row] = [line for line in section.splitlines() if line.startswith(f"| `{field}` |")]
+    meaning = row.rstrip(" |").rsplit(" | ", 1)[1]
+    assert len(meaning.split()) >= 3, row
+
+
+def test_every_record_file_names_its_schema_version(generated: dict[str, str]) -> None:
+    page = generated["reference/records.md"]
+    for name in ("results.json", "episodes.jsonl", "steps.jsonl", "card.json"):
+        [row] = [line for line in page.splitlines() if line.startswith(f"| `{name}` |")]
+        assert row.rstrip(" |").rsplit(" | ", 1)[1], row
+    assert "`schema_version` 1" in page
+
+
+def test_the_agent_api_page_documents_the_protocol(generated: dict[str, str]) -> None:
+    page = generated["reference/agent-api.md"]
+    for heading in (
+        "## Agent",
+        "## Decision",
+        "## ChoiceSet",
+        "## AgentSettings",
+        "## Observation",
+    ):
+        assert f"\n{heading}\n" in page, heading
+    from llm_agents.agents.protocol import CLASS_MEMBERS
+
+    for member in CLASS_MEMBERS:
+        assert f"| `{member}` |" in page, member
+
+
+def test_no_table_cell_holds_a_bar_inside_a_code_span() -> None:
+    """The code host's Markdown ends a table cell at a `|` even inside a code span."""
+    found = [
+        f"{path.relative_to(ROOT)}:{number}: {span}"
+        for path in hand_pages()
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if line.lstrip().startswith("|")
+        for span in re.findall(r"`[^`]+`", line)
+        if "|" in span
+    ]
+    assert not found, found
+
+
+#: What a user page must not say: the project's issue numbers, the machines it borrowed, what
+#: happened on a day, or where a contributor's checkout keeps reference data.
+_DIARY = re.compile(
+    r"\bissues? [0-9]+|this stop|the lease|\btoday|borrowed|session's time|shared/data",
+    re.IGNORECASE,
+)
+#: Contributor pages, which may say where the reference data lives.
+_CONTRIBUTOR_PAGES = {"development.md", "benchmarks.md", "first-test-run.md"}
+
+
+def test_user_pages_speak_to_users() -> None:
+    found = [
+        f"{path.relative_to(ROOT)}:{number}: {line.strip()[:80]}"
+        for path in hand_pages()
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        for match in _DIARY.finditer(line)
+        if not (path.name in _CONTRIBUTOR_PAGES and "shared/data" in match.group(0))
+    ]
+    assert not found, found
