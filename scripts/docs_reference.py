@@ -120,8 +120,10 @@ def _assigned_name(statement: ast.stmt) -> str | None:
 
 
 def _cell(text: object) -> str:
-    """A table cell: one line, and no `|` that would end the cell."""
-    return " ".join(str(text).split()).replace("|", "\\|")
+    """A table cell: one line, and no `|` that would end the cell. Python-Markdown's tables keep
+    a `|` inside a code span (and would show a backslash there), so only the others are escaped."""
+    parts = re.split(r"(`[^`]*`)", " ".join(str(text).split()))
+    return "".join(part if part.startswith("`") else part.replace("|", "\\|") for part in parts)
 
 
 def _code(text: object) -> str:
@@ -347,17 +349,18 @@ class _StubFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 @contextlib.contextmanager
 def _missing_modules_stubbed(roots: set[str]) -> Iterator[None]:
+    """Within the block, the modules of `roots` that are not installed import as stand-ins.
+    Every module first imported within it is forgotten afterwards, so that nothing imported
+    later in the process (a test, say) meets a module built on a stand-in."""
     missing = {root for root in roots if importlib.util.find_spec(root) is None}
-    if not missing:
-        yield
-        return
+    before = set(sys.modules)
     finder = _StubFinder(missing)
     sys.meta_path.insert(0, finder)
     try:
         yield
     finally:
         sys.meta_path.remove(finder)
-        for name in [name for name in sys.modules if name.partition(".")[0] in missing]:
+        for name in set(sys.modules) - before:
             del sys.modules[name]
 
 
@@ -370,10 +373,13 @@ def backend_classes() -> dict[str, type[ModelAPI]]:
     from llm_agents.backends import BACKENDS
 
     classes: dict[str, type[ModelAPI]] = {}
-    with _missing_modules_stubbed(OPTIONAL_IMPORTS):
-        for name, target in BACKENDS.items():
-            module, _, attribute = target.partition(":")
+    for name, target in BACKENDS.items():
+        module, _, attribute = target.partition(":")
+        try:
             classes[name] = getattr(importlib.import_module(module), attribute)
+        except ImportError:
+            with _missing_modules_stubbed(OPTIONAL_IMPORTS):
+                classes[name] = getattr(importlib.import_module(module), attribute)
     return classes
 
 
@@ -579,7 +585,8 @@ def _signature(function: Any) -> str:
         signature = str(inspect.signature(function))
     except (TypeError, ValueError):
         return "(...)"
-    return signature
+    # Postponed annotations come back as strings: show them as written.
+    return signature.replace("'", "")
 
 
 def _class_members(cls: type, names: tuple[str, ...]) -> list[tuple[str, str, str]]:
@@ -624,7 +631,7 @@ def _agent_namespace() -> dict[str, Any]:
 def agent_api_page() -> str:
     from llm_agents.agents import protocol
     from llm_agents.agents.registry import AgentSettings
-    from llm_agents.agents.types import EpisodeStart, StepPrompt
+    from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt
     from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
     from llm_agents.evaluation.config import EvalConfig
     from textualizer.observation import Observation
@@ -658,12 +665,7 @@ def agent_api_page() -> str:
     for cls in (EpisodeStart, StepPrompt):
         lines += [f"## {cls.__name__}", "", _paragraphs(cls.__doc__), "", _dataclass_table(cls), ""]
     done: set[type] = set()
-    lines += ["## Decision", ""]
-    from llm_agents.agents.types import Decision
-
-    lines += _model_sections([Decision], done, "###")
-    lines += ["## ChoiceSet", ""]
-    lines += _model_sections([ChoiceSet, ChatMessage, ModelOutput], done, "###")
+    lines += _model_sections([Decision, ChoiceSet, ChatMessage, ModelOutput], done, "##")
     lines += [
         "## AgentSettings",
         "",
@@ -696,7 +698,7 @@ def agent_api_page() -> str:
         "[Observation](../observation.md) explains how it is rendered.",
         "",
     ]
-    lines += _model_sections([Observation], done, "###")
+    lines += _model_sections([Observation], done, "###")[2:]
     return "\n".join(lines)
 
 

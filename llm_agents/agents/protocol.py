@@ -76,7 +76,8 @@ class Agent(Protocol):
     def start_episode(self, slot: int, start: EpisodeStart) -> None:
         """Begin an episode in `slot`, forgetting the slot's previous one."""
 
-    def end_episode(self, slot: int) -> None: ...
+    def end_episode(self, slot: int) -> None:
+        """The episode in `slot` ended: forget what the slot held for it."""
 
     def check_templates(
         self, instruction: str, plan: str | None = None, goal: AnyGoal | None = None
@@ -84,9 +85,13 @@ class Agent(Protocol):
         """Build what the agent would send for an episode of `instruction` (and `plan`, `goal`)
         through the path a run builds it with, so a broken template fails before any work."""
 
-    def prepare(self, slot: int, observation: Any) -> StepPrompt: ...
+    def prepare(self, slot: int, observation: Any) -> StepPrompt:
+        """The prompt for this step of the slot's episode, built from `observation` (a
+        `textualizer.Observation`); the runner sends its messages to the model."""
 
-    def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision: ...
+    def decide(self, prompt: StepPrompt, output: ModelOutput) -> Decision:
+        """The action read from the model's `output` to `prompt`, with what is needed to audit
+        it (an unreadable answer plays the fallback action, `fallback_used`)."""
 
 
 #: The members a class must have to be an agent; `fallback_id` and `choices` are set on the

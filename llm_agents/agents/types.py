@@ -42,9 +42,11 @@ class StepPrompt:
     """One slot's prompt for one step, waiting for the model's answer."""
 
     slot: int
+    """The slot (episode in flight) the prompt is for."""
     observation: Any
     """The observation the prompt shows (the next step's outcome is read against it)."""
     messages: list[ChatMessage]
+    """The conversation sent to the model."""
     text: str
     """The rendered observation."""
     choices: ChoiceSet | None = None
