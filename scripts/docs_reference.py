@@ -368,19 +368,20 @@ def _missing_modules_stubbed(roots: set[str]) -> Iterator[None]:
 OPTIONAL_IMPORTS = {"vllm", "torch", "transformers", "httpx", "anyio", "accelerate", "gguf"}
 
 
-def backend_classes() -> dict[str, type[ModelAPI]]:
-    """Each backend's name -> its class, imported even where its extra is not installed."""
+def backends() -> Iterator[tuple[str, type[ModelAPI]]]:
+    """Each backend's name and class, imported even where its extra is not installed: such a
+    backend's module is read under stand-ins, which last while the caller holds it."""
     from llm_agents.backends import BACKENDS
 
-    classes: dict[str, type[ModelAPI]] = {}
     for name, target in BACKENDS.items():
         module, _, attribute = target.partition(":")
         try:
-            classes[name] = getattr(importlib.import_module(module), attribute)
+            cls = getattr(importlib.import_module(module), attribute)
         except ImportError:
             with _missing_modules_stubbed(OPTIONAL_IMPORTS):
-                classes[name] = getattr(importlib.import_module(module), attribute)
-    return classes
+                yield name, getattr(importlib.import_module(module), attribute)
+            continue
+        yield name, cls
 
 
 # ------------------------------------------------------------------------------ models
@@ -517,6 +518,32 @@ def records_page() -> str:
 # ------------------------------------------------------------------------------ backends
 
 
+def _backend_section(name: str, cls: type[ModelAPI]) -> list[str]:
+    """A backend's section: its module's docstring, choice rules, images, options."""
+    from llm_agents.backends.base import ModelAPI
+
+    lines = [f"## {name}", "", _paragraphs(sys.modules[cls.__module__].__doc__ or cls.__doc__), ""]
+    rules = ", ".join(f"`{rule}`" for rule in sorted(cls.choice_rules)) or "none"
+    lines += [f"**Choice rules**: {rules}."]
+    for rule, why in cls.choice_rule_gaps.items():
+        lines += [f"Not `{rule}`: {_text(why)}"]
+    lines.append("")
+    if cls.check_images is ModelAPI.check_images:
+        lines += ["**Images** (`--observation image` or `both`): not taken.", ""]
+    else:
+        taken = _text(cls.check_images.__doc__ or "taken")
+        lines += [f"**Images** (`--observation image` or `both`): {taken}", ""]
+    honoured = ", ".join(f"`{field}`" for field in sorted(cls.honoured_config))
+    lines += [f"**Generation settings it reads**: {honoured or 'none'}.", ""]
+    if cls.options_model is not None:
+        lines += [f"### {name} options", "", model_table(cls.options_model, lambda m: m.__name__)]
+    else:
+        accepted = cls.accepted_options()
+        text = ", ".join(f"`{option}`" for option in accepted) if accepted else "none"
+        lines += [f"**Options**: {text}."]
+    return [*lines, ""]
+
+
 def backends_page() -> str:
     from llm_agents.backends.base import GenerateConfig, ModelAPI
 
@@ -530,40 +557,15 @@ def backends_page() -> str:
         "explains how to choose a backend.",
         "",
     ]
-    classes = backend_classes()
     rows: list[tuple[str, ...]] = []
-    for name, cls in classes.items():
+    sections: list[str] = []
+    for name, cls in backends():
         rules = ", ".join(f"`{rule}`" for rule in sorted(cls.choice_rules)) or "none"
         images = "yes" if cls.check_images is not ModelAPI.check_images else "no"
         rows.append((f"[{name}](#{name})", rules, images))
+        sections += _backend_section(name, cls)
     lines += [_table(("backend", "choice rules (`--choice`)", "images"), rows), ""]
-    for name, cls in classes.items():
-        lines += [f"## {name}", ""]
-        module = sys.modules[cls.__module__]
-        lines += [_paragraphs(module.__doc__ or cls.__doc__), ""]
-        rules = ", ".join(f"`{rule}`" for rule in sorted(cls.choice_rules)) or "none"
-        lines += [f"**Choice rules**: {rules}."]
-        for rule, why in cls.choice_rule_gaps.items():
-            lines += [f"Not `{rule}`: {_text(why)}"]
-        lines.append("")
-        if cls.check_images is ModelAPI.check_images:
-            lines += ["**Images** (`--observation image` or `both`): not taken.", ""]
-        else:
-            lines += [
-                "**Images** (`--observation image` or `both`): "
-                + _text(cls.check_images.__doc__ or "taken"),
-                "",
-            ]
-        honoured = ", ".join(f"`{field}`" for field in sorted(cls.honoured_config))
-        lines += [f"**Generation settings it reads**: {honoured or 'none'}.", ""]
-        options = cls.options_model
-        if options is not None:
-            lines += [f"### {name} options", ""]
-            lines += [model_table(options, lambda m: m.__name__), ""]
-        else:
-            accepted = cls.accepted_options()
-            text = ", ".join(f"`{option}`" for option in accepted) if accepted else "none"
-            lines += [f"**Options**: {text}.", ""]
+    lines += sections
     lines += [
         "## Generation settings",
         "",

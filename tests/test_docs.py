@@ -268,7 +268,7 @@ def test_the_check_of_hand_pages_finds_a_flag_that_does_not_exist() -> None:
 
 def test_every_backend_option_is_on_the_backends_page(generated: dict[str, str]) -> None:
     page = generated["reference/backends.md"]
-    for name, cls in reference_generator().backend_classes().items():
+    for name, cls in reference_generator().backends():
         assert f"## {name}" in page
         for option in cls.accepted_options():
             assert f"`{option}`" in page, f"{name} option {option} is not documented"
