@@ -387,8 +387,10 @@ def backends() -> Iterator[tuple[str, type[ModelAPI]]]:
 # ------------------------------------------------------------------------------ models
 
 
-def model_table(model: type[BaseModel], link: Callable[[type[BaseModel]], str]) -> str:
-    """A row per field of a pydantic model: name, type, default, meaning."""
+def model_table(
+    model: type[BaseModel], link: Callable[[type[BaseModel]], str], first: str = "field"
+) -> str:
+    """A row per field of a pydantic model: name (headed `first`), type, default, meaning."""
     docs = attribute_docs(model)
     rows: list[tuple[str, ...]] = []
     for name, field in model.model_fields.items():
@@ -407,7 +409,7 @@ def model_table(model: type[BaseModel], link: Callable[[type[BaseModel]], str]) 
         doc = computed.description or _text(getattr(computed.wrapped_property, "__doc__", ""))
         kind = _code(_type_name(computed.return_type))
         rows.append((f"`{name}`", kind, "computed", _cell(doc)))
-    return _table(("field", "type", "default", "meaning"), rows)
+    return _table((first, "type", "default", "meaning"), rows)
 
 
 def _nested_models(annotation: Any) -> list[type[BaseModel]]:
@@ -536,7 +538,11 @@ def _backend_section(name: str, cls: type[ModelAPI]) -> list[str]:
     honoured = ", ".join(f"`{field}`" for field in sorted(cls.honoured_config))
     lines += [f"**Generation settings it reads**: {honoured or 'none'}.", ""]
     if cls.options_model is not None:
-        lines += [f"### {name} options", "", model_table(cls.options_model, lambda m: m.__name__)]
+        lines += [
+            f"### {name} options",
+            "",
+            model_table(cls.options_model, lambda m: m.__name__, "option"),
+        ]
     else:
         accepted = cls.accepted_options()
         text = ", ".join(f"`{option}`" for option in accepted) if accepted else "none"
