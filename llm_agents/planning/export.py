@@ -52,7 +52,9 @@ def rank_key(score: PlanScore) -> tuple[float, int, int, int]:
     return (-score.success.rate, len(score.steps), len(score.plan), score.candidate)
 
 
-def sft_rows(scores: Iterable[PlanScore], threshold: float, prompt: Prompter) -> list[dict[str, str]]:
+def sft_rows(
+    scores: Iterable[PlanScore], threshold: float, prompt: Prompter
+) -> list[dict[str, str]]:
     """Every distinct plan whose success rate is at least `threshold`."""
     rows = []
     for instruction, group in _by_text(scores).items():

@@ -19,7 +19,8 @@ class StepReading(BaseModel):
     skills: tuple[str, ...] = ()
     """The skills it reads as, in the catalogue's form, played in this order; empty: unread."""
     unread: str | None = None
-    """Why the step reads as no skill (it names nothing the catalogue knows); None when read."""
+    """Why the step, or a part of it ("Find cow, kill it": the first part), reads as no skill
+    (it names nothing the catalogue knows); None when all of it was read."""
 
 
 class FirstFailure(BaseModel):
