@@ -629,8 +629,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
         )
     print(
         f"{summary.instructions} instructions: {summary.valid} valid, {summary.repaired} repaired, "
-        f"{summary.failed} failed, {summary.errors} backend errors, {summary.resumed} resumed\n"
-        f"{_planner_tokens(summary)}\n"
+        f"{summary.failed} failed, {summary.errors} backend errors, {summary.resumed} resumed"
+        + (
+            f"; {config.candidates} samples each, {summary.duplicates} duplicates not kept\n"
+            if config.candidates
+            else "\n"
+        )
+        + f"{_planner_tokens(summary)}\n"
         f"plans: {summary.output}\nsidecar: {summary.sidecar}"
     )
     if summary.errors:

@@ -133,9 +133,12 @@ class _Thing:
 
 def _things(words: list[str]) -> list[_Thing]:
     found: list[_Thing] = []
-    count, means = 1, False
+    count, means, previous = 1, False, ""
     for word in words:
-        if word in _MEANS:
+        if word.isdigit() and previous in _THINGS and found and found[-1].count == 1:
+            # The catalogue's own form puts the count after the material: "collect wood 3".
+            found[-1] = _Thing(found[-1].name, int(word), found[-1].after_means)
+        elif word in _MEANS:
             means = True
         elif word.isdigit():
             count = int(word)
@@ -144,6 +147,7 @@ def _things(words: list[str]) -> list[_Thing]:
         elif word in _THINGS:
             found.append(_Thing(_THINGS[word], count, means))
             count = 1
+        previous = word
     return found
 
 
