@@ -159,7 +159,9 @@ def play_plan_episodes(
     queue = deque(ep for ep in episodes if ep.skills)
     if not queue:
         return
-    size = min(batch_size, len(queue))
+    # The batch keeps its size whatever the number of episodes (idle slots are never stepped):
+    # another shape would compile the env's functions again.
+    size = batch_size
     noop = action_id("NOOP", variant)
 
     def rows(specs: Sequence[PlanEpisode]) -> tuple[np.ndarray, ...]:
@@ -167,9 +169,9 @@ def play_plan_episodes(
         tasks = encode_goals([s.goal for s in specs], variant)
         return keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params
 
-    first = [queue.popleft() for _ in range(size)]
+    first = [queue.popleft() for _ in range(min(size, len(queue)))]
     vector = VectorEnv(env, size)  # type: ignore[arg-type]
-    host = vector.reset(*rows(first))
+    host = vector.reset(*rows(first + [first[0]] * (size - len(first))))
     live: dict[int, _Live] = {slot: _Live(spec) for slot, spec in enumerate(first)}
     while live:
         slots = sorted(live)
