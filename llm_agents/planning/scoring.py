@@ -397,7 +397,7 @@ def _write_exports(config: ScoreConfig, scores: list[PlanScore]) -> dict[str, in
             cache[text] = planner_prompt_text(text, limits, variant, templates)
         return cache[text]
 
-    written = {}
+    written: dict[str, int] = {}
     for kind in config.export:
         rows = (
             sft_rows(scores, config.threshold, prompt)

@@ -14,6 +14,7 @@ pickaxe": which one?) is unread, with the reason: nothing is guessed.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from llm_agents.agents.skill_catalogue import SkillOffer, read_skill
@@ -300,7 +301,10 @@ def _eat(things: list[_Thing], rest: list[str], offer: SkillOffer) -> list[str]:
     return ["eat"]
 
 
-def _simple(name: str):  # type: ignore[no-untyped-def]
+_Reader = Callable[[list[_Thing], list[str], SkillOffer], list[str]]
+
+
+def _simple(name: str) -> _Reader:
     def read(things: list[_Thing], rest: list[str], offer: SkillOffer) -> list[str]:
         if name == "explore" and things:
             return _go_to(things, rest, offer)
@@ -309,7 +313,7 @@ def _simple(name: str):  # type: ignore[no-untyped-def]
     return read
 
 
-_SKILLS = {
+_SKILLS: dict[str, _Reader] = {
     "collect": _collect,
     "place": _place,
     "craft": _craft,
