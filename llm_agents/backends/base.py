@@ -660,6 +660,13 @@ class ModelAPI(abc.ABC):
                 f"{output.error or 'no error given'}"
             )
 
+    def cannot_sample(self) -> str | None:
+        """Why this backend cannot draw different answers to one prompt (`plan --candidates`),
+        or None when it can: with a temperature above 0, each sampling seed draws anew."""
+        if {"temperature", "sampling_seed"} <= self.honoured_config:
+            return None
+        return f"the {self.backend_name} backend does not honour temperature and sampling_seed"
+
     def info(self) -> dict[str, str]:
         """Backend, model and library versions, recorded in results."""
         return {"backend": self.backend_name, "model": self.model_name}

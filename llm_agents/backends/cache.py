@@ -122,6 +122,9 @@ class CachedModel(ModelAPI):
         encoded = json.dumps(payload, sort_keys=True, ensure_ascii=False).encode()
         return hashlib.sha256(encoded).hexdigest()
 
+    def cannot_sample(self) -> str | None:
+        return self.model.cannot_sample()
+
     def probe(self) -> None:
         self.model.probe()
 

@@ -74,6 +74,12 @@ class MockModel(ModelAPI):
             if self._mode == "error":
                 self._error = self._outputs[0]
 
+    def cannot_sample(self) -> str | None:
+        # Only a cycle of several answers (or a responder) answers one prompt differently.
+        if self._responder is not None or (self._mode == "cycle" and len(set(self._outputs)) > 1):
+            return None
+        return f"mock:{self.model_name} answers a prompt always alike: it cannot sample"
+
     def probe(self) -> None:
         # A script always answers, and probing must not use up a `list:` script's answers.
         if self._mode == "error":

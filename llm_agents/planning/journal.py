@@ -39,6 +39,8 @@ class PlanSettings(BaseModel):
     """Whose names the prompt lists and the checker accepts."""
     repair: bool
     """Whether flagged plans got one repair request."""
+    candidates: int | None = None
+    """Plans sampled per instruction (`--candidates`); None: one plan each, the official shape."""
 
 
 class PlanRecord(BaseModel):
@@ -56,6 +58,10 @@ class PlanRecord(BaseModel):
     """The planner's first answer, verbatim."""
     repair_raw: str | None = None
     """The answer to the repair request, verbatim; None when none was made."""
+    sample: int = 0
+    """Which of the instruction's samples this is (`--candidates`), from 0."""
+    seed: int | None = None
+    """The sampling seed it was drawn with (`--candidates`); None: the configured one."""
 
 
 def journal_paths(output: Path) -> tuple[Path, Path]:
@@ -71,6 +77,9 @@ class Journal:
     def __init__(self, path: Path, settings: PlanSettings, restart: bool):
         self.path = path
         self.records: dict[str, PlanRecord] = {}
+        """Each instruction's first sample."""
+        self.samples: dict[tuple[str, int], PlanRecord] = {}
+        """Every sample, by instruction and sample index."""
         if restart:
             path.unlink(missing_ok=True)
         lines = complete_lines(path)
@@ -103,11 +112,33 @@ class Journal:
                 record = PlanRecord.model_validate_json(line)
             except ValidationError:
                 raise UserError(f"{self.path} line {number} is corrupt; pass --restart") from None
+            self._keep(record)
+
+    def _keep(self, record: PlanRecord) -> None:
+        self.samples[(record.instruction, record.sample)] = record
+        if record.sample == 0:
             self.records[record.instruction] = record
 
     def add(self, records: Sequence[PlanRecord]) -> None:
         append_lines(self.path, [record.model_dump_json() for record in records])
-        self.records.update((record.instruction, record) for record in records)
+        for record in records:
+            self._keep(record)
+
+    def candidates(self, drop_failed: bool) -> tuple[dict[str, list[str]], int]:
+        """Instruction -> its distinct plans in sample order, and how many samples repeated
+        an earlier one (counted, not kept)."""
+        plans: dict[str, list[str]] = {}
+        duplicates = 0
+        for (instruction, _), record in sorted(self.samples.items()):
+            if not record.plan or (drop_failed and record.status == "failed"):
+                continue
+            kept = plans.setdefault(instruction, [])
+            if record.plan in kept:
+                duplicates += 1
+            else:
+                kept.append(record.plan)
+        order = dict.fromkeys(instruction for instruction, _ in self.samples)
+        return {text: plans[text] for text in order if text in plans}, duplicates
 
     def plans(self, drop_failed: bool) -> dict[str, str]:
         return {

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -54,6 +55,10 @@ class PlannerConfig(TextSelection):
     """Conversations sent to the backend in one call."""
     restart: bool = False
     """Discard an existing journal instead of resuming it."""
+    candidates: int | None = Field(None, ge=1, le=64)
+    """Sample this many plans per instruction (sampling seeds `sampling_seed`, +1, ...; a
+    temperature above 0) and write a candidates file, instruction -> [distinct plans]; unset:
+    one plan each, the official shape."""
 
     @model_validator(mode="before")
     @classmethod
@@ -93,6 +98,9 @@ class PlannerConfig(TextSelection):
 
 class PlanSummary(BaseModel):
     """The outcome of a planning run, over every instruction it was asked for."""
+
+    duplicates: int = 0
+    """`--candidates`: samples that repeated an earlier plan of their instruction (not kept)."""
 
     output: Path
     """The plans JSON."""
@@ -163,6 +171,16 @@ class _Prompter:
         return _messages(render_blocks(REPAIR_TEMPLATE, context, self.templates_dir))
 
 
+def planner_messages(
+    instruction: str,
+    limits: PlanLimits | None = None,
+    variant: Variant = Variant.FULL,
+    templates_dir: str | Path | None = None,
+) -> list[ChatMessage]:
+    """The request `plan` sends the planner model for one instruction."""
+    return _Prompter(limits or PlanLimits(), variant, templates_dir).plan(instruction)
+
+
 # ---------------------------------------------------------------- planning
 
 
@@ -176,6 +194,7 @@ def _settings(model: ModelAPI, config: PlannerConfig) -> PlanSettings:
         limits=config.limits,
         variant=config.variant,
         repair=config.repair,
+        candidates=config.candidates,
     )
 
 
@@ -211,6 +230,7 @@ def _plan_group(
     prompter: _Prompter,
     config: PlannerConfig,
     usage: _Usage,
+    sample: int = 0,
 ) -> list[PlanRecord]:
     """Plan up to `requests_per_call` instructions: one call for the plans, one for the repairs."""
     outputs = model.generate([prompter.plan(text) for text in instructions])
@@ -228,6 +248,8 @@ def _plan_group(
             status="valid" if check.ok else "failed",
             issues=check.issues,
             raw=output.text,
+            sample=sample,
+            seed=model.config.sampling_seed if config.candidates else None,
         )
         if not check.ok and config.repair:
             flagged.append((instruction, output.text, check))
@@ -263,37 +285,58 @@ def plan_instructions(
     wanted = list(dict.fromkeys(instructions))
     settings = _settings(model, config)
     journal_path, sidecar_path = journal_paths(config.output)
+    check_sampling(model, config)
     journal = Journal(journal_path, settings, config.restart)
-    todo = [text for text in wanted if text not in journal.records]
+    samples = config.candidates or 1
+    todo = [
+        (sample, text)
+        for sample in range(samples)
+        for text in wanted
+        if (text, sample) not in journal.samples
+    ]
     prompter = _Prompter(config.limits, config.variant, config.templates_dir)
     usage = _Usage()
+    duplicates = 0
     try:
         with tqdm(
-            total=len(wanted),
-            initial=len(wanted) - len(todo),
+            total=len(wanted) * samples,
+            initial=len(wanted) * samples - len(todo),
             desc="planning",
-            unit="instr",
+            unit="plan",
             disable=not progress,
         ) as bar:
-            for group in _groups(todo, config.requests_per_call):
-                journal.add(_plan_group(group, model, prompter, config, usage))
-                bar.update(len(group))
+            for sample in range(samples):
+                texts = [text for s, text in todo if s == sample]
+                with _sampling_seed(model, config, sample):
+                    for group in _groups(texts, config.requests_per_call):
+                        journal.add(_plan_group(group, model, prompter, config, usage, sample))
+                        bar.update(len(group))
     finally:
         # Runs on Ctrl-C too, so the plans file always reflects the journal.
-        plans = journal.plans(config.drop_failed)
+        plans: dict[str, Any]
+        if config.candidates:
+            plans, duplicates = journal.candidates(config.drop_failed)
+        else:
+            plans = journal.plans(config.drop_failed)
         atomic_write_json(config.output, plans)
-    statuses = [journal.records[t].status for t in wanted if t in journal.records]
+    statuses = [
+        journal.samples[(t, sample)].status
+        for sample in range(samples)
+        for t in wanted
+        if (t, sample) in journal.samples
+    ]
     summary = PlanSummary(
         output=config.output,
         sidecar=sidecar_path,
         journal=journal_path,
         instructions=len(wanted),
-        resumed=len(wanted) - len(todo),
+        resumed=len(wanted) * samples - len(todo),
         valid=statuses.count("valid"),
         repaired=statuses.count("repaired"),
         failed=statuses.count("failed"),
         errors=usage.errors,
         in_file=len(plans),
+        duplicates=duplicates,
         prompt_tokens=usage.prompt_tokens,
         computed_prompt_tokens=usage.computed_prompt_tokens if usage.prompt_tokens else None,
         completion_tokens=usage.completion_tokens,
@@ -311,6 +354,35 @@ def plan_instructions(
     }
     atomic_write_json(sidecar_path, sidecar)
     return summary
+
+
+def check_sampling(model: ModelAPI, config: PlannerConfig) -> None:
+    """Refuse `--candidates` where the answers could not differ (before anything is written)."""
+    if config.candidates is None:
+        return
+    reason = model.cannot_sample()
+    if reason is not None:
+        raise UserError(f"--candidates samples plans, and {reason}")
+    if config.candidates > 1 and model.config.temperature == 0:
+        raise UserError(
+            "--candidates samples plans: greedy decoding (temperature 0) gives one plan per "
+            "instruction; set --temperature above 0 (e.g. 0.8)"
+        )
+
+
+@contextmanager
+def _sampling_seed(model: ModelAPI, config: PlannerConfig, sample: int) -> Iterator[None]:
+    """Sample `sample` drawn with the configured seed plus `sample` (in place: a caching
+    wrapper shares its model's settings object)."""
+    base = model.config.sampling_seed
+    if config.candidates is None or base is None:
+        yield
+        return
+    model.config.sampling_seed = base + sample
+    try:
+        yield
+    finally:
+        model.config.sampling_seed = base
 
 
 def goal_instructions(goals: Iterable[AnyGoal]) -> list[str]:
