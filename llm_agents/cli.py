@@ -155,6 +155,12 @@ def build_parser() -> argparse.ArgumentParser:
     leaderboard.add_argument(
         "--markdown", metavar="FILE", help="also write the cards as a Markdown table"
     )
+    leaderboard.add_argument(
+        "--unverified",
+        action="store_true",
+        help="also show cards whose runs were never replayed (not at `card` time, not given as "
+        "CARD=RUN_DIR), in tables of their own marked as such, never ranked",
+    )
 
     view = commands.add_parser(
         "view",
@@ -494,7 +500,12 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     if not args.out and not args.markdown:
         raise UserError("leaderboard writes --out DIR, --markdown FILE or both: give one")
     try:
-        outcome = build_leaderboard(parse_entries(args.cards), out=args.out, markdown=args.markdown)
+        outcome = build_leaderboard(
+            parse_entries(args.cards),
+            out=args.out,
+            markdown=args.markdown,
+            unverified=args.unverified,
+        )
     except CardsRefused as refused:
         print(f"craftext-llm: error: {refused}", file=sys.stderr)
         for line in refused.details:

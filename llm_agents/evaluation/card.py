@@ -205,9 +205,10 @@ class Card(BaseModel):
     started_at: datetime
     finished_at: datetime | None
     figures: CardFigures
-    replay: CardReplay
+    replay: CardReplay | None
     """The replay the records passed before the card was written (not compared by
-    `verify_card`, which replays them again)."""
+    `verify_card`, which replays them again); None for a run that kept no step log, which
+    cannot be replayed (the leaderboard shows such a card only with `--unverified`)."""
     created_at: datetime
     """When the card was written (not checked)."""
     digest: str = ""
@@ -373,7 +374,7 @@ def build_card(
     once and cached) or no agent can."""
     run_dir = Path(run_dir)
     run = _load_run(run_dir)
-    check = _replayed(run, progress)
+    check = _replayed(run, progress) if run.has_steps else None
     codes = sorted({e.code or "not recorded" for e in run.episodes})
     card = Card(
         run=run_dir.resolve().name,
@@ -390,7 +391,9 @@ def build_card(
         started_at=run.results.started_at,
         finished_at=run.results.finished_at,
         figures=_figures(run, goal_flags_worlds),
-        replay=CardReplay(
+        replay=None
+        if check is None
+        else CardReplay(
             code_version=code_version(),
             replayed_at=datetime.now(UTC),
             episodes=check.episodes,
@@ -528,10 +531,7 @@ def card_markdown(card: Card) -> str:
         f"dataset digest `{(card.dataset_digest or 'not recorded')[:12]}`",
         "- **Hardware**: "
         + (", ".join(f"{k} {v}" for k, v in card.hardware.items()) or "not recorded"),
-        f"- **Replayed**: {card.replay.episodes} episodes re-simulated from their world keys "
-        f"and actions"
-        + (f", {card.replay.answers} answers parsed again" if card.replay.answers else "")
-        + f", by code `{card.replay.code_version}` on {card.replay.replayed_at:%Y-%m-%d}",
+        _replay_line(card.replay),
         "",
         "| Goal set | Success [95% interval clustered by goal] |",
         "|---|---|",
@@ -568,6 +568,17 @@ def card_markdown(card: Card) -> str:
         f"(card digest `{card.digest[:12]}`).",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _replay_line(replay: CardReplay | None) -> str:
+    if replay is None:
+        return "- **Replayed**: NOT: the run kept no step log, so its records cannot be replayed"
+    return (
+        f"- **Replayed**: {replay.episodes} episodes re-simulated from their world keys and "
+        "actions"
+        + (f", {replay.answers} answers parsed again" if replay.answers else "")
+        + f", by code `{replay.code_version}` on {replay.replayed_at:%Y-%m-%d}"
+    )
 
 
 def write_card(card: Card, out: str | Path) -> tuple[Path, Path]:
