@@ -153,9 +153,7 @@ def test_an_extra_episode_is_refused(expert_run: Path, tmp_path: Path, capsys: A
     assert not (run / "card.json").exists()
 
 
-def test_an_undeclared_departure_is_refused(
-    expert_run: Path, tmp_path: Path, capsys: Any
-) -> None:
+def test_an_undeclared_departure_is_refused(expert_run: Path, tmp_path: Path, capsys: Any) -> None:
     run = _copy(expert_run, tmp_path)
     results = json.loads((run / "results.json").read_text())
     results["config"]["episodes_per_instruction"] = 2

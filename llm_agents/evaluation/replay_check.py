@@ -48,7 +48,7 @@ _BATCH = 32
 _RETURN_TOLERANCE = 1e-4
 
 
-class RunDoesNotReplay(Exception):  # noqa: N818 (it names the outcome, as `UserError` does)
+class RunDoesNotReplay(Exception):
     """A run whose records its replay does not give."""
 
     def __init__(self, run_dir: Any, differences: list[str]):
@@ -56,8 +56,7 @@ class RunDoesNotReplay(Exception):  # noqa: N818 (it names the outcome, as `User
         shown = "; ".join(differences[:3])
         more = f" (and {len(differences) - 3} more)" if len(differences) > 3 else ""
         super().__init__(
-            f"the records in {run_dir} do not replay: {len(differences)} differences: "
-            f"{shown}{more}"
+            f"the records in {run_dir} do not replay: {len(differences)} differences: {shown}{more}"
         )
 
 
@@ -117,7 +116,9 @@ def _check_departures(run: RunView, config: EvalConfig) -> None:
         table = run.config.get(head, {}) if head else run.config
         if leaf not in table:
             continue
-        if normalised_setting(choice.setting, table[leaf]) != normalised_setting(choice.setting, choice.value):
+        if normalised_setting(choice.setting, table[leaf]) != normalised_setting(
+            choice.setting, choice.value
+        ):
             raise UserError(
                 f"the run in {run.path} played {choice.setting} = {table[leaf]!r}, not its "
                 f"protocol's {choice.value!r}, and records no such departure: its results.json "
@@ -310,8 +311,7 @@ def _outcome_differences(record: EpisodeRecord, replay: Any) -> list[str]:
         )
     if (replay.termination == "success") != record.success:
         differences.append(
-            f"{where}: success: recorded {record.success}, replay "
-            f"{replay.termination == 'success'}"
+            f"{where}: success: recorded {record.success}, replay {replay.termination == 'success'}"
         )
     if replay.achievements != record.achievements:
         differences.append(
@@ -346,4 +346,5 @@ def _bar(total: int, progress: bool) -> Any:
         return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="episode", desc="replaying", leave=False)
+    # Hidden where stderr is no terminal (a log, a test).
+    return tqdm(total=total, unit="episode", desc="replaying", leave=False, disable=None)

@@ -367,8 +367,7 @@ def cards_markdown(
         text += (
             ("\n" if text else "")
             + "**Not replayed** (these cards record no replay of their runs and were not given "
-            "with them: their figures are what the cards say)\n\n"
-            + _markdown_table(unranked)
+            "with them: their figures are what the cards say)\n\n" + _markdown_table(unranked)
         )
     return text
 
