@@ -93,7 +93,7 @@ def expected_schedule(run: RunView) -> list[ScheduledEpisode]:
         recorded = run.results.identity.dataset
         if recorded is not None and dataset.source.sha256 != recorded:
             raise UserError(
-                f"the dataset here ({dataset.source.path}, digest {dataset.source.sha256[:12]}) "
+                f"the dataset here ({dataset.source.path}, digest {(dataset.source.sha256 or 'none')[:12]}) "
                 f"is not the one the run in {run.path} played (digest {recorded[:12]}): its "
                 "episodes cannot be derived"
             )
