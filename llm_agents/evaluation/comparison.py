@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from env.dataset import PAPER_CATEGORIES
+from env.errors import UserError
 from env.goals import DIFFICULTY_CATEGORIES
 from llm_agents.evaluation.published import PUBLISHED_KIND, published_for
 from llm_agents.evaluation.report_tables import (
@@ -32,7 +33,7 @@ from llm_agents.evaluation.rescoring import (
 from llm_agents.run_data.metrics import Summary
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.run_view import read_run, recorded_rule
-from llm_agents.run_data.store import RunResults
+from llm_agents.run_data.store import RESULTS_FILE, RunResults
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,8 @@ class ComparedRun:
 
 def compared_run(run_dir: str | Path) -> ComparedRun:
     """A run directory's row for `--compare`: labelled with its model and agent strategy."""
+    if not (Path(run_dir) / RESULTS_FILE).is_file():
+        raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
     run = read_run(run_dir)
     results, episodes = run.results, run.episodes
     name = model_name_of(results)
