@@ -63,7 +63,8 @@ class Replay:
 
     frames: np.ndarray
     """uint8 RGB frames of shape (steps + 1, height, width, 3): the world before the first
-    action, then after each action."""
+    action, then after each action (1 by 1 black pixels from a `Replayer` that does not
+    render)."""
     achievements: list[str]
     """Achievement names first unlocked during the replay, in order (within a step, by id)."""
     termination: str
@@ -83,17 +84,26 @@ class Replay:
 class Replayer:
     """Replays episodes of one `CrafTextEnv` (its variant and step cap) and renders their frames.
 
-    Create one per process and reuse it: its compiled functions are cached per instance.
+    Create one per process and reuse it: its compiled functions are cached per instance. With
+    `render=False` it draws nothing (checking a run's records needs no frames).
     """
 
-    def __init__(self, env: CrafTextEnv, *, batch_size: int = 8, chunk: int = 32):
+    def __init__(
+        self, env: CrafTextEnv, *, batch_size: int = 8, chunk: int = 32, render: bool = True
+    ):
         self.env = env
         self.batch_size = batch_size
         self.chunk = chunk
-        render = _pixel_renderer(env)
+        if render:
+            pixels = _pixel_renderer(env)
 
-        def draw(game: Any) -> jax.Array:
-            return jnp.clip(jnp.round(render(game)), 0, 255).astype(jnp.uint8)
+            def draw(game: Any) -> jax.Array:
+                return jnp.clip(jnp.round(pixels(game)), 0, 255).astype(jnp.uint8)
+
+        else:
+            # Checking a run needs no pixels: drawing is most of a replay's cost.
+            def draw(game: Any) -> jax.Array:
+                return jnp.zeros((1, 1, 3), jnp.uint8)
 
         variant = env.variant
 

@@ -112,11 +112,14 @@ def build_parser() -> argparse.ArgumentParser:
         "card",
         help="write a complete run's results card (card.json, card.md), or --verify one",
         description="Write RUN_DIR/card.json and card.md: what the run was (model, agent, "
-        "protocol and departures, digests, code, hardware) and every figure its records give. "
-        "With --verify CARD, recompute each figure from RUN_DIR's records and name those that "
-        "differ (exit 1).",
+        "protocol and departures, digests, code, hardware) and every figure its records give, "
+        "once the records replay: the episodes its protocol gives, each re-simulated from its "
+        "world key and actions, its answers parsed again (exit 1 naming the episode and field "
+        "that differ, nothing written). With --verify CARD, replay RUN_DIR again, recompute each "
+        "figure and name those that differ (exit 1).",
     )
     card.add_argument("run_dir", help="a complete run's output directory")
+    card.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     card.add_argument("--verify", metavar="CARD", help="check this card.json against RUN_DIR")
     card.add_argument("--out", metavar="DIR", help="write the card here (default: RUN_DIR)")
     card.add_argument(
@@ -151,6 +154,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     leaderboard.add_argument(
         "--markdown", metavar="FILE", help="also write the cards as a Markdown table"
+    )
+    leaderboard.add_argument(
+        "--unverified",
+        action="store_true",
+        help="also show cards whose runs were never replayed (not at `card` time, not given as "
+        "CARD=RUN_DIR), in tables of their own marked as such, never ranked",
     )
 
     view = commands.add_parser(
@@ -493,6 +502,16 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_card(args: argparse.Namespace) -> int:
+    from llm_agents.evaluation.replay_check import RunDoesNotReplay
+
+    try:
+        return _card(args)
+    except RunDoesNotReplay as refused:
+        print(f"craftext-llm: error: {refused}", file=sys.stderr)
+        return EXIT_VERIFY_FAILED
+
+
+def _card(args: argparse.Namespace) -> int:
     from llm_agents.evaluation.card import build_card, read_card, verify_card, write_card
 
     if args.do_nothing_worlds < 1:
@@ -500,7 +519,9 @@ def cmd_card(args: argparse.Namespace) -> int:
     if args.verify is not None:
         if args.out or args.goal_flags:
             raise UserError("--verify checks a card: leave out --out and --goal-flags")
-        differences = verify_card(read_card(args.verify), args.run_dir)
+        differences = verify_card(
+            read_card(args.verify), args.run_dir, progress=not args.no_progress
+        )
         if differences:
             print(
                 f"{args.verify} does NOT match the run in {args.run_dir}: "
@@ -510,10 +531,15 @@ def cmd_card(args: argparse.Namespace) -> int:
             for difference in differences:
                 print(f"  {difference}", file=sys.stderr)
             return EXIT_VERIFY_FAILED
-        print(f"{args.verify} matches the run in {args.run_dir}: every figure recomputed")
+        print(
+            f"{args.verify} matches the run in {args.run_dir}: its records replay, every "
+            "figure recomputed"
+        )
         return 0
     card = build_card(
-        args.run_dir, goal_flags_worlds=args.do_nothing_worlds if args.goal_flags else None
+        args.run_dir,
+        goal_flags_worlds=args.do_nothing_worlds if args.goal_flags else None,
+        progress=not args.no_progress,
     )
     json_path, md_path = write_card(card, args.out or args.run_dir)
     figures = card.figures
@@ -530,7 +556,12 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     if not args.out and not args.markdown:
         raise UserError("leaderboard writes --out DIR, --markdown FILE or both: give one")
     try:
-        outcome = build_leaderboard(parse_entries(args.cards), out=args.out, markdown=args.markdown)
+        outcome = build_leaderboard(
+            parse_entries(args.cards),
+            out=args.out,
+            markdown=args.markdown,
+            unverified=args.unverified,
+        )
     except CardsRefused as refused:
         print(f"craftext-llm: error: {refused}", file=sys.stderr)
         for line in refused.details:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 from collections import Counter
 from collections.abc import Iterator
@@ -101,7 +102,7 @@ def test_a_card_holds_what_the_run_records_give(
     results = json.loads((run / "results.json").read_text())
     figures = card["figures"]
 
-    assert card["schema_version"] == 1 and card["agent"] == "zero-shot"
+    assert card["schema_version"] == 2 and card["agent"] == "zero-shot"
     assert card["model"]["spec"] == SCRIPT and card["model"]["pinned_digest"] is None
     assert card["protocol"]["name"] == "paper" and card["protocol"]["difficulty"] == "easy"
     # The step cap and goal sets were set against the protocol's; the limit is recorded beside.
@@ -173,26 +174,40 @@ def test_cards_of_other_runs_differ_where_their_settings_do(
     assert expert["figures"]["cost"]["model_calls_per_episode"] == 0
 
 
-def test_verify_accepts_the_card_and_names_each_figure_a_changed_record_moves(
+def test_verify_accepts_the_card_and_refuses_a_changed_record_or_answer(
     model_run: Path, tmp_path: Path, capsys: Any
 ) -> None:
     run = _copy(model_run, tmp_path)
-    _card(run, capsys)
+    card = _card(run, capsys)
+    # The zero-shot agent's actions are parsed answers: each was parsed again.
+    steps = [json.loads(line) for line in (run / "steps.jsonl").read_text().splitlines()]
+    assert card["replay"]["answers"] == len(steps) > 0
     assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 0
     assert "matches" in capsys.readouterr().out
 
     # One episode's outcome changed in the records after the card was written.
+    original = (run / "episodes.jsonl").read_text()
     episodes = _episodes(run)
     flipped = episodes[0]
     flipped["success"] = not flipped["success"]
     flipped["termination"] = "success" if flipped["success"] else "timeout"
     (run / "episodes.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
     assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 1
-    err = capsys.readouterr().err
-    assert "figures.success.successes" in err
-    assert f"figures.success_by_category.{flipped['category']}.successes" in err
-    assert "figures.terminations.success" in err
-    assert "figures.scores" not in err  # the achievements did not change
+    line = _one_error(capsys)
+    assert (
+        f"episode {flipped['episode_id']}: termination: recorded {flipped['termination']}" in line
+    )
+
+    # A recorded answer that does not give the recorded action (the action replays: it is the
+    # answer that was changed).
+    (run / "episodes.jsonl").write_text(original)
+    answered = next(s for s in steps if s["action_name"] != "NOOP" and not s["fallback_used"])
+    answered["raw_output"] = "ACTION: NOOP"
+    (run / "steps.jsonl").write_text("".join(json.dumps(s) + "\n" for s in steps))
+    assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 1
+    line = _one_error(capsys)
+    assert f"episode {answered['episode_id']}: step {answered['step']} action: recorded" in line
+    assert "gives NOOP" in line
 
 
 def test_an_edited_card_is_refused_and_a_resealed_one_fails_verification(
@@ -219,11 +234,14 @@ def test_a_card_of_another_schema_version_is_refused(
 ) -> None:
     run = _copy(model_run, tmp_path)
     card = _card(run, capsys)
-    card["schema_version"] = 2
+    card["schema_version"] = 1
     _reseal(card)
     (run / "card.json").write_text(json.dumps(card))
     assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 2
-    assert "schema version 2" in _one_error(capsys)
+    assert "schema version 1" in _one_error(capsys)
+    assert main(["leaderboard", str(run / "card.json"), "--markdown", str(tmp_path / "t.md")]) == 2
+    assert "schema version 1" in _one_error(capsys)
+    assert not (tmp_path / "t.md").exists()
 
 
 @pytest.mark.parametrize(
@@ -324,7 +342,7 @@ def test_leaderboard_refuses_a_card_its_run_does_not_give(
     assert code == 1
     err = capsys.readouterr().err
     assert f"refused 1 card(s) that their runs' records do not give: {card}" in err
-    assert "figures.scores.progression" in err
+    assert f"episode {episodes[-1]['episode_id']}: achievements: recorded" in err
     assert not out.exists()
 
 
@@ -338,7 +356,9 @@ def test_the_markdown_table_has_a_row_per_card(
     assert len(table) == 2 + len(cards)
     for path in cards:
         card = json.loads(path.read_text())
-        row = next(line for line in table if line.startswith(f"| {card['run']} |"))
+        # Each row links its card.md, beside its card.json.
+        link = Path(os.path.relpath(path.with_name("card.md"), tmp_path)).as_posix()
+        row = next(line for line in table if line.startswith(f"| [{card['run']}]({link}) |"))
         rate = card["figures"]["success"]
         assert f"| {rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] |" in row
         assert f"`{card['code_version']}`" in row

@@ -485,14 +485,14 @@ def test_a_replay_does_not_depend_on_the_episodes_beside_it(
 def test_run_page_shows_the_achievement_scores_report_prints(
     run_dir: Path, expert_dir: Path, viewed: Any
 ) -> None:
-    from llm_agents.evaluation.rescoring import run_scores, scheduled_episodes
-    from llm_agents.run_data.store import read_results
+    from llm_agents.evaluation.rescoring import run_scores
+    from llm_agents.run_data.run_view import read_run
 
     index = (run_dir / "report" / "index.html").read_text()
     section = index.split('id="scores-table"')[1].split("</table>")[0]
     for path, row_class in ((run_dir, ""), (expert_dir, ' class="compared"')):
-        results = read_results(path / "results.json")
-        scores = run_scores(results, scheduled_episodes(path, results))
+        run = read_run(path)
+        scores = run_scores(run.results, run.episodes)
         overall = scores.overall
         cell = f"{overall.progression:.1f} ± {overall.progression_stderr:.1f}"
         row = re.search(rf'<tr{row_class}><td>[^<]*</td><td class="num">([^<]*)</td>', section)

@@ -26,6 +26,10 @@ AGENTS: dict[str, str] = {
 #: `package.module:Class`); a name a built-in has is refused.
 ENTRY_POINT_GROUP = "craftext_llm.agents"
 
+#: The strategies whose every action is read from the model's answer by `parser.parse_action`
+#: (a run of theirs can be checked by parsing its recorded answers again).
+PARSED_ANSWER_AGENTS = ("zero-shot", "cot", "few-shot")
+
 #: What the model is shown of the world each step (`--observation`).
 ObservationMode = Literal["text", "image", "both"]
 #: The strategies whose step message can carry the frames (the others ask no step question of

@@ -6,8 +6,11 @@ was (model and its resolved revision or pinned digest, agent, protocol and the s
 departed from it, digests of the settings and the dataset, the code version, the hardware) and
 every figure the run's records give (success per goal set and overall with the intervals
 clustered by goal, the Crafter / progression / craftaxlm scores, model calls, tokens and time per
-episode, and, when asked for, the goals doing nothing meets or no agent can). `verify_card`
-recomputes each figure from the records and names those that differ.
+episode, and, when asked for, the goals doing nothing meets or no agent can). Before a card
+is written the run's records are checked by replay (`replay_check`): its episodes derived from
+its protocol, each re-simulated from its world key and actions, its answers parsed again; a run
+that does not replay gets no card, and the card records the replay. `verify_card` replays the
+records again, then recomputes each figure from them and names those that differ.
 
 A card carries a digest of its own content: one edited by hand no longer matches it and is
 refused on reading (`read_card`), as is a card of another schema version.
@@ -19,7 +22,7 @@ import hashlib
 import json
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
@@ -32,24 +35,12 @@ from env.rules import SuccessRule
 from llm_agents.evaluation.goal_flags import run_goal_status
 from llm_agents.evaluation.protocol import PROTOCOL_NAMES, ProtocolName, protocol_for
 from llm_agents.evaluation.published import paper_differences
-from llm_agents.evaluation.rescoring import (
-    difficulty_of_run,
-    recorded_rule,
-    rescore,
-    run_scores,
-    scheduled_episodes,
-)
+from llm_agents.evaluation.replay_check import ReplayCheck, RunDoesNotReplay, check_run
+from llm_agents.evaluation.rescoring import rescore, run_scores
 from llm_agents.run_data.metrics import SuccessRate, summarize
-from llm_agents.run_data.records import EpisodeRecord
-from llm_agents.run_data.store import (
-    RESULTS_FILE,
-    STEPS_FILE,
-    RunResults,
-    atomic_write_text,
-    read_results,
-    read_steps,
-    results_kind,
-)
+from llm_agents.run_data.provenance import code_version
+from llm_agents.run_data.run_view import RunView, read_run
+from llm_agents.run_data.store import atomic_write_text
 
 __all__ = [
     "CARD_FILE",
@@ -65,7 +56,7 @@ __all__ = [
 ]
 
 #: The version of the card's schema; a reader refuses any other (no silent migration of figures).
-CARD_SCHEMA_VERSION: Literal[1] = 1
+CARD_SCHEMA_VERSION: Literal[2] = 2
 CARD_FILE = "card.json"
 CARD_MD_FILE = "card.md"
 #: Figures equal to this relative precision are the same (JSON round trips are exact; sums of
@@ -173,12 +164,27 @@ class CardFigures(BaseModel):
     goal_flags: CardGoalFlags | None = None
 
 
+class CardReplay(BaseModel):
+    """How the run's records were checked by replay before the card was written
+    (`llm_agents.evaluation.replay_check`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    code_version: str
+    """The code that replayed them."""
+    replayed_at: datetime
+    episodes: int
+    """Episodes re-simulated from their world keys and actions."""
+    answers: int
+    """Recorded answers parsed again (0 for an agent whose actions are not parsed answers)."""
+
+
 class Card(BaseModel):
     """A results card (`card.json`)."""
 
     model_config = ConfigDict(extra="forbid")
 
-    schema_version: Literal[1] = CARD_SCHEMA_VERSION
+    schema_version: Literal[2] = CARD_SCHEMA_VERSION
     run: str
     """The run directory's name when the card was written (a label, not checked)."""
     agent: str
@@ -199,6 +205,10 @@ class Card(BaseModel):
     started_at: datetime
     finished_at: datetime | None
     figures: CardFigures
+    replay: CardReplay | None
+    """The replay the records passed before the card was written (not compared by
+    `verify_card`, which replays them again); None for a run that kept no step log, which
+    cannot be replayed (the leaderboard shows such a card only with `--unverified`)."""
     created_at: datetime
     """When the card was written (not checked)."""
     digest: str = ""
@@ -233,42 +243,36 @@ def _card_digest(card: Card) -> str:
     return _digest(card.model_dump(mode="json", exclude={"digest"}))
 
 
-def _load_run(run_dir: Path) -> tuple[RunResults, list[EpisodeRecord]]:
-    if not run_dir.is_dir():
-        raise UserError(f"run directory {run_dir} does not exist")
-    results_path = run_dir / RESULTS_FILE
-    if not results_path.is_file():
-        raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
-    if results_kind(results_path) != "eval":
-        raise UserError(f"{run_dir} is a grounding run: a card is for an evaluation run")
-    results = read_results(results_path)
+def _load_run(run_dir: Path) -> RunView:
+    run = read_run(run_dir, require_episodes=False)
+    results = run.results
     if results.status != "complete":
         raise UserError(
             f"the run in {run_dir} is {results.status} ({results.finished} of "
             f"{results.scheduled} episodes finished): a card is only for a complete run"
         )
-    if results.config.get("protocol") not in PROTOCOL_NAMES:
+    if run.protocol not in PROTOCOL_NAMES:
         raise UserError(
             f"the run in {run_dir} records no protocol (it predates them): a card is only for "
             f"a run under a named protocol ({', '.join(PROTOCOL_NAMES)})"
         )
-    episodes = scheduled_episodes(run_dir, results)
-    if len(episodes) != results.scheduled:
+    if len(run.episodes) != results.scheduled:
         raise UserError(
-            f"{run_dir} holds {len(episodes)} finished episodes of the {results.scheduled} its "
-            "results call complete: the records are damaged"
+            f"{run_dir} holds {len(run.episodes)} finished episodes of the {results.scheduled} "
+            "its results call complete: the records are damaged"
         )
-    return results, episodes
+    return run
 
 
-def _model(results: RunResults) -> CardModel:
-    from llm_agents.agents import agent_class
+def _model(run: RunView) -> CardModel:
     from llm_agents.backends.embedded import NAMED_MODELS
 
-    agent = str(results.config.get("agent", "zero-shot"))
-    if not agent_class(agent).needs_model:
+    # What the agent asked of a model is read from the run, never by importing the agent
+    # (an outside agent's package may not be installed where the card is checked).
+    if run.model is None:
         return CardModel(spec=None)
-    spec = str(results.config.get("model"))
+    results = run.results
+    spec = run.model
     backend, _, name = spec.partition(":")
     named = NAMED_MODELS.get(name) if backend == "hf" else None
     return CardModel(
@@ -280,9 +284,8 @@ def _model(results: RunResults) -> CardModel:
     )
 
 
-def _protocol(results: RunResults, rule: SuccessRule) -> CardProtocol:
-    config = results.config
-    difficulty = difficulty_of_run(results)
+def _protocol(run: RunView) -> CardProtocol:
+    results, rule, config, difficulty = run.results, run.rule, run.config, run.difficulty
     protocol = protocol_for(str(config["protocol"]), difficulty)
     departures = {}
     for setting in config.get("protocol_overrides") or ():
@@ -301,22 +304,15 @@ def _protocol(results: RunResults, rule: SuccessRule) -> CardProtocol:
     )
 
 
-def _model_seconds(run_dir: Path, episodes: Sequence[EpisodeRecord]) -> float | None:
-    path = run_dir / STEPS_FILE
-    if not path.is_file():
+def _model_seconds(run: RunView) -> float | None:
+    if not run.has_steps:
         return None
-    wanted = {e.episode_id for e in episodes}
-    total = math.fsum(step.latency_s for step in read_steps(path, wanted))
-    return total / len(episodes)
+    total = math.fsum(step.latency_s for own in run.steps().values() for step in own)
+    return total / len(run.episodes)
 
 
-def _figures(
-    run_dir: Path,
-    results: RunResults,
-    episodes: Sequence[EpisodeRecord],
-    rule: SuccessRule,
-    worlds: int | None,
-) -> CardFigures:
+def _figures(run: RunView, worlds: int | None) -> CardFigures:
+    results, episodes, rule = run.results, run.episodes, run.rule
     scored = rescore(episodes, rule)
     # From the records alone, never the summary results.json stored: that is what is checked.
     summary = summarize(scored)
@@ -360,7 +356,7 @@ def _figures(
             else None,
             prompt_tokens_per_episode=sum(e.prompt_tokens for e in episodes) / n,
             completion_tokens_per_episode=sum(e.completion_tokens for e in episodes) / n,
-            model_seconds_per_episode=_model_seconds(run_dir, episodes),
+            model_seconds_per_episode=_model_seconds(run),
             wall_seconds_per_episode=wall,
         ),
         terminations=summary.terminations,
@@ -369,33 +365,52 @@ def _figures(
     )
 
 
-def build_card(run_dir: str | Path, *, goal_flags_worlds: int | None = None) -> Card:
-    """The card of the complete run in `run_dir` (a `UserError` for any other); with
+def build_card(
+    run_dir: str | Path, *, goal_flags_worlds: int | None = None, progress: bool = False
+) -> Card:
+    """The card of the complete run in `run_dir` (a `UserError` for any other), after its
+    records were checked by replay (`RunDoesNotReplay` when they do not replay); with
     `goal_flags_worlds`, the goals doing nothing meets (in that many seeded worlds each, played
     once and cached) or no agent can."""
     run_dir = Path(run_dir)
-    results, episodes = _load_run(run_dir)
-    rule = recorded_rule(results)
-    codes = sorted({e.code or "not recorded" for e in episodes})
+    run = _load_run(run_dir)
+    check = _replayed(run, progress) if run.has_steps else None
+    codes = sorted({e.code or "not recorded" for e in run.episodes})
     card = Card(
         run=run_dir.resolve().name,
-        agent=str(results.config.get("agent", "zero-shot")),
-        model=_model(results),
-        protocol=_protocol(results, rule),
-        success_rule=rule,
-        variant=str(results.config.get("variant")),
-        settings_digest=_digest(results.identity.settings),
-        dataset_digest=results.identity.dataset,
-        split_digests=dict(sorted(results.identity.goals.items())),
+        agent=run.agent,
+        model=_model(run),
+        protocol=_protocol(run),
+        success_rule=run.rule,
+        variant=str(run.config.get("variant")),
+        settings_digest=_digest(run.results.identity.settings),
+        dataset_digest=run.results.identity.dataset,
+        split_digests=dict(sorted(run.results.identity.goals.items())),
         code_version=", ".join(codes),
-        hardware=results.hardware,
-        started_at=results.started_at,
-        finished_at=results.finished_at,
-        figures=_figures(run_dir, results, episodes, rule, goal_flags_worlds),
+        hardware=run.results.hardware,
+        started_at=run.results.started_at,
+        finished_at=run.results.finished_at,
+        figures=_figures(run, goal_flags_worlds),
+        replay=None
+        if check is None
+        else CardReplay(
+            code_version=code_version(),
+            replayed_at=datetime.now(UTC),
+            episodes=check.episodes,
+            answers=check.answers,
+        ),
         created_at=datetime.now(UTC),
     )
     card.digest = _card_digest(card)
     return card
+
+
+def _replayed(run: RunView, progress: bool) -> ReplayCheck:
+    """The replay check of `run`; `RunDoesNotReplay` naming each difference when it fails."""
+    check = check_run(run, progress=progress)
+    if check.differences:
+        raise RunDoesNotReplay(run.path, check.differences)
+    return check
 
 
 # ------------------------------------------------------------------------------ reading, checking
@@ -434,7 +449,8 @@ def read_card(path: str | Path) -> Card:
 
 def card_figures(card: Card) -> dict[str, Any]:
     """Every checked value of a card, flattened to `dotted.name -> value` (what `verify_card`
-    compares): all but the run's label, the card's writing time and its digest."""
+    compares): all but the run's label, its replay's record, the card's writing time and its
+    digest."""
     flat: dict[str, Any] = {}
 
     def walk(prefix: str, value: Any) -> None:
@@ -447,7 +463,7 @@ def card_figures(card: Card) -> dict[str, Any]:
         else:
             flat[prefix] = value
 
-    walk("", card.model_dump(mode="json", exclude={"run", "created_at", "digest"}))
+    walk("", card.model_dump(mode="json", exclude={"run", "replay", "created_at", "digest"}))
     return flat
 
 
@@ -457,11 +473,12 @@ def _same(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
-def verify_card(card: Card, run_dir: str | Path) -> list[str]:
+def verify_card(card: Card, run_dir: str | Path, *, progress: bool = False) -> list[str]:
     """The figures of `card` that the records in `run_dir` do not give, each as `name: card X,
-    run Y`; empty when every one agrees."""
+    run Y`; empty when every one agrees. The records are first checked by replay
+    (`RunDoesNotReplay` naming each episode and field that differ)."""
     worlds = card.figures.goal_flags.worlds if card.figures.goal_flags else None
-    fresh = build_card(run_dir, goal_flags_worlds=worlds)
+    fresh = build_card(run_dir, goal_flags_worlds=worlds, progress=progress)
     ours, theirs = card_figures(card), card_figures(fresh)
     differences = []
     for name in sorted(ours.keys() | theirs.keys()):
@@ -514,6 +531,7 @@ def card_markdown(card: Card) -> str:
         f"dataset digest `{(card.dataset_digest or 'not recorded')[:12]}`",
         "- **Hardware**: "
         + (", ".join(f"{k} {v}" for k, v in card.hardware.items()) or "not recorded"),
+        _replay_line(card.replay),
         "",
         "| Goal set | Success [95% interval clustered by goal] |",
         "|---|---|",
@@ -550,6 +568,17 @@ def card_markdown(card: Card) -> str:
         f"(card digest `{card.digest[:12]}`).",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _replay_line(replay: CardReplay | None) -> str:
+    if replay is None:
+        return "- **Replayed**: NOT: the run kept no step log, so its records cannot be replayed"
+    return (
+        f"- **Replayed**: {replay.episodes} episodes re-simulated from their world keys and "
+        "actions"
+        + (f", {replay.answers} answers parsed again" if replay.answers else "")
+        + f", by code `{replay.code_version}` on {replay.replayed_at:%Y-%m-%d}"
+    )
 
 
 def write_card(card: Card, out: str | Path) -> tuple[Path, Path]:

@@ -26,15 +26,14 @@ from llm_agents.evaluation.report_tables import (
 from llm_agents.evaluation.rescoring import (
     difficulty_of_run,
     model_name_of,
-    recorded_rule,
     run_actions,
     run_scores,
     run_summary,
-    scheduled_episodes,
 )
 from llm_agents.run_data.metrics import Summary
 from llm_agents.run_data.records import EpisodeRecord
-from llm_agents.run_data.store import RESULTS_FILE, RunResults, read_results
+from llm_agents.run_data.run_view import read_run, recorded_rule
+from llm_agents.run_data.store import RESULTS_FILE, RunResults
 
 
 @dataclass(frozen=True)
@@ -54,20 +53,14 @@ class ComparedRun:
 
 def compared_run(run_dir: str | Path) -> ComparedRun:
     """A run directory's row for `--compare`: labelled with its model and agent strategy."""
-    run_dir = Path(run_dir)
-    if not (run_dir / RESULTS_FILE).is_file():
+    if not (Path(run_dir) / RESULTS_FILE).is_file():
         raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
-    results = read_results(run_dir / RESULTS_FILE)
-    episodes = scheduled_episodes(run_dir, results)
-    if not episodes:
-        raise UserError(f"no episode of the run in {run_dir} has finished yet")
-    agent = results.config.get("agent", "zero-shot")
+    run = read_run(run_dir)
+    results, episodes = run.results, run.episodes
     name = model_name_of(results)
-    label = name if agent == "expert" else f"{name} ({agent})"
+    label = name if run.agent == "expert" else f"{name} ({run.agent})"
     partial = results.status != "complete"
-    summary = run_summary(
-        results, episodes, recorded_rule(results), run_actions(run_dir, results, episodes)
-    )
+    summary = run_summary(results, episodes, run.rule, run_actions(run.path, results, episodes))
     return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results, episodes)
 
 
@@ -107,7 +100,7 @@ def comparison_notes(runs: Sequence[ComparedRun]) -> list[str]:
         label: [run.results.config.get(key) for run in runs]
         for key, label in _COMPARED_SETTINGS.items()
     }
-    values["success rule"] = [recorded_rule(run.results) for run in runs]
+    values["success rule"] = [recorded_rule(run.results.config) for run in runs]
     differing = [
         f"{label} ({', '.join('unset' if value is None else str(value) for value in seen)})"
         for label, seen in values.items()

@@ -337,7 +337,7 @@ def apply_protocol(
         head, _, leaf = choice.setting.rpartition(".")
         table = result.setdefault(head, {}) if head else result
         if choice.setting in chosen and leaf in table:
-            if _normalised(choice.setting, table[leaf]) != _normalised(
+            if normalised_setting(choice.setting, table[leaf]) != normalised_setting(
                 choice.setting, choice.value
             ):
                 overrides.append(choice.setting)
@@ -346,7 +346,8 @@ def apply_protocol(
     return result, overrides
 
 
-def _normalised(setting: str, value: Any) -> Any:
+def normalised_setting(setting: str, value: Any) -> Any:
+    """`value` of `setting` in the form two values are compared in."""
     if setting == "categories":
         return parse_categories(value)
     if isinstance(value, Enum):

@@ -33,17 +33,15 @@ from llm_agents.evaluation.report_tables import (
     success_rule_note,
 )
 from llm_agents.evaluation.rescoring import (
-    difficulty_of_run,
     model_name_of,
-    recorded_rule,
     rescore,
     run_actions,
     run_scores,
     run_summary,
-    scheduled_episodes,
 )
 from llm_agents.run_data.provenance import code_note
-from llm_agents.run_data.store import RESULTS_FILE, RunResults, read_results
+from llm_agents.run_data.run_view import read_run
+from llm_agents.run_data.store import RunResults
 
 
 def _absent_categories(results: RunResults) -> set[str]:
@@ -64,19 +62,11 @@ def report_run(
     scored under `success_rule` (None: the rule the run was played under); with `goal_status`,
     then the tables without the goals a do-nothing agent meets (in `worlds` seeded worlds
     each, played once and cached) or that cannot be met, and the do-nothing row."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise UserError(f"run directory {run_dir} does not exist")
     if success_rule is not None and success_rule not in SUCCESS_RULES:
         raise UserError(f"unknown success rule {success_rule!r}; known: {', '.join(SUCCESS_RULES)}")
-    results_path = run_dir / RESULTS_FILE
-    if not results_path.is_file():
-        raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
-    results = read_results(results_path)
-    episodes = scheduled_episodes(run_dir, results)
-    if not episodes:
-        raise UserError(f"no episode of the run in {run_dir} has finished yet")
-    played = recorded_rule(results)
+    run = read_run(run_dir)
+    run_dir, results, episodes = run.path, run.results, run.episodes
+    played = run.rule
     rule = success_rule or played
     notes = [success_rule_note(episodes, rule, played)]
     if results.identity.agent is not None:
@@ -89,7 +79,7 @@ def report_run(
     notes += episode_actions_line(actions)
     model_name = model_name_of(results)
     differences = paper_differences(results, rule)
-    difficulty = difficulty_of_run(results)
+    difficulty = run.difficulty
     plot_success(
         summary,
         model_name,
@@ -117,7 +107,7 @@ def report_run(
         summary,
         rescore(episodes, rule),
         status,
-        agent=str(results.config.get("agent", "zero-shot")),
+        agent=run.agent,
         difficulty=difficulty,
     )
     return f"{table}\n{run_status(results)}\n\n{scores}\n\n{goal_status_text(flagged)}"

@@ -1,38 +1,19 @@
-"""A recorded run read back for a report: the difficulty and success rule it was played under,
-its scheduled finished episodes, those episodes re-scored under either success rule (from the
-records alone), its summary and action counts, and its achievement scores."""
+"""A recorded run's figures for a report: its episodes re-scored under either success rule (from
+the records alone), its summary and action counts, and its achievement scores. Reading the run
+itself is `llm_agents.run_data.run_view`'s."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
-from env.goals import DIFFICULTY_CATEGORIES, Difficulty
-from env.rules import SUCCESS_RULES, SuccessRule
+from env.goals import Difficulty
+from env.rules import SuccessRule
 from llm_agents.run_data.metrics import Summary, action_counts, summarize
 from llm_agents.run_data.records import EpisodeRecord
+from llm_agents.run_data.run_view import recorded_difficulty, recorded_rule
 from llm_agents.run_data.scores import RunScores, achievement_list_of, score_run
-from llm_agents.run_data.store import (
-    EPISODES_FILE,
-    STEPS_FILE,
-    RunResults,
-    read_episodes,
-    read_steps,
-)
-
-# Runs recorded before the difficulty was a setting played EASY.
-_RECORDED_DIFFICULTY_BEFORE_SETTING: Difficulty = "easy"
-# Runs recorded before the success rule was a setting scored the game-over step as a success.
-_RECORDED_RULE_BEFORE_SETTING: SuccessRule = "game_over_counts"
-
-
-def recorded_difficulty(config: Mapping[str, Any]) -> Difficulty:
-    """The difficulty a run whose results record `config` played."""
-    difficulty = config.get("difficulty", _RECORDED_DIFFICULTY_BEFORE_SETTING)
-    return (
-        difficulty if difficulty in DIFFICULTY_CATEGORIES else _RECORDED_DIFFICULTY_BEFORE_SETTING
-    )
+from llm_agents.run_data.store import STEPS_FILE, RunResults, read_steps
 
 
 def difficulty_of_run(results: RunResults) -> Difficulty:
@@ -66,12 +47,6 @@ def rescore(episodes: Sequence[EpisodeRecord], rule: SuccessRule) -> list[Episod
     return scored
 
 
-def recorded_rule(results: RunResults) -> SuccessRule:
-    """The success rule a run was scored under when played."""
-    rule = results.config.get("success_rule")
-    return rule if rule in SUCCESS_RULES else _RECORDED_RULE_BEFORE_SETTING
-
-
 def run_summary(
     results: RunResults,
     episodes: Sequence[EpisodeRecord],
@@ -86,7 +61,7 @@ def run_summary(
     stored = results.summary
     if (
         stored is not None
-        and rule == recorded_rule(results)
+        and rule == recorded_rule(results.config)
         and results.finished == len(episodes)
         and stored.overall.clusters is not None
         and (stored.actions is not None or actions is None)
@@ -114,15 +89,6 @@ def model_name_of(results: RunResults) -> str:
         return "expert (scripted, no model)"
     model = results.config.get("model")
     return model if isinstance(model, str) and model else "this model"
-
-
-def scheduled_episodes(run_dir: Path, results: RunResults) -> list[EpisodeRecord]:
-    """The finished episodes of the run's current schedule (what its summary counts)."""
-    path = run_dir / EPISODES_FILE
-    if not path.is_file():
-        return []
-    wanted = set(results.schedule)
-    return [episode for episode in read_episodes(path) if episode.episode_id in wanted]
 
 
 def run_scores(results: RunResults, episodes: Sequence[EpisodeRecord]) -> RunScores:

@@ -7,8 +7,13 @@ intervals. The CrafText paper's rows (its zero-shot LLMs on EASY, its trained ag
 totals) sit in the `paper` tables of their difficulty, BALROG's Crafter rows beside the cards
 played under `--protocol balrog`; both marked as published. Each card's row links to a copy of
 the card in the site and, where its run folder is given (`CARD=RUN_DIR`), to the run's `view`
-report. A card given with its run is checked against it first: one whose figures the run does
-not give is refused, naming them.
+report. A card given with its run is checked against it first (its records replayed, its
+figures recomputed): one the run does not give is refused, naming what differs.
+
+Only cards whose runs were replayed are ranked: at `card` time (the card records it) or here,
+given as `CARD=RUN_DIR`. Others are shown only with `--unverified`, in tables of their own
+marked as not replayed. Each card's row links its card.md and states its departures from the
+protocol.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from env.errors import UserError
 from env.goals import ALL_CATEGORIES, DIFFICULTY_CATEGORIES, Difficulty
 from llm_agents.evaluation.card import (
     CARD_FILE,
+    CARD_MD_FILE,
     Card,
     card_markdown,
     model_size_billions,
@@ -40,8 +46,9 @@ from llm_agents.evaluation.published import (
     PUBLISHED_KIND,
     PUBLISHED_TRAINED_EASY,
 )
+from llm_agents.evaluation.replay_check import RunDoesNotReplay
 from llm_agents.run_data.metrics import SuccessRate
-from llm_agents.run_data.store import atomic_write_text
+from llm_agents.run_data.store import STEPS_FILE, atomic_write_text
 
 __all__ = [
     "CardsRefused",
@@ -75,6 +82,13 @@ class Entry(BaseModel):
 
     card: Path
     run_dir: Path | None = None
+
+    def replayed(self, card: Card) -> bool:
+        """Whether the card's run was replayed: when the card was written, or here (given with
+        a run that kept its step log)."""
+        return card.replay is not None or (
+            self.run_dir is not None and (self.run_dir / STEPS_FILE).is_file()
+        )
 
 
 def parse_entries(arguments: Sequence[str]) -> list[Entry]:
@@ -121,7 +135,10 @@ def _verify(read: Sequence[tuple[Entry, Card]]) -> None:
     for entry, card in read:
         if entry.run_dir is None:
             continue
-        differences = verify_card(card, entry.run_dir)
+        try:
+            differences = verify_card(card, entry.run_dir)
+        except RunDoesNotReplay as failed:
+            differences = failed.differences
         if differences:
             names.append(str(entry.card))
             refused += [f"{entry.card}: {difference}" for difference in differences]
@@ -169,14 +186,20 @@ def _progression(mean: float, stderr: float) -> str:
     return f"{mean:.1f} ± {stderr:.1f}"
 
 
-def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
-    figures = card.figures
-    tokens = figures.cost.prompt_tokens_per_episode + figures.cost.completion_tokens_per_episode
+def _departures(card: Card) -> list[str]:
+    """What the card's run changed of its protocol, a phrase each."""
     departures = [
         f"{name} = {json.dumps(d['run'])}" for name, d in card.protocol.departures.items()
     ]
     if card.protocol.limit:
         departures.append(f"first {card.protocol.limit} episodes of the schedule")
+    return departures
+
+
+def _card_row(card: Card, slug: str, view: str | None) -> dict[str, Any]:
+    figures = card.figures
+    tokens = figures.cost.prompt_tokens_per_episode + figures.cost.completion_tokens_per_episode
+    departures = _departures(card)
     return {
         "published": False,
         "name": card.run,
@@ -259,31 +282,50 @@ def _slugs(cards: Sequence[Card]) -> list[str]:
 
 
 def leaderboard_data(
-    cards: Sequence[Card], slugs: Sequence[str], views: Sequence[str | None]
+    cards: Sequence[Card],
+    slugs: Sequence[str],
+    views: Sequence[str | None],
+    replayed: Sequence[bool] | None = None,
 ) -> dict[str, Any]:
     """The page's inline data: its sections (difficulty x protocol), each with its goal-set
-    columns and rows (cards, then the published rows that sit beside them)."""
+    columns and rows (the replayed cards, then the published rows that sit beside them), then
+    a section of their own for the cards not replayed (`replayed` False; all are by default)."""
+    flags = list(replayed) if replayed is not None else [True] * len(cards)
+    ranked = [(c, s, v) for c, s, v, r in zip(cards, slugs, views, flags, strict=True) if r]
+    sections = _sections(ranked, published=True)
+    unranked = [(c, s, v) for c, s, v, r in zip(cards, slugs, views, flags, strict=True) if not r]
+    if unranked:
+        sections += _sections(unranked, published=False)
+    return {"sections": sections}
+
+
+def _sections(
+    rows_of: Sequence[tuple[Card, str, str | None]], *, published: bool
+) -> list[dict[str, Any]]:
+    cards = [card for card, _, _ in rows_of]
     keys = {(c.protocol.difficulty, c.protocol.name) for c in cards}
-    keys |= {(d, "paper") for d in _PUBLISHED_DIFFICULTIES}
+    if published:
+        keys |= {(d, "paper") for d in _PUBLISHED_DIFFICULTIES}
     order = {name: i for i, name in enumerate(("paper", "default", "balrog"))}
     levels = {name: i for i, name in enumerate(("easy", "medium", "hard"))}
     sections = []
     for difficulty, protocol in sorted(keys, key=lambda k: (levels[k[0]], order[k[1]])):
         rows = [
             _card_row(card, slug, view)
-            for card, slug, view in zip(cards, slugs, views, strict=True)
+            for card, slug, view in rows_of
             if (card.protocol.difficulty, card.protocol.name) == (difficulty, protocol)
         ]
-        if protocol == "paper" and difficulty in PUBLISHED_BY_DIFFICULTY:
+        if published and protocol == "paper" and difficulty in PUBLISHED_BY_DIFFICULTY:
             rows += _published_rows(difficulty)
-        if protocol == "balrog":
+        if published and protocol == "balrog":
             rows += _balrog_rows()
         present = {c for row in rows for c in row["rates"]}
         sections.append(
             {
-                "id": f"{difficulty}-{protocol}",
+                "id": f"{difficulty}-{protocol}" + ("" if published else "-unverified"),
                 "title": f"{difficulty.upper() if difficulty == 'easy' else difficulty.title()}"
-                f", protocol {protocol}",
+                f", protocol {protocol}" + ("" if published else " (NOT replayed)"),
+                "unverified": not published,
                 "difficulty": difficulty,
                 "protocol": protocol,
                 # The paper's column order first (Medium: train, paraphrased, new objects).
@@ -295,7 +337,7 @@ def leaderboard_data(
                 "rows": rows,
             }
         )
-    return {"sections": sections}
+    return sections
 
 
 # ------------------------------------------------------------------------------ Markdown
@@ -307,20 +349,41 @@ def _cell(rate: SuccessRate | None) -> str:
     return f"{rate.rate:.2f} [{rate.low:.2f}, {rate.high:.2f}]"
 
 
-def cards_markdown(cards: Sequence[Card]) -> str:
+def cards_markdown(
+    cards: Sequence[Card],
+    links: Sequence[str | None] | None = None,
+    replayed: Sequence[bool] | None = None,
+) -> str:
     """The cards as a Markdown table (a row per card: what ran, under what, on what, and its
-    headline figures), for a results page generated from them."""
+    headline figures, its run linked to `links`' card.md where given), for a results page
+    generated from them; the cards not replayed (`replayed` False) in a second table of their
+    own, under a heading that says so."""
+    hrefs = list(links) if links is not None else [None] * len(cards)
+    flags = list(replayed) if replayed is not None else [True] * len(cards)
+    ranked = [(c, h) for c, h, r in zip(cards, hrefs, flags, strict=True) if r]
+    unranked = [(c, h) for c, h, r in zip(cards, hrefs, flags, strict=True) if not r]
+    text = _markdown_table(ranked) if ranked else ""
+    if unranked:
+        text += (
+            ("\n" if text else "")
+            + "**Not replayed** (these cards record no replay of their runs and were not given "
+            "with them: their figures are what the cards say)\n\n" + _markdown_table(unranked)
+        )
+    return text
+
+
+def _markdown_table(rows: Sequence[tuple[Card, str | None]]) -> str:
     header = (
         "| Run | Agent | Model | Difficulty | Protocol (departures) | Episodes | Success "
         "[95% CI, clustered] | Progression | Crafter score | Tokens / episode | Wall s / "
         "episode | Hardware | Code | Finished |"
     )
     lines = [header, "|" + "---|" * 14]
-    for card in sorted(cards, key=lambda c: (c.protocol.difficulty, c.protocol.name, c.run)):
+    for card, href in sorted(
+        rows, key=lambda r: (r[0].protocol.difficulty, r[0].protocol.name, r[0].run)
+    ):
         f = card.figures
-        departures = ", ".join(card.protocol.departures) or "none"
-        if card.protocol.limit:
-            departures += f"; first {card.protocol.limit} episodes"
+        departures = "; ".join(_departures(card)) or "none"
         hardware = card.hardware.get("gpus") or card.hardware.get("cpu") or "not recorded"
         if "cpu_cores" in card.hardware and "gpus" not in card.hardware:
             hardware += f" ({card.hardware['cpu_cores']} cores)"
@@ -329,7 +392,7 @@ def cards_markdown(cards: Sequence[Card]) -> str:
             "| "
             + " | ".join(
                 [
-                    card.run,
+                    f"[{card.run}]({href})" if href else card.run,
                     card.agent,
                     f"`{card.model.spec}`" if card.model.spec else "—",
                     card.protocol.difficulty,
@@ -393,7 +456,9 @@ def _write_site(out: Path, read: Sequence[tuple[Entry, Card]], slugs: Sequence[s
                 if view is not None and view.is_file()
                 else None
             )
-        data = leaderboard_data([card for _, card in read], slugs, views)
+        data = leaderboard_data(
+            [card for _, card in read], slugs, views, [entry.replayed(card) for entry, card in read]
+        )
         (scratch / INDEX_FILE).write_text(_render(data), encoding="utf-8")
         (scratch / MARKER_FILE).write_text("written by craftext-llm leaderboard\n")
         if out.exists():
@@ -408,11 +473,30 @@ def _write_site(out: Path, read: Sequence[tuple[Entry, Card]], slugs: Sequence[s
         raise
 
 
+def _md_links(read: Sequence[tuple[Entry, Card]], markdown: Path) -> list[str | None]:
+    """Each card's card.md (beside its card.json), relative to the Markdown file's folder."""
+    links: list[str | None] = []
+    for entry, _ in read:
+        md = entry.card.with_name(CARD_MD_FILE)
+        links.append(
+            Path(os.path.relpath(md.resolve(), markdown.resolve().parent)).as_posix()
+            if md.is_file()
+            else None
+        )
+    return links
+
+
 def build_leaderboard(
-    entries: Sequence[Entry], *, out: str | Path | None = None, markdown: str | Path | None = None
+    entries: Sequence[Entry],
+    *,
+    out: str | Path | None = None,
+    markdown: str | Path | None = None,
+    unverified: bool = False,
 ) -> list[str]:
     """Check the cards (each once; against its run where given) and write the site into `out`
-    and the Markdown table into `markdown`; returns what was written, a line each."""
+    and the Markdown table into `markdown`; returns what was written, a line each. A card
+    whose run was not replayed (`Entry.replayed`) is refused unless `unverified`, then shown
+    apart."""
     if out is None and markdown is None:
         raise UserError("leaderboard writes --out DIR, --markdown FILE or both: give one")
     if out is not None:
@@ -420,6 +504,15 @@ def build_leaderboard(
     if markdown is not None and not Path(markdown).resolve().parent.is_dir():
         raise UserError(f"the folder of --markdown {markdown} does not exist")
     read = _read(entries)
+    replayed = [entry.replayed(card) for entry, card in read]
+    if not unverified:
+        for (entry, _), was in zip(read, replayed, strict=True):
+            if not was:
+                raise UserError(
+                    f"card {entry.card} records no replay of its run: give it as "
+                    f"{entry.card}=RUN_DIR to replay the run now, or pass --unverified to show "
+                    "it apart, not ranked"
+                )
     _verify(read)
     cards = [card for _, card in read]
     done = []
@@ -431,6 +524,8 @@ def build_leaderboard(
             "their runs) beside the published rows"
         )
     if markdown is not None:
-        atomic_write_text(Path(markdown), cards_markdown(cards))
+        atomic_write_text(
+            Path(markdown), cards_markdown(cards, _md_links(read, Path(markdown)), replayed)
+        )
         done.append(f"wrote {markdown}: a Markdown table of {len(cards)} cards")
     return done

@@ -47,14 +47,7 @@ from llm_agents.evaluation.report_tables import (
     scenario_rows,
     table_columns,
 )
-from llm_agents.evaluation.rescoring import (
-    difficulty_of_run,
-    model_name_of,
-    recorded_rule,
-    rescore,
-    run_scores,
-    run_summary,
-)
+from llm_agents.evaluation.rescoring import model_name_of, rescore, run_scores, run_summary
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
 from llm_agents.run_data.records import StepRecord
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet
@@ -531,11 +524,11 @@ def _run_context(
         if run.has_steps
         else None
     )
-    summary = run_summary(results, records, recorded_rule(results), actions)
+    summary = run_summary(results, records, run.run.rule, actions)
     model = model_name_of(results)
     partial = results.status != "complete"
-    differences = paper_differences(results, recorded_rule(results))
-    difficulty = difficulty_of_run(results)
+    differences = paper_differences(results, run.run.rule)
+    difficulty = run.run.difficulty
     published = published_for(difficulty)
     ours = ComparedRun(
         f"{model} (this run{', partial' if partial else ''})", summary, results, records
@@ -630,14 +623,14 @@ def _goal_status(run: LoadedRun, worlds: int) -> GoalStatusTables:
     """Issue 31: the run's tables without trivial and impossible goals, and doing nothing."""
     results = run.results
     records = [view.record for view in run.episodes]
-    rule = recorded_rule(results)
+    rule = run.run.rule
     status = run_goal_status(results.config, records, rule=rule, worlds=worlds)
     return goal_status_tables(
         run_summary(results, records, rule),
         rescore(records, rule),
         status,
-        agent=str(results.config.get("agent", "zero-shot")),
-        difficulty=difficulty_of_run(results),
+        agent=run.run.agent,
+        difficulty=run.run.difficulty,
     )
 
 

@@ -12,16 +12,9 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import AnyGoal, Difficulty, run_category
 from env.open_ended import open_ended_dataset
-from llm_agents.evaluation.rescoring import recorded_difficulty, scheduled_episodes
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
-from llm_agents.run_data.store import (
-    EPISODES_FILE,
-    RESULTS_FILE,
-    STEPS_FILE,
-    RunResults,
-    read_results,
-    read_steps,
-)
+from llm_agents.run_data.run_view import RunView, read_run
+from llm_agents.run_data.store import EPISODES_FILE, RESULTS_FILE, RunResults
 
 
 @dataclass
@@ -63,18 +56,29 @@ class EpisodeView:
 
 @dataclass
 class LoadedRun:
-    """A run directory as the viewer sees it."""
+    """A run directory as the viewer sees it: the run read once (`RunView`) and each finished
+    episode with its steps and goal."""
 
-    path: Path
-    results: RunResults
+    run: RunView
     episodes: list[EpisodeView]
     parse_stages: dict[str, int] = field(default_factory=dict)
     latencies: list[float] = field(default_factory=list)
-    has_steps: bool = False
+
+    @property
+    def path(self) -> Path:
+        return self.run.path
+
+    @property
+    def results(self) -> RunResults:
+        return self.run.results
 
     @property
     def config(self) -> dict[str, Any]:
-        return self.results.config
+        return self.run.config
+
+    @property
+    def has_steps(self) -> bool:
+        return self.run.has_steps
 
     def find(self, episode: str) -> EpisodeView:
         """An episode by its id or by its schedule index."""
@@ -90,66 +94,44 @@ class LoadedRun:
 def load_run(run_dir: str | Path) -> LoadedRun:
     """Read `run_dir`'s results, finished episodes and (when recorded) their steps."""
     path = Path(run_dir)
-    if not path.is_dir():
-        raise UserError(f"run directory {path} does not exist")
-    for name in (RESULTS_FILE, EPISODES_FILE):
-        if not (path / name).is_file():
-            raise UserError(f"{path} has no {name}: not a run directory, or no episode finished")
-    results = read_results(path / RESULTS_FILE)
-    records = sorted(scheduled_episodes(path, results), key=lambda e: e.episode_index)
-    if not records:
-        raise UserError(f"{path / EPISODES_FILE} holds no finished episode")
-    finished = {record.episode_id for record in records}
-    steps, errors, stages, latencies = _read_steps(path / STEPS_FILE, finished)
+    if path.is_dir() and not (path / EPISODES_FILE).is_file() and (path / RESULTS_FILE).is_file():
+        raise UserError(f"{path} has no {EPISODES_FILE}: no episode finished")
+    run = read_run(path)
+    steps = run.steps()
+    stages: dict[str, int] = {}
+    latencies: list[float] = []
+    for own in steps.values():
+        for step in own:
+            stages[step.parse_stage] = stages.get(step.parse_stage, 0) + 1
+            latencies.append(step.latency_s)
     try:
-        goals = _goals(
-            results.config.get("dataset"),
-            recorded_difficulty(results.config),
-            results.config.get("task"),
-        )
+        goals = goals_of_run(run)
         no_dataset = None
     except UserError as exc:
         # The pages are still worth having; only the replays need the goals.
         goals, no_dataset = {}, f"the run's dataset cannot be loaded ({exc})"
     episodes = []
-    for record in records:
-        own = sorted(steps.get(record.episode_id, []), key=lambda s: s.step)
+    for record in run.episodes:
+        own = steps.get(record.episode_id, [])
         view = EpisodeView(
             record=record,
             steps=own,
-            errors=errors.get(record.episode_id, []),
+            errors=[step.error for step in own if step.error],
             goal=goals.get((record.category, record.goal_id)),
         )
-        view.unreplayable = no_dataset or _why_unreplayable(
-            view, has_steps=(path / STEPS_FILE).is_file()
-        )
+        view.unreplayable = no_dataset or _why_unreplayable(view, has_steps=run.has_steps)
         episodes.append(view)
     return LoadedRun(
-        path=path,
-        results=results,
+        run=run,
         episodes=episodes,
         parse_stages=dict(sorted(stages.items(), key=lambda item: -item[1])),
         latencies=latencies,
-        has_steps=(path / STEPS_FILE).is_file(),
     )
 
 
-def _read_steps(
-    path: Path, finished: set[str]
-) -> tuple[dict[str, list[StepRecord]], dict[str, list[str]], dict[str, int], list[float]]:
-    steps: dict[str, list[StepRecord]] = {}
-    errors: dict[str, list[str]] = {}
-    stages: dict[str, int] = {}
-    latencies: list[float] = []
-    if not path.is_file():
-        return steps, errors, stages, latencies
-    for step in read_steps(path, finished):
-        steps.setdefault(step.episode_id, []).append(step)
-        if step.error:
-            errors.setdefault(step.episode_id, []).append(step.error)
-        stages[step.parse_stage] = stages.get(step.parse_stage, 0) + 1
-        latencies.append(step.latency_s)
-    return steps, errors, stages, latencies
+def goals_of_run(run: RunView) -> dict[tuple[str, str], AnyGoal]:
+    """(category, goal id) -> goal, of the run's difficulty in the dataset it names."""
+    return _goals(run.config.get("dataset"), run.difficulty, run.config.get("task"))
 
 
 def _goals(

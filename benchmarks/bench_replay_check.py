@@ -1,0 +1,38 @@
+"""How long checking a run by replay takes (`card --verify`'s replay: the episodes derived from
+the protocol, each re-simulated from its world key and actions, the answers parsed again).
+
+    craftext-llm eval --agent expert --protocol paper --output-dir runs/paper-expert
+    python benchmarks/bench_replay_check.py runs/paper-expert
+
+Prints the seconds of the first check in a fresh process (compiling the replay included) and of
+a second one, and what was checked. Goal: a complete paper-protocol EASY run (every episode,
+250 steps) in at most 2 minutes on a 2-core CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from llm_agents.evaluation.replay_check import check_run
+from llm_agents.run_data.run_view import read_run
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", help="a complete run's output directory")
+    parser.add_argument("--repeats", type=int, default=2, help="checks in this process")
+    args = parser.parse_args()
+    for repeat in range(args.repeats):
+        started = time.perf_counter()
+        check = check_run(read_run(args.run_dir))
+        seconds = time.perf_counter() - started
+        steps = sum(e.steps for e in read_run(args.run_dir).episodes)
+        print(
+            f"check {repeat + 1}: {seconds:.1f} s for {check.episodes} episodes ({steps} steps, "
+            f"{check.answers} answers parsed again), {len(check.differences)} differences"
+        )
+
+
+if __name__ == "__main__":
+    main()

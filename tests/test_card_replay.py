@@ -1,0 +1,198 @@
+"""Cards proved by replaying the run: a real expert run under the paper protocol (Classic),
+tampered as a forger would (a failed episode made a consistent success, a winning episode's
+actions replaced, a failed episode dropped from every record), is refused by `card` and by
+`card --verify`, naming the episode; the leaderboard ranks only replayed runs' cards."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from llm_agents.agents import NoModel
+from llm_agents.cli import main
+from llm_agents.evaluation.config import build_config
+from llm_agents.evaluation.runner import run_eval
+
+
+@pytest.fixture(scope="module")
+def expert_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "expert"
+    config = build_config(
+        {"protocol": "paper", "agent": "expert", "limit": 8, "output_dir": str(out)}
+    )
+    run_eval(config, NoModel())
+    return out
+
+
+def _copy(run: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / run.name
+    shutil.copytree(run, copy, ignore=shutil.ignore_patterns("card.*"))
+    return copy
+
+
+def _lines(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def _write(path: Path, rows: list[dict[str, Any]]) -> None:
+    path.write_text("".join(json.dumps(row) + "\n" for row in rows))
+
+
+def _episode(run: Path, success: bool) -> dict[str, Any]:
+    chosen = [e for e in _lines(run / "episodes.jsonl") if e["success"] is success]
+    assert chosen, f"the expert run has no {'winning' if success else 'failed'} episode"
+    return chosen[0]
+
+
+def _one_error(capsys: Any) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert "Traceback" not in captured.err
+    return lines[0]
+
+
+def _failed_made_success(run: Path) -> str:
+    from env.dataset import load_dataset
+
+    episodes = _lines(run / "episodes.jsonl")
+    target = next(e for e in episodes if not e["success"])
+    goal = next(
+        g for g in load_dataset(None).goals if g.id == target["goal_id"] and g.difficulty == "easy"
+    )
+    # Consistent: success, its termination, and the goal's missing achievements unlocked.
+    target.update(success=True, termination="success")
+    target["achievements"] += [a for a in goal.required if a not in target["achievements"]]
+    _write(run / "episodes.jsonl", episodes)
+    return str(target["episode_id"])
+
+
+def _winner_made_noop(run: Path) -> str:
+    winner = _episode(run, True)["episode_id"]
+    steps = _lines(run / "steps.jsonl")
+    for step in steps:
+        if step["episode_id"] == winner:
+            step.update(action_id=0, action_name="NOOP")
+    _write(run / "steps.jsonl", steps)
+    return str(winner)
+
+
+def _failed_dropped(run: Path) -> str:
+    dropped = _episode(run, False)["episode_id"]
+    for name in ("episodes.jsonl", "steps.jsonl"):
+        _write(run / name, [r for r in _lines(run / name) if r["episode_id"] != dropped])
+    results = json.loads((run / "results.json").read_text())
+    results["schedule"] = [e for e in results["schedule"] if e != dropped]
+    results["scheduled"] -= 1
+    results["finished"] -= 1
+    results["actions"].pop(dropped, None)
+    (run / "results.json").write_text(json.dumps(results))
+    return str(dropped)
+
+
+TAMPERINGS = {
+    "failed made a consistent success": (_failed_made_success, "termination: recorded success"),
+    "winner's actions made NOOP": (_winner_made_noop, "termination: recorded success"),
+    "failed episode dropped everywhere": (_failed_dropped, "missing from episodes.jsonl"),
+}
+
+
+def test_the_untouched_run_replays_and_its_card_says_so(
+    expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(expert_run, tmp_path)
+    assert main(["card", str(run), "--no-progress"]) == 0
+    card = json.loads((run / "card.json").read_text())
+    assert card["schema_version"] == 2
+    assert card["replay"]["episodes"] == card["figures"]["episodes"] == 8
+    assert card["replay"]["answers"] == 0  # the expert's actions are not parsed answers
+    assert "Replayed**: 8 episodes" in (run / "card.md").read_text()
+    capsys.readouterr()
+    assert main(["card", "--verify", str(run / "card.json"), str(run), "--no-progress"]) == 0
+    assert "its records replay" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("tampering", list(TAMPERINGS))
+def test_a_tampered_run_gets_no_card_and_fails_verification_naming_the_episode(
+    expert_run: Path, tmp_path: Path, capsys: Any, tampering: str
+) -> None:
+    tamper, field = TAMPERINGS[tampering]
+    # A card written before the tampering, then checked against the tampered records.
+    honest = _copy(expert_run, tmp_path)
+    assert main(["card", str(honest), "--no-progress"]) == 0
+    capsys.readouterr()
+    episode = tamper(honest)
+    card = honest / "card.json"
+    assert main(["card", "--verify", str(card), str(honest), "--no-progress"]) == 1
+    line = _one_error(capsys)
+    assert f"episode {episode}: " in line and field in line
+
+    # A card asked of the tampered records: refused, nothing written.
+    forged = tmp_path / "forged"
+    shutil.copytree(honest, forged, ignore=shutil.ignore_patterns("card.*"))
+    before = sorted(p.name for p in forged.iterdir())
+    assert main(["card", str(forged), "--no-progress"]) == 1
+    line = _one_error(capsys)
+    assert "do not replay" in line and f"episode {episode}: " in line and field in line
+    assert sorted(p.name for p in forged.iterdir()) == before
+
+
+def test_an_extra_episode_is_refused(expert_run: Path, tmp_path: Path, capsys: Any) -> None:
+    run = _copy(expert_run, tmp_path)
+    episodes = _lines(run / "episodes.jsonl")
+    extra = {**episodes[0], "episode_id": "combo/NOT_A_GOAL/0/0", "episode_index": 99}
+    _write(run / "episodes.jsonl", [*episodes, extra])
+    assert main(["card", str(run), "--no-progress"]) == 1
+    assert "episode combo/NOT_A_GOAL/0/0: not an episode of the run's protocol" in _one_error(
+        capsys
+    )
+    assert not (run / "card.json").exists()
+
+
+def test_an_undeclared_departure_is_refused(expert_run: Path, tmp_path: Path, capsys: Any) -> None:
+    run = _copy(expert_run, tmp_path)
+    results = json.loads((run / "results.json").read_text())
+    results["config"]["episodes_per_instruction"] = 2
+    (run / "results.json").write_text(json.dumps(results))
+    assert main(["card", str(run), "--no-progress"]) == 2
+    assert "records no such departure" in _one_error(capsys)
+    assert not (run / "card.json").exists()
+
+
+def test_the_leaderboard_ranks_only_replayed_cards(
+    expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(expert_run, tmp_path)
+    assert main(["card", str(run), "--no-progress"]) == 0
+    # A card that records no replay (as for a run that kept no step log).
+    card = json.loads((run / "card.json").read_text())
+    card["replay"] = None
+    card["run"] = "unreplayed"
+    card["started_at"] = "2030-01-01T00:00:00Z"
+    body = {k: v for k, v in card.items() if k != "digest"}
+    import hashlib
+
+    card["digest"] = hashlib.sha256(
+        json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False).encode()
+    ).hexdigest()
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "card.json").write_text(json.dumps(card))
+    capsys.readouterr()
+    table = tmp_path / "results.md"
+    arguments = [str(run / "card.json"), str(other / "card.json"), "--markdown", str(table)]
+    assert main(["leaderboard", *arguments]) == 2
+    assert "records no replay" in _one_error(capsys)
+    assert not table.exists()
+
+    assert main(["leaderboard", *arguments, "--unverified"]) == 0
+    text = table.read_text()
+    ranked, unranked = text.split("**Not replayed**")
+    assert f"[{run.name}](" in ranked and "card.md)" in ranked and "unreplayed" not in ranked
+    assert "| unreplayed |" in unranked
+    # Departures are stated with their values.
+    assert "first 8 episodes of the schedule" in ranked
