@@ -300,7 +300,9 @@ def test_every_record_file_names_its_schema_version(generated: dict[str, str]) -
     for name in ("results.json", "episodes.jsonl", "steps.jsonl", "card.json"):
         [row] = [line for line in page.splitlines() if line.startswith(f"| `{name}` |")]
         assert row.rstrip(" |").rsplit(" | ", 1)[1], row
-    assert "`schema_version` 1" in page
+    from llm_agents.evaluation.card import CARD_SCHEMA_VERSION
+
+    assert f"`schema_version` {CARD_SCHEMA_VERSION}" in page
 
 
 def test_the_agent_api_page_documents_the_protocol(generated: dict[str, str]) -> None:
