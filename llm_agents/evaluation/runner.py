@@ -372,10 +372,12 @@ def run_schedule(
     *,
     progress: ProgressFactory | None = None,
     endpoint_stats: Callable[[], list[EndpointStats]] = list,
+    worker_hardware: Callable[[], list[dict[str, str]]] | None = None,
 ) -> RunOutcome:
     """Open the run directory (keeping the episodes that finished there), have `play` run the
     pending ones through the sink, and save the results: the part of a run that is the same
-    wherever the episodes are played (in this process, or on Ray workers).
+    wherever the episodes are played (in this process, or on Ray workers, whose machines
+    `worker_hardware` gives: the results record them instead of this one's).
 
     Raises `BackendFailure` (after saving) when the backend failed too often in a row.
     """
@@ -404,6 +406,7 @@ def run_schedule(
         config.max_consecutive_failures,
         endpoint_stats,
         actions=recorded_actions(out, done_ids) if config.record_steps else None,
+        worker_hardware=worker_hardware,
     )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None
