@@ -228,7 +228,7 @@ def main() -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             config = settings(args.lockstep_episodes, f"{tmp}/lockstep")
-            model = get_model(config.model, config.generation)
+            model = get_model(config.backend_spec, config.generation)
             # Compiles (or loads from the cache) the env's functions before anything is timed.
             lockstep(settings(args.in_flight, f"{tmp}/warmup"), env, model)
             stats()

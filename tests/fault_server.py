@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 FaultKind = Literal["drop", "status", "slow", "malformed", "echo_auth"]
 
@@ -58,6 +59,8 @@ class Request:
     received_at: float
     #: The client's (host, port): one per connection.
     connection: tuple[str, int] = ("", 0)
+    #: The request's path, its query included.
+    path: str = ""
 
 
 @dataclass(frozen=True)
@@ -152,17 +155,23 @@ class FaultServer:
                 with state._lock:
                     state.requests.append(
                         Request(
-                            f"GET {self.path}", {}, dict(self.headers.items()), time.monotonic()
+                            f"GET {self.path}",
+                            {},
+                            dict(self.headers.items()),
+                            time.monotonic(),
+                            path=self.path,
                         )
                     )
                 if not self._authorised():
                     return
-                if self.path.rstrip("/").endswith("/stats"):
+                # Routed on the path alone: a server URL may carry a query (an API version, a token).
+                route = urlsplit(self.path).path.rstrip("/")
+                if route.endswith("/stats"):
                     with state._lock:
                         taken, state.answers = state.answers, []
                     self._send(200, [[a.started_at, a.ended_at, a.key] for a in taken])
                     return
-                if self.path.rstrip("/").endswith("/models") and state.models is not None:
+                if route.endswith("/models") and state.models is not None:
                     listing = [{"id": model, "object": "model"} for model in state.models]
                     self._send(200, {"object": "list", "data": listing})
                     return
@@ -187,6 +196,7 @@ class FaultServer:
                             dict(self.headers.items()),
                             time.monotonic(),
                             self.client_address,
+                            self.path,
                         )
                     )
                     pending = state.plan.get(key)

@@ -414,3 +414,22 @@ def test_the_servers_cached_prompt_tokens_are_not_counted_as_computed() -> None:
     assert _parse_reply(reply({"prompt_tokens": 900}), None).computed_prompt_tokens is None
     silent = {"prompt_tokens": 900, "prompt_tokens_details": None}
     assert _parse_reply(reply(silent), None).computed_prompt_tokens is None
+
+
+def test_a_token_in_the_urls_query_is_sent_with_each_request_and_shown_nowhere(
+    server: FaultServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    token = "tok-in-the-query-0123"
+    server.models = ["test-model"]
+    server.plan = {"down": [Fault("status", status=503)] * 3}
+    url = f"{server.url}?api-key={token}&v=1"
+    backend = OpenAIModel("test-model", GenerateConfig(max_retries=1), base_url=url, **FAST)
+    with caplog.at_level(logging.DEBUG):
+        backend.probe()
+        [failed] = backend.generate([conv("down")])
+    # Every request carried it, the probe's included; httpx logged each request's URL.
+    assert server.requests and all(f"api-key={token}" in r.path for r in server.requests)
+    assert "HTTP Request: POST" in caplog.text
+    visible = [failed.model_dump_json(), caplog.text, repr(backend), str(backend.info())]
+    assert backend.info()["base_url"] == server.url
+    assert not any(token in text for text in visible)

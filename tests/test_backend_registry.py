@@ -183,3 +183,33 @@ def test_the_base_refuses_a_choice_rule_before_the_backend_answers() -> None:
     assert GuidedOnly.answered == 0
     assert model.generate([conversation], ChoiceSet(options=("DO",), rule="guided"))[0].text == "DO"
     assert GuidedOnly.answered == 1
+
+
+def test_an_older_transformers_is_refused_at_start_with_the_install_command(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+
+    import transformers
+
+    from llm_agents.cli import main
+
+    monkeypatch.setattr(transformers, "__version__", "4.57.1")
+    monkeypatch.delitem(sys.modules, "llm_agents.backends.hf", raising=False)
+    out = tmp_path / "run"
+    argv = ["eval", "--model", "hf:smollm2-135m", "--variant", "classic", "--categories", "combo"]
+    code = main([*argv, "--limit", "1", "--output-dir", str(out), "--no-progress"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, lines
+    assert "needs transformers>=5.0, this environment has 4.57.1" in lines[0]
+    assert "pip install -U 'craftext-llm[hf]'" in lines[0]
+    assert not out.exists()
+
+
+def test_the_transformers_bound_refused_below_is_the_one_the_package_declares() -> None:
+    import tomllib
+
+    from llm_agents.backends.hf import MIN_TRANSFORMERS
+
+    declared = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    hf_extra = declared["project"]["optional-dependencies"]["hf"]
+    assert f"transformers>={MIN_TRANSFORMERS}" in hf_extra

@@ -363,6 +363,11 @@ BAD_INPUTS = {
     "no such GGUF file": BadInput(f"hf:{GGUF_REPO}:missing.gguf", f"its GGUF files: {GGUF_FILE}"),
     "a GGUF repository named as a folder": BadInput(f"hf:{GGUF_REPO}", "no config.json"),
     "a misspelled named model": BadInput("hf:smollm2-135", "did you mean hf:smollm2-135m?"),
+    # Ids the hub's own rules reject, refused before any request, online or not.
+    "a hub id ending in a dot": BadInput("hf:tiny-org/name.", "'tiny-org/name.' is not a valid"),
+    "a hub id with a double dash": BadInput(
+        "vllm:tiny-org/a--b", "not a valid hub id", {"HF_HUB_OFFLINE": "1"}
+    ),
 }
 
 

@@ -11,7 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from llm_agents.run_data.provenance import PACKAGES, code_version, hardware, sources_digest
+from llm_agents.run_data.provenance import (
+    PACKAGES,
+    code_version,
+    hardware,
+    pooled_hardware,
+    sources_digest,
+)
 
 pytestmark = pytest.mark.skipif(shutil.which("git") is None, reason="git is not installed")
 
@@ -88,3 +94,15 @@ def test_hardware_names_this_machine() -> None:
     )
     assert float(found["memory_gib"]) == pytest.approx(kib / 2**20, abs=0.05)
     assert ("gpus" in found) == any(Path("/proc/driver/nvidia/gpus").glob("*/information"))
+
+
+def test_workers_machines_pool_into_one_record_naming_each_distinct_value() -> None:
+    a100 = {"cpu": "EPYC", "cpu_cores": "16", "gpus": "NVIDIA A100"}
+    h100 = {"cpu": "EPYC", "cpu_cores": "16", "gpus": "NVIDIA H100"}
+    assert pooled_hardware([a100, h100, a100]) == {
+        "cpu": "EPYC",
+        "cpu_cores": "16",
+        "gpus": "NVIDIA A100 + NVIDIA H100",
+        "workers": "3",
+    }
+    assert pooled_hardware([hardware()]) == hardware() | {"workers": "1"}

@@ -116,6 +116,24 @@ def test_a_ray_run_gives_the_episodes_of_a_local_run(
     assert report_run(tmp_path) == report_run(local_run)
 
 
+def test_a_ray_run_records_its_workers_machines_not_the_drivers(
+    cluster: str, tmp_path: Path
+) -> None:
+    cores = os.sched_getaffinity(0)
+    if len(cores) < 2:
+        pytest.skip("the driver is told from its workers by pinning it to one of two cores")
+    # The workers were started by the cluster's raylet, on every core; the driver sees one.
+    os.sched_setaffinity(0, {min(cores)})
+    try:
+        run_on_ray(prepare_run(config(tmp_path, ray=True, limit=2)))
+    finally:
+        os.sched_setaffinity(0, cores)
+    results = read_results(tmp_path / "results.json")
+    assert len(results.worker_hardware) == 2
+    assert {machine["cpu_cores"] for machine in results.worker_hardware} == {str(len(cores))}
+    assert results.hardware == results.worker_hardware[0] | {"workers": "2"}
+
+
 def _parent(pid: int) -> int:
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()

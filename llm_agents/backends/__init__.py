@@ -10,6 +10,7 @@ import importlib
 import re
 from collections.abc import Mapping
 from typing import Any
+from urllib.parse import urlsplit, urlunsplit
 
 from pydantic import BaseModel
 
@@ -29,6 +30,7 @@ __all__ = [
     "get_model",
     "model_revision",
     "parse_model_spec",
+    "redact_secrets",
 ]
 
 #: backend name -> "module:Class"
@@ -41,6 +43,36 @@ BACKENDS: dict[str, str] = {
 
 #: backend name -> the extra that installs its dependencies
 EXTRAS: dict[str, str] = {"hf": "hf", "vllm": "vllm", "openai": "openai"}
+
+
+#: A URL inside a spec or a message: up to the next comma (specs list URLs so) or blank.
+_URL = re.compile(r"https?://[^\s,]+")
+#: What a secret is replaced by.
+REDACTED = "***"
+
+
+def _redact_url(url: str) -> str:
+    scheme, _, rest = url.partition("://")
+    # Up to the last `@` is user info, even where a password holds a `/` or `@` unencoded: a
+    # path with an `@` loses a little more than needed, a password none of itself.
+    _userinfo, at, rest = rest.rpartition("@")
+    _, netloc, path, query, _fragment = urlsplit(f"{scheme}://{rest}")
+    if at:
+        netloc = f"{REDACTED}@{netloc}"
+    # Every query value goes: which parameter carries a token (`api_key`, `sig`, `code`...) is
+    # the server's choice, and none of them changes what a run measures.
+    query = "&".join(
+        f"{name}={REDACTED}" if sep else name
+        for name, sep, _value in (part.partition("=") for part in query.split("&") if part)
+    )
+    return urlunsplit((scheme, netloc, path, query, ""))
+
+
+def redact_secrets(text: str) -> str:
+    """`text` (a model spec, a URL, a message) with each URL's user info and query values
+    replaced by `***` and its fragment dropped: the one form in which a spec is recorded,
+    shown or written."""
+    return _URL.sub(lambda found: _redact_url(found.group()), text)
 
 
 class BackendNotInstalled(UserError):
@@ -60,10 +92,12 @@ class ModelSpec(BaseModel):
 
 def parse_model_spec(spec: str) -> ModelSpec:
     """Split `backend:name[@base_url]`, checking the backend exists."""
+    # Messages quote the spec without its credentials.
+    shown = redact_secrets(spec)
     backend, sep, rest = spec.partition(":")
     if not sep:
         raise UserError(
-            f"model spec {spec!r} has no backend; write BACKEND:MODEL, e.g. hf:smollm2-135m "
+            f"model spec {shown!r} has no backend; write BACKEND:MODEL, e.g. hf:smollm2-135m "
             f"(backends: {', '.join(BACKENDS)})"
         )
     backend = backend.strip().lower()
@@ -71,7 +105,7 @@ def parse_model_spec(spec: str) -> ModelSpec:
         close = difflib.get_close_matches(backend, BACKENDS, n=2)
         hint = f"; did you mean {' or '.join(close)}?" if close else ""
         raise UserError(
-            f"unknown backend {backend!r} in model spec {spec!r}{hint} (backends: {', '.join(BACKENDS)})"
+            f"unknown backend {backend!r} in model spec {shown!r}{hint} (backends: {', '.join(BACKENDS)})"
         )
     base_url = None
     if backend == "openai" and "@" in rest:
@@ -83,7 +117,7 @@ def parse_model_spec(spec: str) -> ModelSpec:
         else:
             rest, _, base_url = rest.rpartition("@")
     if not rest and backend != "mock":
-        raise UserError(f"model spec {spec!r} names no model after {backend}:")
+        raise UserError(f"model spec {shown!r} names no model after {backend}:")
     # `mock:` is the script that answers NOOP, named as the model it builds names itself.
     rest = rest or "noop"
     return ModelSpec(backend=backend, name=rest, base_url=base_url)

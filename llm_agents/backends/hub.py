@@ -135,9 +135,10 @@ def resolve(hub_id: HubId, revision: str | None = None) -> HubModel:
     """The commit `revision` (None: `main`) of the hub id is at now: asked of the hub, or
     offline read from the cache's ref. Downloads nothing."""
     asked = revision or "main"
+    hub = _hub()
+    _check_repo_id(hub_id)
     if offline():
         return _cached(hub_id, asked)
-    hub = _hub()
     try:
         info = hub.HfApi().model_info(
             hub_id.repo_id, revision=asked, files_metadata=True, timeout=HUB_TIMEOUT_S
@@ -152,6 +153,18 @@ def resolve(hub_id: HubId, revision: str | None = None) -> HubModel:
             f"{_endpoint()}/{hub_id.repo_id} and set HF_TOKEN to a token of that account"
         )
     return HubModel(hub_id=hub_id, revision=asked, commit=info.sha, files=files)
+
+
+def _check_repo_id(hub_id: HubId) -> None:
+    """Refuse an id the hub's own rules reject (`org/name.`, `org/a--b`), before any request:
+    its client would raise the same from deep inside a download."""
+    from huggingface_hub.errors import HFValidationError
+    from huggingface_hub.utils import validate_repo_id
+
+    try:
+        validate_repo_id(hub_id.repo_id)
+    except HFValidationError as err:
+        raise UserError(f"{hub_id.repo_id!r} is not a valid hub id (ORG/NAME): {err}") from None
 
 
 def fetch(hub_id: HubId, revision: str | None = None) -> HubModel:

@@ -19,6 +19,7 @@ import base64
 import contextlib
 import difflib
 import json
+import logging
 import os
 import socket
 import threading
@@ -26,6 +27,7 @@ import time
 import weakref
 from collections.abc import Awaitable, Callable, Sequence
 from typing import Any, ClassVar, TypeVar, TypeVarTuple
+from urllib.parse import quote
 
 # The backend registry turns a missing httpx into an install hint for the `openai` extra.
 import httpx
@@ -35,6 +37,7 @@ from pydantic import ConfigDict, Field, SecretStr, ValidationError
 from tenacity import RetryError
 
 from env.errors import UserError
+from llm_agents.backends import redact_secrets
 from llm_agents.backends.base import (
     PROBE_TIMEOUT_S,
     ChatMessage,
@@ -64,6 +67,8 @@ DEFAULT_API_KEY_ENV = "OPENAI_API_KEY"
 ERROR_BODY_CHARS = 300
 #: Most model ids a probe lists when the requested one is not served.
 LISTED_MODELS = 8
+#: The shortest URL query value redacted from messages as a possible token.
+MIN_SECRET_CHARS = 4
 
 #: The name of the thread that runs the requests' event loop.
 LOOP_THREAD_NAME = "openai-requests"
@@ -88,6 +93,21 @@ class OpenAIOptions(RetryWaits):
     """Extra JSON fields merged into every request (server-specific sampling options)."""
     health_interval_s: float = Field(5.0, gt=0.0)
     """With several URLs: seconds between health checks of an endpoint taken out of rotation."""
+
+
+class _RedactedURLs(logging.Filter):
+    """httpx logs each request's URL, its query (where a token may ride) included: the
+    record is rewritten through `redact_secrets` before any handler sees it."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        shown = redact_secrets(message)
+        if shown != message:
+            record.msg, record.args = shown, None
+        return True
+
+
+logging.getLogger("httpx").addFilter(_RedactedURLs())
 
 
 class RequestFailed(Exception):
@@ -123,6 +143,7 @@ class OpenAIModel(ModelAPI):
                 "or set OPENAI_BASE_URL"
             )
         self._auth: dict[str, httpx.BasicAuth | None] = {}
+        self._params: dict[str, httpx.QueryParams] = {}
         self._url_secrets: list[SecretStr] = []
         for written_url in (part.strip() for part in base_url.split(",")):
             self._add_endpoint(written_url)
@@ -150,21 +171,33 @@ class OpenAIModel(ModelAPI):
 
     def _add_endpoint(self, written: str) -> None:
         if not written.startswith(("http://", "https://")):
-            raise UserError(f"server URL {written!r} must start with http:// or https://")
+            # What precedes an `@` may be credentials written without a scheme.
+            shown = written.rpartition("@")[2]
+            raise UserError(f"server URL {shown!r} must start with http:// or https://")
         try:
             url = httpx.URL(written.rstrip("/"))
         except httpx.InvalidURL as err:
             raise UserError(f"server URL is not a valid URL: {err}") from None
-        # Credentials in the URL travel as a Basic auth header instead, so that neither httpx's
-        # request log nor any message shows them; the password is then redacted like the key.
-        bare = str(url.copy_with(userinfo=b""))
+        # Credentials in the URL travel as a Basic auth header instead, and its query (a token,
+        # an API version) as each request's parameters, so that neither httpx's request log nor
+        # any message shows them; they are then redacted like the key.
+        bare = str(url.copy_with(userinfo=b"", query=None, fragment=None))
         if bare in self._auth:
-            raise UserError(f"server URL {bare} is listed twice")
+            raise UserError(f"server URL {redact_secrets(written)} is listed twice")
         self._auth[bare] = httpx.BasicAuth(url.username, url.password) if url.userinfo else None
+        self._params[bare] = url.params
         if url.userinfo:
             password = url.userinfo.decode("ascii", "replace").partition(":")[2]
             header = base64.b64encode(f"{url.username}:{url.password}".encode()).decode()
             self._url_secrets += [SecretStr(p) for p in {password, url.password, header} if p]
+        # A value of a few characters (`v=2`) is no secret, and replacing it everywhere would
+        # garble every message.
+        self._url_secrets += [
+            SecretStr(form)
+            for _name, value in url.params.multi_items()
+            if len(value) >= MIN_SECRET_CHARS
+            for form in {value, quote(value, safe="")}
+        ]
 
     @property
     def retry_policy(self) -> RetryPolicy:
@@ -365,6 +398,7 @@ class OpenAIModel(ModelAPI):
                 response = await client.post(
                     f"{base_url}/chat/completions",
                     json=body,
+                    params=self._params[base_url],
                     auth=self._auth[base_url] or httpx.USE_CLIENT_DEFAULT,
                 )
         except (TimeoutError, httpx.TimeoutException):
@@ -436,6 +470,7 @@ class OpenAIModel(ModelAPI):
             timeout=httpx.Timeout(timeout_s),
             headers=self._headers(),
             auth=self._auth[base_url],
+            params=self._params[base_url],
         ) as client:
             listing = await self._probe_request(client, base_url, "GET", "/models", None, timeout_s)
             served = _served_models(listing) if listing.status_code == 200 else None
@@ -466,6 +501,7 @@ class OpenAIModel(ModelAPI):
                 f"{endpoint.url}/models",
                 headers=self._headers(),
                 auth=self._auth[endpoint.url],
+                params=self._params[endpoint.url],
                 timeout=min(self.config.timeout_s, PROBE_TIMEOUT_S),
                 verify=self._ssl_context,
             )

@@ -12,13 +12,14 @@ from __future__ import annotations
 import difflib
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Self, TypeVar
 
 import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     ValidationError,
     field_validator,
     model_validator,
@@ -34,7 +35,7 @@ from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.actions import action_names
 from llm_agents.agents.loading import check_agent_name
 from llm_agents.agents.registry import IMAGE_AGENTS, LETTER_AGENTS, ObservationMode
-from llm_agents.backends import parse_model_spec
+from llm_agents.backends import parse_model_spec, redact_secrets
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
     ChoiceRule,
@@ -68,7 +69,8 @@ class ModelSettings(BaseModel):
 
     model: Annotated[str, CHANGES_RESULTS] = "hf:smollm2-135m"
     """Model spec: hf:NAME_OR_PATH, vllm:NAME_OR_PATH (a hub id, ORG/NAME or
-    ORG/NAME:FILE.gguf, is downloaded on first use), openai:MODEL@URL or mock:SCRIPT."""
+    ORG/NAME:FILE.gguf, is downloaded on first use), openai:MODEL@URL or mock:SCRIPT. A URL's
+    user info and query values are kept out of everything recorded or shown (`***`)."""
     generation: Annotated[GenerateConfig, CHANGES_RESULTS] = Field(default_factory=GenerateConfig)
     """Generation parameters passed to the backend."""
     backend_options: Annotated[dict[str, Any], CHANGES_RESULTS] = Field(default_factory=dict)
@@ -108,11 +110,32 @@ class ModelSettings(BaseModel):
         }
         return settings
 
+    # The spec as written, when it carries credentials: only the backend is given it (it is
+    # never dumped, so no results file, card or page can carry it).
+    _written_model: str | None = PrivateAttr(None)
+
     @field_validator("model")
     @classmethod
     def _known_backend(cls, value: str) -> str:
         parse_model_spec(value)
         return value
+
+    @model_validator(mode="after")
+    def _credentials_kept_apart(self) -> Self:
+        # The one place a spec enters a run: from here on `model` is the redacted spec.
+        shown = redact_secrets(self.model)
+        if shown != self.model:
+            self._written_model = self.model
+            # Past validation: the spec was just validated, and assigning would validate again.
+            self.__dict__["model"] = shown
+        elif self._written_model is not None and redact_secrets(self._written_model) != shown:
+            self._written_model = None  # another spec was assigned since
+        return self
+
+    @property
+    def backend_spec(self) -> str:
+        """The spec the backend is built from: `model` with its credentials, never recorded."""
+        return self._written_model or self.model
 
     @field_validator("templates_dir", "dataset", "cache", mode="before")
     @classmethod

@@ -48,6 +48,7 @@ from llm_agents.evaluation.runner import (
     versions,
 )
 from llm_agents.evaluation.schedule import ScheduledEpisode
+from llm_agents.run_data.provenance import hardware
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import AgentIdentity
 
@@ -80,6 +81,8 @@ class WorkerReady(BaseModel):
     """What `versions(model)` says on that worker."""
     pid: int = 0
     """The worker's process id."""
+    hardware: dict[str, str] = Field(default_factory=dict)
+    """The machine the worker runs on (`provenance.hardware` there)."""
     agent: AgentIdentity | None = None
     """The import path and version of the agent the worker plays, when it comes from outside
     this package (`agent_identity`): the driver's, or the worker is refused."""
@@ -107,6 +110,8 @@ class WorkerReport(BaseModel):
     """Rounds played since the last report."""
     endpoints: list[EndpointStats] = Field(default_factory=list)
     """The worker's backend's per-server counts so far."""
+    hardware: dict[str, str] = Field(default_factory=dict)
+    """The machine the worker runs on: a worker Ray restarted may run on another node."""
     failure: WorkerFailure | None = None
     """Set when the worker's play stopped on an exception."""
 
@@ -199,6 +204,7 @@ class EpisodeWorker:
         self._failure: WorkerFailure | None = None
         self._model: ModelAPI | None = None
         self._agent: AgentIdentity | None = None
+        self._hardware = hardware()
         try:
             from env import shared_env
             from llm_agents.agents import NoModel, agent_class
@@ -218,7 +224,12 @@ class EpisodeWorker:
     def ready(self) -> WorkerReady:
         if self._failure is not None or self._model is None:
             return WorkerReady(failure=self._failure, pid=os.getpid())
-        return WorkerReady(versions=versions(self._model), pid=os.getpid(), agent=self._agent)
+        return WorkerReady(
+            versions=versions(self._model),
+            pid=os.getpid(),
+            hardware=self._hardware,
+            agent=self._agent,
+        )
 
     def exchange(self, episodes: list[ScheduledEpisode]) -> WorkerReport:
         """Take more episodes; return the rounds played since the last call."""
@@ -228,7 +239,9 @@ class EpisodeWorker:
             self._player.start()
         rounds = self._sink.collect(COLLECT_WAIT_S)
         endpoints = self._model.endpoint_stats() if self._model is not None else []
-        return WorkerReport(rounds=rounds, endpoints=endpoints, failure=self._failure)
+        return WorkerReport(
+            rounds=rounds, endpoints=endpoints, hardware=self._hardware, failure=self._failure
+        )
 
     def _play(self) -> None:
         try:
@@ -243,8 +256,12 @@ class EpisodeWorker:
 class _Driver:
     """Hands episodes to the workers and records what they send back, through the run's sink."""
 
-    def __init__(self, ray: Any, workers: list[Any], config: EvalConfig):
+    def __init__(
+        self, ray: Any, workers: list[Any], config: EvalConfig, machines: list[dict[str, str]]
+    ):
         self.ray = ray
+        # Each worker's machine as it last said: one Ray restarted may have moved.
+        self.machines = machines
         self.workers = workers
         self.ahead = 2 * config.batch_size
         self.held: list[dict[str, ScheduledEpisode]] = [{} for _ in workers]
@@ -297,6 +314,7 @@ class _Driver:
                 for id_ in [e.episode_id for e in round_.ended] + round_.aborted:
                     held.pop(id_, None)
             self.endpoints[index] = report.endpoints
+            self.machines[index] = report.hardware
             if sink.stopped:
                 return
             feed(index)
@@ -444,13 +462,14 @@ def run_on_ray(prepared: PreparedRun, *, progress: ProgressFactory | None = None
             if answer.failure is not None:
                 raise UserError(f"a Ray worker could not start: {answer.failure.message}")
             _check_worker_agent(answer, prepared.identity.agent)
-        driver = _Driver(ray, workers, config)
+        driver = _Driver(ray, workers, config, [answer.hardware for answer in ready])
         return run_schedule(
             prepared,
             ready[0].versions | {"ray": ray.__version__, "ray.workers": str(len(workers))},
             driver.play,
             progress=progress,
             endpoint_stats=driver.endpoint_stats,
+            worker_hardware=lambda: list(driver.machines),
         )
     finally:
         for worker in workers:

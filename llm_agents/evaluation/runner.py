@@ -253,7 +253,7 @@ def run_eval(
 def hub_commit(settings: ModelSettings) -> str | None:
     """The hub commit the settings' model is at now (`backends.model_revision`): resolved when a
     run is prepared, recorded in its identity, and the one its model is then loaded at."""
-    return model_revision(settings.model, settings.backend_options)
+    return model_revision(settings.backend_spec, settings.backend_options)
 
 
 def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
@@ -263,7 +263,7 @@ def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
     from llm_agents.backends import get_model
 
     options = settings.backend_options | ({HUB_REVISION_KEY: commit} if commit else {})
-    model = get_model(settings.model, settings.generation, **options)
+    model = get_model(settings.backend_spec, settings.generation, **options)
     choice = getattr(settings, "choice", None)
     if choice is not None:
         model.check_choice_rule(choice)
@@ -372,10 +372,12 @@ def run_schedule(
     *,
     progress: ProgressFactory | None = None,
     endpoint_stats: Callable[[], list[EndpointStats]] = list,
+    worker_hardware: Callable[[], list[dict[str, str]]] | None = None,
 ) -> RunOutcome:
     """Open the run directory (keeping the episodes that finished there), have `play` run the
     pending ones through the sink, and save the results: the part of a run that is the same
-    wherever the episodes are played (in this process, or on Ray workers).
+    wherever the episodes are played (in this process, or on Ray workers, whose machines
+    `worker_hardware` gives: the results record them instead of this one's).
 
     Raises `BackendFailure` (after saving) when the backend failed too often in a row.
     """
@@ -404,6 +406,7 @@ def run_schedule(
         config.max_consecutive_failures,
         endpoint_stats,
         actions=recorded_actions(out, done_ids) if config.record_steps else None,
+        worker_hardware=worker_hardware,
     )
     sink.save()
     sink.bar = progress(len(prepared.schedule), sink.counted) if progress else None

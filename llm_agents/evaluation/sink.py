@@ -15,6 +15,7 @@ from llm_agents.agents.types import Decision
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode
 from llm_agents.run_data.metrics import action_counts, action_histogram, summarize
+from llm_agents.run_data.provenance import pooled_hardware
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.scores import achievement_list_of, score_run
 from llm_agents.run_data.store import (
@@ -52,11 +53,14 @@ class RunSink:
         max_failures: int,
         endpoint_stats: Callable[[], list[EndpointStats]] = list,
         actions: dict[str, Counter[str]] | None = None,
+        worker_hardware: Callable[[], list[dict[str, str]]] | None = None,
     ):
         self.out = out
         # Episode id -> action -> steps, from the step records (None: the run keeps no step log).
         self.actions = actions
         self.endpoint_stats = endpoint_stats
+        # The machines of the workers that play the episodes elsewhere (Ray); None: this one.
+        self.worker_hardware = worker_hardware
         self.results = results
         self.scheduled_ids = set(results.schedule)
         self.episodes = finished
@@ -148,6 +152,9 @@ class RunSink:
         counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
         results.finished = len(counted)
         results.endpoints = self.endpoint_stats()
+        if self.worker_hardware is not None:
+            results.worker_hardware = self.worker_hardware()
+            results.hardware = pooled_hardware(results.worker_hardware)
         results.summary = summarize(counted, self.actions) if counted else None
         results.actions = (
             {}

@@ -38,6 +38,7 @@ __all__ = [
     "code_version",
     "hardware",
     "note_other_code",
+    "pooled_hardware",
     "sources_digest",
 ]
 
@@ -164,3 +165,18 @@ def hardware() -> dict[str, str]:
     if names:
         found["gpus"] = ", ".join(names)
     return found
+
+
+def pooled_hardware(machines: Iterable[Mapping[str, str]]) -> dict[str, str]:
+    """Several workers' machines (`hardware` on each) as the one record a card shows: each
+    field's distinct values in the order first seen, joined by ` + ` (one value where they
+    agree), and how many workers played (`workers`)."""
+    pooled: dict[str, list[str]] = {}
+    count = 0
+    for machine in machines:
+        count += 1
+        for key, value in machine.items():
+            values = pooled.setdefault(key, [])
+            if value not in values:
+                values.append(value)
+    return {key: " + ".join(values) for key, values in pooled.items()} | {"workers": str(count)}

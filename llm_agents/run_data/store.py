@@ -454,7 +454,11 @@ class RunResults(ResultsBase):
     """When the run completed; None until then."""
     hardware: dict[str, str] = Field(default_factory=dict)
     """The machine that last played episodes of the run (`provenance.hardware`): CPU, cores,
-    memory, GPUs; empty in runs recorded before it was kept."""
+    memory, GPUs; on Ray, its workers' machines pooled (`provenance.pooled_hardware`); empty
+    in runs recorded before it was kept."""
+    worker_hardware: list[dict[str, str]] = Field(default_factory=list)
+    """On Ray, each worker's machine as it last reported it (`provenance.hardware` on the
+    worker), in worker order; empty for a run played in one process."""
 
 
 _Results = TypeVar("_Results", bound=ResultsBase)

@@ -6,12 +6,26 @@ scoring (`scoring`) and the thinking budget (`thinking`)."""
 # that variable here would hide the user's choice from huggingface_hub, which reads it once.
 try:
     import torch  # noqa: F401
-    import transformers  # noqa: F401
+    import transformers
 except ModuleNotFoundError as err:
     raise ModuleNotFoundError(
         f"the hf backend needs {err.name!r}: pip install 'craftext-llm[hf]'", name=err.name
     ) from err
 
-from llm_agents.backends.hf.model import HFModel
+from packaging.version import Version
+
+from llm_agents.backends import BackendNotInstalled
+
+#: The oldest transformers the decoding works with: it reads and builds the per-layer key/value
+#: caches (`DynamicCache(config=...)`, `cache.layers`, `DynamicLayer`) of transformers 5.
+MIN_TRANSFORMERS = "5.0"
+
+if Version(transformers.__version__) < Version(MIN_TRANSFORMERS):
+    raise BackendNotInstalled(
+        f"the hf backend needs transformers>={MIN_TRANSFORMERS}, this environment has "
+        f"{transformers.__version__}: pip install -U 'craftext-llm[hf]'"
+    )
+
+from llm_agents.backends.hf.model import HFModel  # noqa: E402
 
 __all__ = ["HFModel"]
