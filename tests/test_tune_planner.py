@@ -1,0 +1,138 @@
+"""benchmarks/tune_planner.py: exported lines read back into the planner's chat, and a LoRA tuning
+run end to end on the embedded model, whose saved folder `plan`'s backend loads."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+from benchmarks import tune_planner
+from env.errors import UserError
+from env.variant import Variant
+from llm_agents.planning import PlanLimits
+from llm_agents.planning.loop import _Prompter
+
+TUNE_MISSING = [n for n in tune_planner.TUNE_PACKAGES if importlib.util.find_spec(n) is None]
+needs_tune = pytest.mark.skipif(
+    bool(TUNE_MISSING),
+    reason=f"the tune extra is not installed ({', '.join(TUNE_MISSING)}): pip install -e '.[tune]'",
+)
+
+
+def _write(path: Path, rows: list[dict]) -> Path:
+    path.write_text("".join(json.dumps(row) + "\n" for row in rows))
+    return path
+
+
+def test_method_follows_the_keys(tmp_path: Path) -> None:
+    sft = _write(tmp_path / "sft.jsonl", [{"prompt": "a", "completion": "1. b"}] * 3)
+    dpo = _write(tmp_path / "dpo.jsonl", [{"prompt": "a", "chosen": "1. b", "rejected": "1. c"}])
+    assert tune_planner.read_lines(sft) == ("sft", [{"prompt": "a", "completion": "1. b"}] * 3)
+    assert tune_planner.read_lines(sft, limit=2)[1] == [{"prompt": "a", "completion": "1. b"}] * 2
+    assert tune_planner.read_lines(dpo)[0] == "dpo"
+
+
+@pytest.mark.parametrize(
+    ("lines", "message"),
+    [
+        (["{not json"], ":1 is not JSON"),
+        (["[1, 2]"], "1 is not a JSON object"),
+        ([json.dumps({"prompt": "a", "plan": "b"})], r"neither prompt\+completion"),
+        (
+            [json.dumps({"prompt": "a", "completion": "b"}), json.dumps({"prompt": "a"})],
+            "2 lacks completion",
+        ),
+        ([""], "holds no examples"),
+    ],
+)
+def test_bad_files_are_refused(tmp_path: Path, lines: list[str], message: str) -> None:
+    path = tmp_path / "data.jsonl"
+    path.write_text("\n".join(lines))
+    with pytest.raises(UserError, match=message):
+        tune_planner.read_lines(path)
+
+
+def test_the_planner_prompt_is_put_back_into_its_chat() -> None:
+    planner = _Prompter(PlanLimits(), Variant.FULL, None).plan("Make a wooden pickaxe.")
+    system, user = (m.content for m in planner)
+    chats = tune_planner.PlannerChats(Variant.FULL, None)
+    # Joined into one string, as a non-conversational export writes it.
+    assert chats.chat(f"{system}\n\n{user}") == [
+        {"role": "system", "content": system},
+        {"role": "user", "content": user},
+    ]
+    # A bare instruction gets the planner's whole prompt around it, and is counted.
+    assert chats.chat("Make a wooden pickaxe.") == [
+        {"role": "system", "content": system},
+        {"role": "user", "content": user},
+    ]
+    assert chats.rebuilt == 1
+    conversation = [{"role": "user", "content": "x"}]
+    assert chats.chat(conversation) is conversation
+
+
+def test_a_bad_file_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    data = _write(tmp_path / "data.jsonl", [{"prompt": "a"}])
+    assert tune_planner.main(["train", str(data), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err
+    assert not (tmp_path / "out").exists()
+
+
+# Short prompts in the planner's shape (a system block, then "Instruction: ..."), so a few
+# optimizer steps take seconds; the completions are plans the untuned model does not write.
+TRAIN = [
+    {"prompt": "Write a plan.\n\nInstruction: Get wood.", "completion": "1. Collect wood."},
+    {"prompt": "Write a plan.\n\nInstruction: Get stone.", "completion": "1. Collect stone."},
+]
+
+
+@needs_tune
+@pytest.mark.slow
+def test_tuning_runs_and_the_saved_model_plans_differently(tmp_path: Path) -> None:
+    from llm_agents.backends import get_model
+    from llm_agents.backends.base import ChatMessage, GenerateConfig
+
+    data = _write(tmp_path / "sft.jsonl", TRAIN)
+    out = tmp_path / "tuned"
+    record = tune_planner.train(
+        tune_planner.TuneSettings(
+            model="hf:smollm2-135m",
+            data=data,
+            out=out,
+            max_steps=12,
+            learning_rate=2e-3,
+            batch_size=2,
+            grad_accum=1,
+        )
+    )
+    assert record.method == "sft" and record.examples == 2 and record.steps == 12
+    assert record.prompts_rebuilt == 0
+    assert record.last_loss is not None and record.first_loss is not None
+    assert record.last_loss < record.first_loss
+    sidecar = json.loads((out / tune_planner.SIDECAR).read_text())
+    assert sidecar["data_sha256"] == tune_planner._sha256(data)
+    # No scratch folder left beside the model.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sft.jsonl", "tuned"]
+
+    chat = [
+        ChatMessage(role="system", content="Write a plan."),
+        ChatMessage(role="user", content="Instruction: Get wood."),
+    ]
+    config = GenerateConfig(max_tokens=12)
+    before = get_model("hf:smollm2-135m", config).generate([chat])[0].text
+    after = get_model(f"hf:{out}", config).generate([chat])[0].text
+    assert after != before
+    assert after.strip().startswith("1. Collect wood.")
+
+
+@needs_tune
+def test_an_existing_output_folder_is_refused(tmp_path: Path) -> None:
+    data = _write(tmp_path / "sft.jsonl", TRAIN)
+    (tmp_path / "tuned").mkdir()
+    settings = tune_planner.TuneSettings(model="hf:smollm2-135m", data=data, out=tmp_path / "tuned")
+    with pytest.raises(UserError, match="exists"):
+        tune_planner.train(settings)
