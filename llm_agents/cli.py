@@ -214,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Ask a planner model for a plan of at most --max-steps numbered steps for "
         "every instruction and paraphrase of the chosen categories. Resumes by default.",
     )
+    _plan_score_parser(commands)
     _settings_command(
         commands,
         "ground",
@@ -224,6 +225,61 @@ def build_parser() -> argparse.ArgumentParser:
         "per-field precision and recall, confusions. Resumes like eval; `report` prints it.",
     )
     return parser
+
+
+def _plan_score_parser(commands: Any) -> None:
+    score = commands.add_parser(
+        "plan-score",
+        help="score plans by playing them: each step read into a skill, the skills played in "
+        "seeded worlds, the instruction's checker scoring each episode",
+        description="Read a plans file ({text: plan}) or a candidates file ({text: [plan, "
+        "...]}), read each step into the skills catalogue's skills, play them in order, "
+        "strictly, in --worlds seeded worlds per text, and write OUT/scores.json (per plan: "
+        "success with its interval, steps read and unread, first failures; per split) and "
+        "OUT/best.json (each text's best plan). Resumes by default.",
+    )
+    score.add_argument("plans", help="the plans or candidates JSON file")
+    score.add_argument("--out", required=True, metavar="DIR", help="the folder to write")
+    score.add_argument("--worlds", type=int, default=4, metavar="K", help="worlds per plan (4)")
+    score.add_argument("--seed", type=int, default=0, help="the worlds' seed (0)")
+    score.add_argument("--dataset", help="dataset source (as eval's --dataset)")
+    score.add_argument(
+        "--variant", choices=["full", "classic"], default=None, help="Craftax variant (full)"
+    )
+    score.add_argument(
+        "--splits",
+        action="append",
+        help="score only texts of these dataset splits (comma-separated or repeated)",
+    )
+    score.add_argument("--limit", type=int, metavar="N", help="score only the first N texts")
+    score.add_argument(
+        "--skip-unknown-texts",
+        action="store_true",
+        help="skip texts the dataset does not have instead of refusing the file",
+    )
+    score.add_argument(
+        "--batch-size", type=int, default=32, metavar="N", help="episodes in flight (32)"
+    )
+    score.add_argument(
+        "--skill-steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="steps one skill may take before it fails (60)",
+    )
+    score.add_argument(
+        "--export",
+        action="append",
+        choices=["sft", "dpo"],
+        help="also write OUT/sft.jsonl (plans at or above --threshold) or OUT/dpo.jsonl "
+        "(better against worse candidates by --margin); repeatable",
+    )
+    score.add_argument("--threshold", type=float, default=0.5, help="sft: least success rate (0.5)")
+    score.add_argument(
+        "--margin", type=float, default=0.25, help="dpo: least difference of success (0.25)"
+    )
+    score.add_argument("--restart", action="store_true", help="discard OUT's journal")
+    score.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
 def _settings(args: argparse.Namespace) -> Any:
@@ -583,11 +639,54 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plan_score(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from llm_agents.planning.scoring import ScoreConfig, score_plans
+
+    given = {
+        "plans": Path(args.plans),
+        "out": Path(args.out),
+        "worlds": args.worlds,
+        "seed": args.seed,
+        "dataset": args.dataset,
+        "splits": tuple(
+            part.strip() for value in args.splits or [] for part in value.split(",") if part.strip()
+        ),
+        "limit": args.limit,
+        "skip_unknown_texts": args.skip_unknown_texts,
+        "batch_size": args.batch_size,
+        "export": tuple(dict.fromkeys(args.export or [])),
+        "threshold": args.threshold,
+        "margin": args.margin,
+        "restart": args.restart,
+    }
+    if args.variant is not None:
+        given["variant"] = args.variant
+    if args.skill_steps is not None:
+        given["skill_steps"] = args.skill_steps
+    try:
+        config = ScoreConfig.model_validate(given)
+    except ValidationError as err:
+        first = err.errors()[0]
+        where = "--" + "-".join(str(part) for part in first["loc"]).replace("_", "-")
+        raise UserError(f"{where}: {first['msg']}") from None
+    summary = score_plans(config, progress=_progress_bar(not args.no_progress))
+    exports = "".join(f"\n{kind}: {lines} lines" for kind, lines in summary.exports.items())
+    print(
+        f"{summary.texts} texts, {summary.plans} plans, {summary.episodes} episodes "
+        f"({summary.resumed} resumed) in {summary.wall_s:.1f} s\n"
+        f"scores: {summary.scores}\nbest: {summary.best}{exports}"
+    )
+    return 0
+
+
 COMMANDS = {
     "eval": cmd_eval,
     "report": cmd_report,
     "view": cmd_view,
     "plan": cmd_plan,
+    "plan-score": cmd_plan_score,
     "ground": cmd_ground,
     "data": cmd_data,
     "export": cmd_export,

@@ -253,7 +253,9 @@ class SkillRun:
             fed = obs.vitals.food > last.vitals.food or new & {"EAT_COW", "EAT_PLANT"}
             return Finished("succeeded") if fed else None
         if name == "drink":
-            return Finished("succeeded") if obs.vitals.drink > last.vitals.drink else None
+            # Drinking with a full thirst bar still counts (the achievement says so).
+            drank = obs.vitals.drink > last.vitals.drink or "COLLECT_DRINK" in new
+            return Finished("succeeded") if drank else None
         if name == "sleep":
             woke = self.was_sleeping and not obs.sleeping
             self.was_sleeping = self.was_sleeping or obs.sleeping

@@ -163,6 +163,16 @@ class _Prompter:
         return _messages(render_blocks(REPAIR_TEMPLATE, context, self.templates_dir))
 
 
+def planner_messages(
+    instruction: str,
+    limits: PlanLimits | None = None,
+    variant: Variant = Variant.FULL,
+    templates_dir: str | Path | None = None,
+) -> list[ChatMessage]:
+    """The request `plan` sends the planner model for one instruction."""
+    return _Prompter(limits or PlanLimits(), variant, templates_dir).plan(instruction)
+
+
 # ---------------------------------------------------------------- planning
 
 
