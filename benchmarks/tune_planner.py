@@ -40,8 +40,9 @@ from env.errors import UserError
 from env.variant import Variant
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import local_model_path
-from llm_agents.planning import PlanLimits
-from llm_agents.planning.loop import _Prompter
+from llm_agents.planning.loop import planner_messages
+from llm_agents.planning.records import PlanScore
+from llm_agents.run_data.metrics import SuccessRate, clustered_rate
 
 TUNE_PACKAGES = ("torch", "transformers", "peft", "trl", "datasets")
 INSTALL_HINT = "pip install -e '.[tune]'"
@@ -151,8 +152,8 @@ class PlannerChats:
     _SENTINEL = "\x00instruction\x00"
 
     def __init__(self, variant: Variant, templates_dir: str | None) -> None:
-        self._prompter = _Prompter(PlanLimits(), variant, templates_dir)
-        user = self._prompter.plan(self._SENTINEL)[-1].content
+        self.variant, self.templates_dir = variant, templates_dir
+        user = planner_messages(self._SENTINEL, None, variant, templates_dir)[-1].content
         #: What the user block says before the instruction ("Instruction: ").
         self.user_prefix = user.split(self._SENTINEL)[0]
         self.rebuilt = 0
@@ -162,12 +163,12 @@ class PlannerChats:
             return prompt
         system, found, instruction = prompt.rpartition(self.user_prefix)
         if found and self.user_prefix:
-            messages = [{"role": "user", "content": f"{self.user_prefix}{instruction}".strip()}]
-            return ([{"role": "system", "content": system.strip()}] if system.strip() else []) + (
-                messages
-            )
+            user = [{"role": "user", "content": f"{self.user_prefix}{instruction}".strip()}]
+            head = [{"role": "system", "content": system.strip()}] if system.strip() else []
+            return head + user
         self.rebuilt += 1
-        return [{"role": m.role, "content": m.content} for m in self._prompter.plan(prompt.strip())]
+        messages = planner_messages(prompt.strip(), None, self.variant, self.templates_dir)
+        return [{"role": m.role, "content": m.content} for m in messages]
 
 
 def answer(text: str | Chat) -> Chat:
@@ -297,6 +298,101 @@ def train(settings: TuneSettings) -> TuneRecord:
     return record
 
 
+# ---------------------------------------------------------------- before and after
+
+
+def read_scores(path: Path) -> list[PlanScore]:
+    """The plans of a `plan-score` folder's scores.json (or the file itself)."""
+    path = path / "scores.json" if path.is_dir() else path
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        return [PlanScore.model_validate(plan) for plan in data["plans"]]
+    except OSError as error:
+        raise UserError(f"cannot read {path}: {error.strerror}") from None
+    except (json.JSONDecodeError, KeyError, TypeError, ValidationError):
+        raise UserError(f"{path} is no plan-score scores.json") from None
+
+
+class Difference(BaseModel):
+    """After minus before over the texts both scored, with a 95% normal interval clustered by
+    goal (the same worlds play both plans of a text, so the texts pair up)."""
+
+    texts: int
+    rate: float
+    low: float
+    high: float
+
+
+def paired_difference(before: list[PlanScore], after: list[PlanScore]) -> Difference | None:
+    """The first candidates' success, after minus before, on the texts both files scored."""
+    first_before = {s.instruction: s for s in before if s.candidate == 0}
+    pairs = [(first_before[s.instruction], s) for s in after if s.candidate == 0]
+    pairs = [(b, a) for b, a in pairs if b.success.episodes == a.success.episodes]
+    if not pairs:
+        return None
+    goals: dict[str, list[int]] = {}
+    for b, a in pairs:
+        goal = goals.setdefault(b.goal_id, [0, 0])
+        goal[0] += a.success.successes - b.success.successes
+        goal[1] += a.success.episodes
+    trials = sum(m for _, m in goals.values())
+    rate = sum(d for d, _ in goals.values()) / trials
+    variance = sum((d - rate * m) ** 2 for d, m in goals.values()) / trials**2
+    half = 1.96 * variance**0.5 * (len(goals) / (len(goals) - 1) if len(goals) > 1 else 1) ** 0.5
+    return Difference(texts=len(pairs), rate=rate, low=rate - half, high=rate + half)
+
+
+def first_candidates(scores: list[PlanScore], split: str) -> SuccessRate | None:
+    """Best-of-1: each text's first candidate, clustered by goal."""
+    chosen = [s for s in scores if s.split == split and s.candidate == 0]
+    if not chosen:
+        return None
+    return clustered_rate((s.goal_id, s.success.successes, s.success.episodes) for s in chosen)
+
+
+def failure_reasons(scores: list[PlanScore], split: str, top: int = 4) -> list[str]:
+    """The commonest first failures of the first candidates' episodes."""
+    counts: dict[str, int] = {}
+    for score in scores:
+        if score.split == split and score.candidate == 0:
+            for failure in score.failures:
+                key = f"{failure.skill or '-'}: {failure.reason}"
+                counts[key] = counts.get(key, 0) + failure.episodes
+    ranked = sorted(counts.items(), key=lambda item: (-item[1], item[0]))[:top]
+    return [f"{n} x {key}" for key, n in ranked]
+
+
+def compare(before: Path, after: Path) -> str:
+    """Best-of-1 success per split, before and after, side by side, with the difference."""
+    old, new = read_scores(before), read_scores(after)
+    lines = ["| split | before | after | after - before |", "|---|---|---|---|"]
+    reasons = []
+    for split in sorted({s.split for s in old} | {s.split for s in new}):
+        rates = [first_candidates(scores, split) for scores in (old, new)]
+        cells = [rate.cell() if rate else "-" for rate in rates]
+        diff = paired_difference(
+            [s for s in old if s.split == split], [s for s in new if s.split == split]
+        )
+        delta = (
+            f"{diff.rate:+.2f} [{diff.low:+.2f}, {diff.high:+.2f}] n={diff.texts} texts"
+            if diff
+            else "-"
+        )
+        lines.append(f"| {split} | {cells[0]} | {cells[1]} | {delta} |")
+        for label, scores in (("before", old), ("after", new)):
+            reasons.append(f"{split} {label}: " + "; ".join(failure_reasons(scores, split)))
+    unread = [sum(s.unread for s in scores if s.candidate == 0) for scores in (old, new)]
+    steps = [sum(len(s.steps) for s in scores if s.candidate == 0) for scores in (old, new)]
+    lines += [
+        "",
+        f"steps unread: before {unread[0]} of {steps[0]}, after {unread[1]} of {steps[1]}",
+        "commonest first failures (episodes):",
+        *(f"  {line}" for line in reasons),
+        f"before: {before}\nafter: {after}",
+    ]
+    return "\n".join(lines)
+
+
 # ---------------------------------------------------------------- command line
 
 
@@ -340,6 +436,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--variant", default=defaults.variant.value, choices=[v.value for v in Variant]
     )
     tune.add_argument("--templates-dir", default=None)
+    side = commands.add_parser(
+        "compare", help="best-of-1 success of two plan-score folders, side by side"
+    )
+    side.add_argument("before", type=Path, help="plan-score folder of the untuned model's plans")
+    side.add_argument("after", type=Path, help="plan-score folder of the tuned model's plans")
     args = parser.parse_args(argv)
     try:
         if args.command == "train":
@@ -349,6 +450,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{record.steps} steps, loss {record.first_loss} -> {record.last_loss}, "
                 f"{record.seconds:.0f} s)\nmodel: {args.out} (plan with --model hf:{args.out})"
             )
+        else:
+            print(compare(args.before, args.after))
     except ValidationError as error:
         first = error.errors()[0]
         print(

@@ -12,8 +12,8 @@ import pytest
 from benchmarks import tune_planner
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.planning import PlanLimits
-from llm_agents.planning.loop import _Prompter
+from llm_agents.planning.export import planner_prompt_text
+from llm_agents.planning.loop import planner_messages
 
 TUNE_MISSING = [n for n in tune_planner.TUNE_PACKAGES if importlib.util.find_spec(n) is None]
 needs_tune = pytest.mark.skipif(
@@ -56,11 +56,11 @@ def test_bad_files_are_refused(tmp_path: Path, lines: list[str], message: str) -
 
 
 def test_the_planner_prompt_is_put_back_into_its_chat() -> None:
-    planner = _Prompter(PlanLimits(), Variant.FULL, None).plan("Make a wooden pickaxe.")
+    planner = planner_messages("Make a wooden pickaxe.", None, Variant.CLASSIC)
     system, user = (m.content for m in planner)
-    chats = tune_planner.PlannerChats(Variant.FULL, None)
-    # Joined into one string, as a non-conversational export writes it.
-    assert chats.chat(f"{system}\n\n{user}") == [
+    chats = tune_planner.PlannerChats(Variant.CLASSIC, None)
+    # As plan-score's export writes it: one string, the blocks joined.
+    assert chats.chat(planner_prompt_text("Make a wooden pickaxe.", None, Variant.CLASSIC)) == [
         {"role": "system", "content": system},
         {"role": "user", "content": user},
     ]
