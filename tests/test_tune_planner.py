@@ -12,6 +12,7 @@ import pytest
 from benchmarks import tune_planner
 from env.errors import UserError
 from env.variant import Variant
+from llm_agents.run_data.metrics import SuccessRate
 from llm_agents.planning.export import planner_prompt_text
 from llm_agents.planning.loop import planner_messages
 
@@ -136,3 +137,57 @@ def test_an_existing_output_folder_is_refused(tmp_path: Path) -> None:
     settings = tune_planner.TuneSettings(model="hf:smollm2-135m", data=data, out=tmp_path / "tuned")
     with pytest.raises(UserError, match="exists"):
         tune_planner.train(settings)
+
+
+def _score(text: str, goal: str, hits: int, worlds: int = 4, candidate: int = 0) -> dict:
+    return {
+        "instruction": text,
+        "candidate": candidate,
+        "plan": "1. Collect wood.",
+        "steps": [{"number": 1, "text": "Collect wood.", "skills": ["collect wood"]}],
+        "goal_id": goal,
+        "split": "easy_test_other_params",
+        "success": SuccessRate.of(hits, worlds).model_dump(mode="json"),
+        "env_steps": 10,
+        "failures": (
+            [{"step": 1, "skill": "collect wood", "reason": "no tree", "episodes": worlds - hits}]
+            if hits < worlds
+            else []
+        ),
+    }
+
+
+def _scores_dir(path: Path, plans: list[dict]) -> Path:
+    path.mkdir()
+    (path / "scores.json").write_text(json.dumps({"settings": {}, "splits": {}, "plans": plans}))
+    return path
+
+
+def test_compare_puts_best_of_one_side_by_side(tmp_path: Path) -> None:
+    before = _scores_dir(
+        tmp_path / "before",
+        [
+            _score("a", "g1", 0),
+            _score("b", "g1", 1),
+            _score("c", "g2", 0),
+            _score("a", "g1", 4, candidate=1),
+        ],
+    )
+    after = _scores_dir(
+        tmp_path / "after", [_score("a", "g1", 4), _score("b", "g1", 3), _score("c", "g2", 0)]
+    )
+    old, new = tune_planner.read_scores(before), tune_planner.read_scores(after)
+    # Only first candidates count: best-of-1.
+    first = tune_planner.first_candidates(old, "easy_test_other_params")
+    assert first is not None and (first.successes, first.episodes, first.clusters) == (1, 12, 2)
+    diff = tune_planner.paired_difference(old, new)
+    assert diff is not None and diff.texts == 3
+    assert diff.rate == pytest.approx((4 + 3 - 1) / 12)
+    assert diff.low < diff.rate < diff.high
+    table = tune_planner.compare(before, after)
+    assert "| easy_test_other_params | 0.08 " in table and "| 0.58 " in table
+    assert "+0.50" in table
+    # The failed episodes of the first candidates: before 4 + 3 + 4, after 0 + 1 + 4.
+    assert "easy_test_other_params before: 11 x collect wood: no tree" in table
+    assert "easy_test_other_params after: 5 x collect wood: no tree" in table
+    assert tune_planner.main(["compare", str(before), str(tmp_path / "missing")]) == 2
