@@ -12,9 +12,9 @@ import pytest
 from benchmarks import tune_planner
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.run_data.metrics import SuccessRate
 from llm_agents.planning.export import planner_prompt_text
 from llm_agents.planning.loop import planner_messages
+from llm_agents.run_data.metrics import SuccessRate
 
 TUNE_MISSING = [n for n in tune_planner.TUNE_PACKAGES if importlib.util.find_spec(n) is None]
 needs_tune = pytest.mark.skipif(
