@@ -112,9 +112,7 @@ class Harness:
 
     def __init__(self, official: Callable[[str], Any], variant: Variant, steps: int):
         self.variant, self.steps = variant, steps
-        self.env = CrafTextEnv(
-            EnvConfig(variant=variant, max_steps=steps, success_rule="official")
-        )
+        self.env = CrafTextEnv(EnvConfig(variant=variant, max_steps=steps, success_rule="official"))
         craftax, params = self.env.craftax, self.env.params
         self.reset = jax.jit(self.env.reset)
         self.batch_step = jax.jit(self.env.step_batch)
@@ -168,12 +166,21 @@ class Harness:
 
         return jax.jit(verdicts)
 
-    def episode(self, key: np.ndarray, actions: np.ndarray, start: Any | None = None) -> Episode:
+    def episode(
+        self,
+        key: np.ndarray,
+        actions: np.ndarray,
+        start: Any | None = None,
+        kill_at: int | None = None,
+    ) -> Episode:
         """Play `actions` from the world of episode `key` (or the game state `start`) until the
-        game ends, with our env's step keys."""
+        game ends, with our env's step keys; with `kill_at`, the player is killed before that
+        step (0-based), so it ends the game."""
         game = start if start is not None else self.start(key)
         previous, after, done, taken = [], [], [], []
         for step in range(self.steps):
+            if step == kill_at:
+                game = killed(game)
             step_key = jax.random.fold_in(jnp.asarray(key), step)
             action = jnp.int32(actions[step])
             next_game, ended = self.auto_reset_step(step_key, game, action)
@@ -215,8 +222,15 @@ class Harness:
             ended.append(np.asarray(over))
         return _outcomes(np.stack(met), np.stack(ended))
 
-    def ours(self, key: np.ndarray, goals: Sequence[AnyGoal], episode: Episode) -> list[Outcome]:
-        """Each goal's outcome in our env, one row per goal, from the episode's first state."""
+    def ours(
+        self,
+        key: np.ndarray,
+        goals: Sequence[AnyGoal],
+        episode: Episode,
+        kill_at: int | None = None,
+    ) -> list[Outcome]:
+        """Each goal's outcome in our env, one row per goal, from the episode's first state (the
+        player killed before step `kill_at`, as in `episode`)."""
         tasks = encode_goals(goals, self.variant)
         rows = len(goals)
         first = jax.tree.map(lambda leaf: leaf[0], episode.previous)
@@ -229,6 +243,8 @@ class Harness:
         )
         successes, ends = [], []
         for step in range(len(episode.actions)):
+            if step == kill_at:
+                state = state.replace(game=killed(state.game))
             state, info = self.batch_step(state, jnp.full(rows, episode.actions[step], jnp.int32))
             termination = np.asarray(info.termination)
             successes.append(termination == Termination.SUCCESS)
@@ -240,6 +256,13 @@ class Harness:
         if len(met) == self.steps:
             ended[-1] &= met[-1] | episode.done[-1]
         return _outcomes(met, ended)
+
+
+def killed(game: Any) -> Any:
+    """`game` with the player at 0 health and no recovery: the next step ends the game."""
+    return game.replace(
+        player_health=game.player_health * 0, player_recover=game.player_recover * 0
+    )
 
 
 def _outcomes(met: np.ndarray, ended: np.ndarray) -> list[Outcome]:
@@ -268,6 +291,7 @@ def compare(
     worlds: Sequence[np.ndarray],
     actions: Sequence[np.ndarray],
     starts: Sequence[Any] | None = None,
+    kills: Sequence[int | None] | None = None,
 ) -> tuple[dict[str, Tally], list[str]]:
     """Every (world, text) pair of `splits` scored by both; the tallies per split and kind, and
     a line per disagreeing (world, goal)."""
@@ -275,8 +299,9 @@ def compare(
     tallies: dict[str, Tally] = {}
     differences: list[str] = []
     target_state = official("craftext.environment.scenarious.checkers.target_state").TargetState
+    kills = kills if kills is not None else [None] * len(worlds)
     episodes = [
-        harness.episode(key, acts, None if starts is None else starts[w])
+        harness.episode(key, acts, None if starts is None else starts[w], kills[w])
         for w, (key, acts) in enumerate(zip(worlds, actions, strict=True))
     ]
     for split in splits:
@@ -287,7 +312,7 @@ def compare(
         checkers = np.asarray([int(entries[goal.id]["scenario_checker"]) for goal in goals])
         for w, (key, episode) in enumerate(zip(worlds, episodes, strict=True)):
             theirs = harness.official(episode, targets, checkers)
-            ours = harness.ours(key, goals, episode)
+            ours = harness.ours(key, goals, episode, kills[w])
             for goal, mine, official_outcome in zip(goals, ours, theirs, strict=True):
                 texts = 1 + len(goal.paraphrases)
                 tally = tallies.setdefault(f"{split}/{goal.kind}", Tally())
@@ -338,8 +363,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     tallies, differences = compare(
         harness, official, root, DIFFICULTY_SPLITS[args.difficulty], keys, actions
     )
-    print(f"{args.difficulty}, {variant.value}, {args.worlds} worlds x {args.steps} steps, seed "
-          f"{args.seed}: (world, text) pairs, agreeing, official successes (on the game-over step)")
+    print(
+        f"{args.difficulty}, {variant.value}, {args.worlds} worlds x {args.steps} steps, seed "
+        f"{args.seed}: (world, text) pairs, agreeing, official successes (on the game-over step)"
+    )
     for name, t in sorted(tallies.items()):
         print(f"  {name}: {t.pairs}, {t.agree}, {t.successes} ({t.game_over_successes})")
     total = Tally(*(sum(getattr(t, f) for t in tallies.values()) for f in Tally.__annotations__))
