@@ -25,7 +25,6 @@ import functools
 import importlib
 import sys
 import types
-from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
