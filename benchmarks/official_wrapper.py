@@ -243,7 +243,13 @@ class Harness:
         successes, ends = [], []
         for step in range(len(episode.actions)):
             if step == kill_at:
-                state = state.replace(game=killed(state.game))
+                state = EpisodeState(
+                    game=killed(state.game),
+                    task=state.task,
+                    episode_key=state.episode_key,
+                    steps=state.steps,
+                    termination=state.termination,
+                )
             state, info = self.batch_step(state, jnp.full(rows, episode.actions[step], jnp.int32))
             termination = np.asarray(info.termination)
             successes.append(termination == Termination.SUCCESS)
@@ -308,6 +314,9 @@ def compare(
         entries = getattr(official(f"craftext.dataset.scenarious.SMALL.{module}"), variable)
         goals = dataset.split(split)
         targets = target_state.stack([entries[goal.id]["arguments"] for goal in goals])
+        if harness.variant is Variant.FULL:
+            count = episodes[0].previous.achievements.shape[-1]
+            targets = _padded_achievements(targets, official, count)
         checkers = np.asarray([int(entries[goal.id]["scenario_checker"]) for goal in goals])
         for w, (key, episode) in enumerate(zip(worlds, episodes, strict=True)):
             theirs = harness.official(episode, targets, checkers)
@@ -328,6 +337,20 @@ def compare(
                         f"{mine}, official {official_outcome}, game over at {episode.game_over}"
                     )
     return tallies, differences
+
+
+def _padded_achievements(targets: Any, official: Callable[[str], Any], count: int) -> Any:
+    """`targets` with their achievement masks padded (`NOT_MATTER`) to full Craftax's `count`.
+
+    The wrapper's `lax.switch` traces every checker, and the achievements checker compares its
+    22-entry mask with the state's achievements, which fails to trace on full Craftax: no Hard
+    goal is an achievements goal, so the branch is traced but never taken, and padding its
+    mask changes no verdict."""
+    checkers = official("craftext.environment.scenarious.checkers.target_state")
+    mask = tuple(targets.achievements.achievement_mask)
+    fill = jnp.full_like(mask[0], int(checkers.AchievementState.NOT_MATTER))
+    padded = mask + (fill,) * (count - len(mask))
+    return targets.replace(achievements=targets.achievements.replace(achievement_mask=padded))
 
 
 def world_keys(seed: int, count: int) -> list[np.ndarray]:
