@@ -81,7 +81,7 @@ class Cell(BaseModel):
 
 def build_workload(max_tokens: int) -> Workload:
     """Agent-like prompts over the classic action set (17 names)."""
-    from llm_agents.agents.actions import action_names
+    from llm_agents.agents.answers.actions import action_names
 
     names = list(action_names("classic"))
     system = (
@@ -119,8 +119,8 @@ def build_realistic_steps(
 
     import env
     import textualizer
+    from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
     from llm_agents.agents.types import EpisodeStart
-    from llm_agents.agents.zero_shot import ZeroShotAgent
 
     craftext = env.CrafTextEnv(env.EnvConfig(variant=env.Variant(variant)))
     goals = env.load_dataset().goals
@@ -128,7 +128,7 @@ def build_realistic_steps(
     required[0] = True
     task = env.make_task(required, np.zeros(22, dtype=bool))
     reset, step = jax.jit(craftext.reset), jax.jit(craftext.step_from_episode_key)
-    from llm_agents.agents.actions import action_names
+    from llm_agents.agents.answers.actions import action_names
 
     agent = ZeroShotAgent(variant=variant, choice_rule=choice_rule)
     names = list(action_names(agent.variant))

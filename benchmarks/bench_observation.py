@@ -29,8 +29,8 @@ from env.frames import AGENT_BLOCK_SIZES, frame_shape
 from env.open_ended import OPEN_ENDED_GOAL
 from env.scenario_tasks import encode_goals
 from llm_agents.agents.registry import ObservationMode
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.agents.types import EpisodeStart
-from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ImagePart, openai_message
 from textualizer import observe_batch
 

@@ -144,8 +144,8 @@ def measure(variant: Variant, batch: int, work_ms: float | None, repeats: int) -
 def _runner_work(vector: VectorEnv) -> Callable[[], None]:
     """The runner's host work for every world of the batch, on its current state: observations,
     then each episode's zero-shot step prompt."""
+    from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
     from llm_agents.agents.types import EpisodeStart
-    from llm_agents.agents.zero_shot import ZeroShotAgent
     from textualizer import observe_batch
 
     agent = ZeroShotAgent(vector.variant)

@@ -20,7 +20,7 @@ from functools import partial
 from pathlib import Path
 
 from env.variant import Variant
-from llm_agents.agents.parser import parse_action
+from llm_agents.agents.answers.parser import parse_action
 
 BALROG = (
     Path(__file__).resolve().parents[1].parent / "shared" / "data" / "balrog_crafter_outputs.jsonl"

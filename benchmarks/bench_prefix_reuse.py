@@ -47,8 +47,8 @@ class Side:
     """One configuration's agents, worlds and prefix store."""
 
     def __init__(self, name: str, store: Any, instructions: list[str], variant: str, world: Any):
+        from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
         from llm_agents.agents.types import EpisodeStart
-        from llm_agents.agents.zero_shot import ZeroShotAgent
 
         self.name, self.store, self.world = name, store, world
         self.agent = ZeroShotAgent(variant=variant)

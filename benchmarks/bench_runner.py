@@ -36,8 +36,11 @@ PARTS = {
     "env step": ("env:VectorEnv", "step"),
     "env refill": ("env:VectorEnv", "refill"),
     "observe": ("textualizer", "observe_batch"),
-    "prompt (render text, template)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "prepare"),
-    "decide (parse, hash)": ("llm_agents.agents.zero_shot:ZeroShotAgent", "decide"),
+    "prompt (render text, template)": (
+        "llm_agents.agents.strategies.zero_shot:ZeroShotAgent",
+        "prepare",
+    ),
+    "decide (parse, hash)": ("llm_agents.agents.strategies.zero_shot:ZeroShotAgent", "decide"),
     "records + JSON lines": ("llm_agents.evaluation.sink:RunSink", "record"),
     "  of which results.json": ("llm_agents.evaluation.sink:RunSink", "save"),
 }

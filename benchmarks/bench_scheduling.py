@@ -103,8 +103,8 @@ def lockstep(config: Any, env: Any, model: Any) -> None:
 
     from env import VectorEnv, episode_key, goal_masks
     from env.dataset import load_dataset
+    from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
     from llm_agents.agents.types import EpisodeStart
-    from llm_agents.agents.zero_shot import ZeroShotAgent
     from llm_agents.evaluation.schedule import build_schedule
     from textualizer import observe_batch
 

@@ -21,8 +21,8 @@ from pathlib import Path
 
 from env.dataset import load_dataset
 from env.variant import Variant
-from llm_agents.agents.skill_catalogue import skill_offer
-from llm_agents.agents.skill_demos import planned_skills
+from llm_agents.agents.skills.catalogue import skill_offer
+from llm_agents.agents.skills.demos import planned_skills
 from llm_agents.run_data.readings import reading_of
 
 

@@ -4,7 +4,7 @@ import pytest
 
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.agents.actions import action_catalogue, action_id, action_names
+from llm_agents.agents.answers.actions import action_catalogue, action_id, action_names
 
 
 def craftax_actions(variant: Variant) -> dict[str, int]:

@@ -10,8 +10,8 @@ from pydantic import BaseModel, Field
 
 from env.errors import UserError
 from env.variant import Variant
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent, describe_outcome
 from llm_agents.agents.types import Decision, EpisodeStart, messages_hash
-from llm_agents.agents.zero_shot import ZeroShotAgent, describe_outcome
 from llm_agents.backends import get_model
 from llm_agents.backends.base import ChatMessage, ChoiceRule
 from llm_agents.backends.mock import MockModel

@@ -14,14 +14,14 @@ from env.dataset import Goal
 from env.errors import UserError
 from env.variant import Variant
 from llm_agents.agents import AGENTS, NoModel, agent_class, build_agent
-from llm_agents.agents.cot import ChainOfThoughtAgent, estimate_tokens
-from llm_agents.agents.expert import ExpertAgent
-from llm_agents.agents.few_shot import FewShotAgent, load_demonstrations
-from llm_agents.agents.guided import GuidedAgent
-from llm_agents.agents.noop import NoopAgent
-from llm_agents.agents.skills import SkillsAgent
+from llm_agents.agents.strategies.cot import ChainOfThoughtAgent, estimate_tokens
+from llm_agents.agents.strategies.expert import ExpertAgent
+from llm_agents.agents.strategies.few_shot import FewShotAgent, load_demonstrations
+from llm_agents.agents.strategies.guided import GuidedAgent
+from llm_agents.agents.strategies.noop import NoopAgent
+from llm_agents.agents.strategies.skills import SkillsAgent
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.agents.types import EpisodeStart
-from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.comparison import compare_runs
 from llm_agents.evaluation.config import build_config

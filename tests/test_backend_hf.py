@@ -224,7 +224,7 @@ def test_every_scoring_rule_is_its_formula_over_plain_forward_passes(model: HFMo
 def test_letters_are_read_off_one_pass_over_the_prompt_as_the_general_path_scores_them(
     model: HFModel, split_attention: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from llm_agents.agents.lettered import label_choices, lettered
+    from llm_agents.agents.answers.lettered import label_choices, lettered
 
     # A short lettered question (the agent's own step message is tested on the mock): every
     # pass below runs over the whole prompt, and the agent's prompt is a thousand tokens.
@@ -456,7 +456,7 @@ def test_a_cut_that_would_change_the_tokens_is_never_used() -> None:
 
 @pytest.mark.slow
 def test_reusing_prompt_tokens_changes_no_answer(model: HFModel) -> None:
-    from llm_agents.agents.actions import action_names
+    from llm_agents.agents.answers.actions import action_names
 
     # What the token-level check above cannot show: `generate` (choice and free) really goes
     # through the kept tokens. A few prompts suffice; more only re-run the same path.

@@ -224,9 +224,9 @@ def real_agent_conversations(
     import numpy as np
 
     from env import ACHIEVEMENT_IDS, NUM_ACHIEVEMENTS, episode_key, make_task
-    from llm_agents.agents.actions import action_names
+    from llm_agents.agents.answers.actions import action_names
+    from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
     from llm_agents.agents.types import EpisodeStart
-    from llm_agents.agents.zero_shot import ZeroShotAgent
     from textualizer import observe
 
     agent = ZeroShotAgent("classic", choice_rule="loglik", choice_scoring=scoring)

@@ -17,9 +17,8 @@ from env.scenario_tasks import encode_goals
 from env.termination import Termination
 from env.variant import Variant
 from llm_agents.agents import NoModel
-from llm_agents.agents.actions import action_id
-from llm_agents.agents.expert import ExpertAgent
-from llm_agents.agents.expert_plan import (
+from llm_agents.agents.answers.actions import action_id
+from llm_agents.agents.expert.plan import (
     PlanContext,
     WorldMap,
     infeasible,
@@ -28,6 +27,7 @@ from llm_agents.agents.expert_plan import (
     spend_task,
     supply_task,
 )
+from llm_agents.agents.strategies.expert import ExpertAgent
 from llm_agents.agents.types import EpisodeStart
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import run_eval

@@ -13,7 +13,7 @@ from env.goal_status import INVENTORY_CAP, SPENT, impossible_reason
 from env.goals import BuildLineGoal, ConditionalPlacingGoal
 from env.scenario_tasks import CLASSIC_INVENTORY_SLOTS, INVENTORY_SLOTS
 from env.variant import Variant
-from llm_agents.agents.expert_plan import expert_cannot
+from llm_agents.agents.expert.plan import expert_cannot
 
 GAME_LOGIC = {Variant.CLASSIC: "craftax.craftax_classic", Variant.FULL: "craftax.craftax"}
 

@@ -16,8 +16,8 @@ from test_agents import Seen, text_of
 from test_prefix_reuse import NEAR_TIE, OBSERVATION, first_difference
 
 from env.variant import Variant
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.agents.types import EpisodeStart
-from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, Conversation, GenerateConfig
 from llm_agents.backends.hf import HFModel
 from llm_agents.backends.hf.prefix import PrefixStore

@@ -11,10 +11,10 @@ import pytest
 
 from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.errors import UserError
-from llm_agents.agents.actions import action_names
-from llm_agents.agents.lettered import LABELS, LetteredOptions, label_choices, lettered
+from llm_agents.agents.answers.actions import action_names
+from llm_agents.agents.answers.lettered import LABELS, LetteredOptions, label_choices, lettered
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.agents.types import EpisodeStart, StepPrompt
-from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.embedded import NAMED_MODELS, cache_root
 from llm_agents.backends.mock import MockModel
@@ -110,7 +110,7 @@ def test_few_shot_letters_its_step_after_the_demonstrations(tmp_path: Path) -> N
     from agent_steps import play_step
     from test_agents import Seen, goal, make_expert_run, text_of
 
-    from llm_agents.agents.few_shot import FewShotAgent
+    from llm_agents.agents.strategies.few_shot import FewShotAgent
 
     agent = FewShotAgent(
         Variant.CLASSIC,

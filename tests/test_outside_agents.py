@@ -223,7 +223,9 @@ def test_a_name_a_built_in_has_is_an_error_naming_both(
 
     assert code == EXIT_USER_ERROR and err.count("\n") == 1, err
     assert f"entry point zero-shot = {EXAMPLE_AGENT} of distribution greedy-agents" in err
-    assert "the built-in agent zero-shot (llm_agents.agents.zero_shot:ZeroShotAgent)" in err
+    assert (
+        "the built-in agent zero-shot (llm_agents.agents.strategies.zero_shot:ZeroShotAgent)" in err
+    )
     assert snapshot(tmp_path) == before
 
 

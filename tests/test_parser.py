@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from env.variant import Variant
-from llm_agents.agents.actions import action_catalogue, action_id, action_names
-from llm_agents.agents.parser import ParseResult, _parse_layered, _vocabulary, parse_action
+from llm_agents.agents.answers.actions import action_catalogue, action_id, action_names
+from llm_agents.agents.answers.parser import ParseResult, _parse_layered, _vocabulary, parse_action
 from prompts import render_template
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

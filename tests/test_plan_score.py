@@ -11,7 +11,7 @@ import pytest
 
 from env.dataset import Dataset, DatasetSource, Goal
 from env.variant import Variant
-from llm_agents.agents.skill_catalogue import skill_offer
+from llm_agents.agents.skills.catalogue import skill_offer
 from llm_agents.cli import main
 from llm_agents.planning.export import planner_prompt_text
 from llm_agents.planning.steps import read_plan, read_step

@@ -16,11 +16,11 @@ import torch
 from test_agents import Seen, text_of
 
 from env.variant import Variant
-from llm_agents.agents.cot import ChainOfThoughtAgent
 from llm_agents.agents.grounding import grounding_messages
-from llm_agents.agents.skills import SkillsAgent
+from llm_agents.agents.strategies.cot import ChainOfThoughtAgent
+from llm_agents.agents.strategies.skills import SkillsAgent
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.agents.types import EpisodeStart
-from llm_agents.agents.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, Conversation, GenerateConfig, ModelOutput
 from llm_agents.backends.hf import HFModel
 from llm_agents.backends.hf.prefix import PrefixStore

@@ -7,7 +7,7 @@ import pytest
 
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.agents.zero_shot import HistoryEntry, ZeroShotAgent
+from llm_agents.agents.strategies.zero_shot import HistoryEntry, ZeroShotAgent
 from prompts import (
     PACKAGE_TEMPLATES_DIR,
     load_template,

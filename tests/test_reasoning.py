@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from llm_agents.agents.parser import parse_action
+from llm_agents.agents.answers.parser import parse_action
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.backends.reasoning import (

@@ -233,7 +233,7 @@ def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
 def test_a_ctrl_c_that_something_swallows_still_stops_the_run(
     tmp_path: Path, short_env: CrafTextEnv, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from llm_agents.agents.zero_shot import ZeroShotAgent
+    from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 
     decide = ZeroShotAgent.decide
     calls = 0

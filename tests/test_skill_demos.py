@@ -17,9 +17,9 @@ from env.dataset import Dataset, load_dataset
 from env.errors import UserError
 from env.goals import DIFFICULTIES, LocalizationGoal
 from llm_agents.agents.grounding import training_examples
-from llm_agents.agents.skill_catalogue import read_skill, skill_offer
-from llm_agents.agents.skill_demos import planned_skills, skill_demos
-from llm_agents.agents.skills import SkillsAgent
+from llm_agents.agents.skills.catalogue import read_skill, skill_offer
+from llm_agents.agents.skills.demos import planned_skills, skill_demos
+from llm_agents.agents.strategies.skills import SkillsAgent
 from llm_agents.agents.types import EpisodeStart
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config

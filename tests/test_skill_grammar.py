@@ -13,10 +13,10 @@ from test_skills import observation
 
 from env import Variant
 from env.goals import DIFFICULTIES
-from llm_agents.agents.expert_navigation import ExpertEpisode
-from llm_agents.agents.skill_catalogue import read_skill, skill_offer
-from llm_agents.agents.skill_runner import valid_now
-from llm_agents.agents.skills import SkillsAgent
+from llm_agents.agents.expert.navigation import ExpertEpisode
+from llm_agents.agents.skills.catalogue import read_skill, skill_offer
+from llm_agents.agents.skills.runner import valid_now
+from llm_agents.agents.strategies.skills import SkillsAgent
 from llm_agents.agents.types import EpisodeStart, StepPrompt
 from llm_agents.backends.base import ChoiceSet, GenerateConfig, ModelOutput
 

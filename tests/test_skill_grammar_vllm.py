@@ -13,8 +13,8 @@ from test_skill_grammar import INSTRUCTIONS, guided_prompt
 from vllm_serve import START_TIMEOUT_S, VLLM_VENV, vllm_environment, vllm_environment_ready
 
 from env import Variant
-from llm_agents.agents.skill_catalogue import read_skill, skill_offer
-from llm_agents.agents.skills import SkillsAgent
+from llm_agents.agents.skills.catalogue import read_skill, skill_offer
+from llm_agents.agents.strategies.skills import SkillsAgent
 from llm_agents.backends.embedded import embedded_model_dir
 
 pytestmark = [pytest.mark.vllm, pytest.mark.slow]

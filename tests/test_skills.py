@@ -13,10 +13,10 @@ import pytest
 from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.dataset import Dataset, DatasetSource, Goal
 from env.goals import AnyGoal, BuildLineGoal, BuildSquareGoal, LocalizationGoal
-from llm_agents.agents.expert_navigation import ExpertEpisode
-from llm_agents.agents.skill_catalogue import Build, Collect, Place, parse_skill, skill_offer
-from llm_agents.agents.skill_runner import SkillRun, valid_now
-from llm_agents.agents.skills import GIVE_UP, SkillsAgent
+from llm_agents.agents.expert.navigation import ExpertEpisode
+from llm_agents.agents.skills.catalogue import Build, Collect, Place, parse_skill, skill_offer
+from llm_agents.agents.skills.runner import SkillRun, valid_now
+from llm_agents.agents.strategies.skills import GIVE_UP, SkillsAgent
 from llm_agents.agents.types import EpisodeStart, StepPrompt
 from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel

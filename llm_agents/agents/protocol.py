@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self, runtime_checkable
 
-from llm_agents.agents.actions import action_id, action_names
-from llm_agents.agents.parser import ParseResult, parse_action
+from llm_agents.agents.answers.actions import action_id, action_names
+from llm_agents.agents.answers.parser import ParseResult, parse_action
 from llm_agents.agents.registry import AgentSettings
 from llm_agents.agents.types import (
     NO_PROMPT_HASH,

@@ -14,13 +14,13 @@ from env.variant import Variant
 from llm_agents.backends.base import ChoiceRule, ChoiceScoring
 
 AGENTS: dict[str, str] = {
-    "zero-shot": "llm_agents.agents.zero_shot:ZeroShotAgent",
-    "cot": "llm_agents.agents.cot:ChainOfThoughtAgent",
-    "few-shot": "llm_agents.agents.few_shot:FewShotAgent",
-    "expert": "llm_agents.agents.expert:ExpertAgent",
-    "guided": "llm_agents.agents.guided:GuidedAgent",
-    "noop": "llm_agents.agents.noop:NoopAgent",
-    "skills": "llm_agents.agents.skills:SkillsAgent",
+    "zero-shot": "llm_agents.agents.strategies.zero_shot:ZeroShotAgent",
+    "cot": "llm_agents.agents.strategies.cot:ChainOfThoughtAgent",
+    "few-shot": "llm_agents.agents.strategies.few_shot:FewShotAgent",
+    "expert": "llm_agents.agents.strategies.expert:ExpertAgent",
+    "guided": "llm_agents.agents.strategies.guided:GuidedAgent",
+    "noop": "llm_agents.agents.strategies.noop:NoopAgent",
+    "skills": "llm_agents.agents.strategies.skills:SkillsAgent",
 }
 #: The entry-point group an installed package registers agent names under (name =
 #: `package.module:Class`); a name a built-in has is refused.

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
-from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.answers.parser import ParseResult
 from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.run_data.readings import Grounding
 from llm_agents.run_data.records import SkillRecord

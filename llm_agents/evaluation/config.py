@@ -32,7 +32,7 @@ from env.goals import DEFAULT_DIFFICULTY, DIFFICULTIES, Difficulty, check_catego
 from env.open_ended import Task
 from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
 from env.variant import DEFAULT_VARIANT, Variant
-from llm_agents.agents.actions import action_names
+from llm_agents.agents.answers.actions import action_names
 from llm_agents.agents.loading import check_agent_name
 from llm_agents.agents.registry import IMAGE_AGENTS, LETTER_AGENTS, ObservationMode
 from llm_agents.backends import parse_model_spec, redact_secrets

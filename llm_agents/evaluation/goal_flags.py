@@ -16,7 +16,7 @@ from env.dataset import load_dataset
 from env.goal_status import do_nothing_successes, goal_key, impossible_reason
 from env.goals import AnyGoal, run_category
 from env.rules import SuccessRule
-from llm_agents.agents.expert_plan import expert_cannot
+from llm_agents.agents.expert.plan import expert_cannot
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate
 from llm_agents.run_data.records import EpisodeRecord

@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 
 from env.errors import UserError
-from llm_agents.agents.actions import action_id
-from llm_agents.agents.lettered import LetteredOptions
-from llm_agents.agents.parser import parse_action
+from llm_agents.agents.answers.actions import action_id
+from llm_agents.agents.answers.lettered import LetteredOptions
+from llm_agents.agents.answers.parser import parse_action
 from llm_agents.agents.registry import PARSED_ANSWER_AGENTS
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.protocol import PROTOCOL_NAMES, normalised_setting, protocol_for

@@ -40,9 +40,9 @@ from env.scenario_tasks import encode_goals
 from llm_agents.agents import Agent, build_agent
 from llm_agents.agents.grounding import examples_digest, training_examples
 from llm_agents.agents.loading import agent_identity
-from llm_agents.agents.skill_catalogue import grammar_digest, skill_offer
-from llm_agents.agents.skill_demos import check_demo_count, demos_digest, skill_demos
-from llm_agents.agents.zero_shot import FRAMES_TEMPLATE
+from llm_agents.agents.skills.catalogue import grammar_digest, skill_offer
+from llm_agents.agents.skills.demos import check_demo_count, demos_digest, skill_demos
+from llm_agents.agents.strategies.zero_shot import FRAMES_TEMPLATE
 from llm_agents.backends import model_revision
 from llm_agents.backends.base import HUB_REVISION_KEY, ModelAPI
 from llm_agents.backends.endpoints import EndpointStats

@@ -26,7 +26,7 @@ from typing import Literal, get_args
 
 from env.goals import AnyGoal, Difficulty
 from env.variant import Variant
-from llm_agents.agents.skill_catalogue import (
+from llm_agents.agents.skills.catalogue import (
     AnySkill,
     Attack,
     Build,
@@ -36,7 +36,7 @@ from llm_agents.agents.skill_catalogue import (
     read_skill,
     skill_offer,
 )
-from llm_agents.agents.skills import STOPPED
+from llm_agents.agents.strategies.skills import STOPPED
 from llm_agents.run_data.records import EpisodeRecord, SkillRecord
 
 SkillError = Literal[

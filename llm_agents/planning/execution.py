@@ -23,10 +23,10 @@ from pydantic import BaseModel, ConfigDict
 from env.goals import AnyGoal
 from env.termination import Termination
 from env.variant import Variant
-from llm_agents.agents.actions import action_id
-from llm_agents.agents.expert_navigation import ExpertEpisode
-from llm_agents.agents.skill_catalogue import AnySkill, GoTo
-from llm_agents.agents.skill_runner import Finished, SkillRun
+from llm_agents.agents.answers.actions import action_id
+from llm_agents.agents.expert.navigation import ExpertEpisode
+from llm_agents.agents.skills.catalogue import AnySkill, GoTo
+from llm_agents.agents.skills.runner import Finished, SkillRun
 from textualizer.observation import Observation
 
 #: Blocks no world starts with: `go to` one fails at once until the plan has placed it.

@@ -24,7 +24,7 @@ from env.dataset import SPLITS, AnyGoal, check_split, load_dataset
 from env.errors import UserError
 from env.goals import difficulty_of, split_categories
 from env.variant import Variant
-from llm_agents.agents.actions import action_catalogue
+from llm_agents.agents.answers.actions import action_catalogue
 from llm_agents.backends.base import ChatMessage, ModelAPI, ModelOutput
 from llm_agents.evaluation.config import TextSelection
 from llm_agents.planning.checks import PlanCheck, PlanLimits, check_plan

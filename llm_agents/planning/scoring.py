@@ -29,7 +29,7 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import AnyGoal
 from env.variant import DEFAULT_VARIANT, Variant
-from llm_agents.agents.skill_catalogue import read_skill, skill_offer
+from llm_agents.agents.skills.catalogue import read_skill, skill_offer
 from llm_agents.planning.checks import PlanLimits, parse_plan
 from llm_agents.planning.execution import (
     SKILL_STEPS,

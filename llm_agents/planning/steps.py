@@ -17,7 +17,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from llm_agents.agents.skill_catalogue import SkillOffer, read_skill
+from llm_agents.agents.skills.catalogue import SkillOffer, read_skill
 from llm_agents.planning.records import StepReading
 
 #: Phrases of more than one word, longest first, rewritten as one token before reading.

@@ -13,8 +13,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError
+from llm_agents.agents.strategies.zero_shot import SYSTEM_TEMPLATE, ZeroShotAgent
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt
-from llm_agents.agents.zero_shot import SYSTEM_TEMPLATE, ZeroShotAgent
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from prompts import render_template
 

@@ -24,7 +24,7 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import DEFAULT_DIFFICULTY
 from env.variant import Variant, as_variant
-from llm_agents.agents.expert import ExpertAgent
+from llm_agents.agents.answers.parser import ParseResult
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
     GroundingExample,
@@ -32,8 +32,8 @@ from llm_agents.agents.grounding import (
     parse_grounding,
     training_examples,
 )
-from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
+from llm_agents.agents.strategies.expert import ExpertAgent
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ModelOutput
 from llm_agents.run_data.readings import Grounding, reading_of

@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag
 from env import craftax_names
 from env.goals import CROSS_TYPES, DIFFICULTY_KINDS, SIDES, CrossType, Difficulty, Side
 from env.variant import Variant
-from llm_agents.agents.expert_plan import RECIPES
+from llm_agents.agents.expert.plan import RECIPES
 from llm_agents.backends.reasoning import split_reasoning
 
 SkillName = Literal[

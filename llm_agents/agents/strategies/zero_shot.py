@@ -20,9 +20,14 @@ from pydantic import BaseModel, ConfigDict
 from env.errors import UserError
 from env.trusted import trusted
 from env.variant import Variant, as_variant
-from llm_agents.agents.actions import MOVE_HEADINGS, action_catalogue, action_id, action_names
-from llm_agents.agents.lettered import LetteredOptions, label_choices, lettered
-from llm_agents.agents.parser import parse_action
+from llm_agents.agents.answers.actions import (
+    MOVE_HEADINGS,
+    action_catalogue,
+    action_id,
+    action_names,
+)
+from llm_agents.agents.answers.lettered import LetteredOptions, label_choices, lettered
+from llm_agents.agents.answers.parser import parse_action
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.registry import ObservationMode
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash

@@ -14,9 +14,9 @@ from types import SimpleNamespace
 from typing import Literal
 
 from env.goals import CROSS_TYPES, SIDES
-from llm_agents.agents.expert_controllers import Controller
-from llm_agents.agents.expert_navigation import ExpertEpisode, neighbours
-from llm_agents.agents.expert_plan import (
+from llm_agents.agents.expert.controllers import Controller
+from llm_agents.agents.expert.navigation import ExpertEpisode, neighbours
+from llm_agents.agents.expert.plan import (
     FURNACE_STONE,
     INVENTORY_CAP,
     MINING,
@@ -28,7 +28,7 @@ from llm_agents.agents.expert_plan import (
     PlanContext,
     shape_offsets,
 )
-from llm_agents.agents.skill_catalogue import (
+from llm_agents.agents.skills.catalogue import (
     MATERIAL_SOURCE,
     AnySkill,
     Attack,

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict
 from env.errors import UserError
 from env.goals import AnyGoal, Difficulty
 from env.variant import Variant
-from llm_agents.agents.expert_plan import (
+from llm_agents.agents.expert.plan import (
     DO_BLOCK_ACHIEVEMENT,
     FURNACE_STONE,
     KILL_ACHIEVEMENT,
@@ -45,7 +45,7 @@ from llm_agents.agents.expert_plan import (
     supply_task,
 )
 from llm_agents.agents.grounding import GroundingExample, examples_for
-from llm_agents.agents.skill_catalogue import (
+from llm_agents.agents.skills.catalogue import (
     AnySkill,
     Attack,
     Build,

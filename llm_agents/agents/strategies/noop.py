@@ -7,8 +7,8 @@ from typing import Any, ClassVar
 
 from env.goals import AnyGoal
 from env.variant import Variant, as_variant
-from llm_agents.agents.actions import action_id
-from llm_agents.agents.parser import ParseResult
+from llm_agents.agents.answers.actions import action_id
+from llm_agents.agents.answers.parser import ParseResult
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.registry import AgentSettings
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash

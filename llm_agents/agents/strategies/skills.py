@@ -32,14 +32,14 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from env.dataset import load_dataset
 from env.errors import UserError
 from env.variant import Variant, as_variant
-from llm_agents.agents.actions import action_id
-from llm_agents.agents.expert_navigation import ExpertEpisode
+from llm_agents.agents.answers.actions import action_id
+from llm_agents.agents.answers.parser import ParseResult
+from llm_agents.agents.expert.navigation import ExpertEpisode
 from llm_agents.agents.grounding import training_examples
-from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
-from llm_agents.agents.skill_catalogue import SkillOffer, parse_skill, skill_offer
-from llm_agents.agents.skill_demos import SkillDemo, demos_for, skill_demos
-from llm_agents.agents.skill_runner import Finished, SkillRun, valid_now
+from llm_agents.agents.skills.catalogue import SkillOffer, parse_skill, skill_offer
+from llm_agents.agents.skills.demos import SkillDemo, demos_for, skill_demos
+from llm_agents.agents.skills.runner import Finished, SkillRun, valid_now
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
 from llm_agents.run_data.records import SKILL_STAGE, SkillRecord

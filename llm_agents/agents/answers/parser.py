@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict
 from rapidfuzz import fuzz, process
 
 from env.variant import Variant, as_variant
-from llm_agents.agents.actions import action_names
+from llm_agents.agents.answers.actions import action_names
 from llm_agents.backends.reasoning import split_reasoning
 
 ParseStage = Literal["field", "exact", "alias", "mention", "fuzzy", "invalid", "skill"]

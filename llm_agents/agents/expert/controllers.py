@@ -12,14 +12,14 @@ from __future__ import annotations
 
 from env.checker_geometry import LOCAL_RADIUS as _LOCAL_REACH
 from env.checker_geometry import WINDOW_RADIUS as _LINE_APART
-from llm_agents.agents.expert_navigation import (
+from llm_agents.agents.expert.navigation import (
     MOVES,
     Navigator,
     add,
     direction,
     neighbours,
 )
-from llm_agents.agents.expert_plan import (
+from llm_agents.agents.expert.plan import (
     FREE_GROUND,
     PLACE_ACTION,
     PLACE_GROUND,

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
-from llm_agents.agents.zero_shot import ZeroShotAgent
+from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.backends.base import ChatMessage
 from llm_agents.run_data.store import (
     EPISODES_FILE,

@@ -15,7 +15,7 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from llm_agents.agents.expert_plan import (
+from llm_agents.agents.expert.plan import (
     MINING,
     WALKABLE,
     Cell,

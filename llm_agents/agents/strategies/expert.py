@@ -32,10 +32,11 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from env.errors import UserError
 from env.variant import Variant, as_variant
-from llm_agents.agents.actions import action_id
-from llm_agents.agents.expert_controllers import Controller
-from llm_agents.agents.expert_navigation import MOVES, ExpertEpisode, add, neighbours
-from llm_agents.agents.expert_plan import (
+from llm_agents.agents.answers.actions import action_id
+from llm_agents.agents.answers.parser import ParseResult
+from llm_agents.agents.expert.controllers import Controller
+from llm_agents.agents.expert.navigation import MOVES, ExpertEpisode, add, neighbours
+from llm_agents.agents.expert.plan import (
     DO_BLOCK_ACHIEVEMENT,
     KILL_ACHIEVEMENT,
     PLACE_ACTION,
@@ -48,7 +49,6 @@ from llm_agents.agents.expert_plan import (
     spend_task,
     supply_task,
 )
-from llm_agents.agents.parser import ParseResult
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
 from llm_agents.backends.base import ModelOutput
