@@ -48,7 +48,7 @@ __all__ = [
     "CARD_SCHEMA_VERSION",
     "Card",
     "build_card",
-    "card_figures",
+    "flatten_card",
     "model_size_billions",
     "read_card",
     "verify_card",
@@ -447,7 +447,7 @@ def read_card(path: str | Path) -> Card:
     return card
 
 
-def card_figures(card: Card) -> dict[str, Any]:
+def flatten_card(card: Card) -> dict[str, Any]:
     """Every checked value of a card, flattened to `dotted.name -> value` (what `verify_card`
     compares): all but the run's label, its replay's record, the card's writing time and its
     digest."""
@@ -479,7 +479,7 @@ def verify_card(card: Card, run_dir: str | Path, *, progress: bool = False) -> l
     (`RunDoesNotReplay` naming each episode and field that differ)."""
     worlds = card.figures.goal_flags.worlds if card.figures.goal_flags else None
     fresh = build_card(run_dir, goal_flags_worlds=worlds, progress=progress)
-    ours, theirs = card_figures(card), card_figures(fresh)
+    ours, theirs = flatten_card(card), flatten_card(fresh)
     differences = []
     for name in sorted(ours.keys() | theirs.keys()):
         a, b = ours.get(name), theirs.get(name)

@@ -45,7 +45,7 @@ class OptionTrie:
         return node
 
 
-class GuidedOptions:
+class TrieLogitsProcessor:
     """A transformers logits processor holding every row of a batch to `trie`; a row that has
     ended (an end token) is left alone, as generation pads it from then on.
 

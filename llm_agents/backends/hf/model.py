@@ -73,7 +73,7 @@ from llm_agents.backends.base import (
 from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
 from llm_agents.backends.hf.decode import decode, generation_processors, merge, prefill
-from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, GuidedOptions, OptionTrie
+from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, OptionTrie, TrieLogitsProcessor
 from llm_agents.backends.hf.prefix import (
     PrefixStore,
     keep_prompts,
@@ -376,12 +376,12 @@ class HFModel(ModelAPI):
     def _generate_guided(
         self, conversations: Sequence[Conversation], choices: ChoiceSet
     ) -> list[ModelOutput]:
-        """Each answer decoded under `GuidedOptions`: one of the options, or one cut short."""
+        """Each answer decoded under `TrieLogitsProcessor`: one of the options, or one cut short."""
         if choices.options not in self._tries:
             if len(self._tries) >= MAX_KEPT_TRIES:
                 del self._tries[next(iter(self._tries))]
             self._tries[choices.options] = OptionTrie(self._candidate_ids(choices.options))
-        guide = GuidedOptions(self._tries[choices.options], self._eos_ids())
+        guide = TrieLogitsProcessor(self._tries[choices.options], self._eos_ids())
         raw = self._generate_raw(
             self._prompt_ids(conversations), [False] * len(conversations), guide
         )
@@ -393,7 +393,10 @@ class HFModel(ModelAPI):
         ]
 
     def _generate_raw(
-        self, prompts: list[np.ndarray], opened: list[bool], guide: GuidedOptions | None = None
+        self,
+        prompts: list[np.ndarray],
+        opened: list[bool],
+        guide: TrieLogitsProcessor | None = None,
     ) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
