@@ -30,7 +30,7 @@ help:
 	@echo "make demo       run a small evaluation with the embedded model (CPU, offline)"
 	@echo "make test       lint, type-check and run every test (slow ones included)"
 	@echo "make lint       ruff check, ruff format --check, mypy, lint-imports"
-	@echo "make bench      run every benchmarks/bench_*.py script, one after another"
+	@echo "make bench      run the benchmarks/bench_*.py scripts, one after another"
 	@echo "make clean      remove build outputs, caches and runs/demo (keeps the virtualenvs)"
 	@echo "make distclean  clean, remove .venv and the .venv-vllm link (not the shared vLLM"
 	@echo "                environment it points to: scripts/setup_vllm_cpu.sh --force rebuilds that)"
@@ -84,10 +84,11 @@ test: $(VENV)/.stamp-dev
 	echo "== make lint (ran beside the tests): exit $$linted"; cat "$$lint_log"; rm -f "$$vllm_log" "$$lint_log"; \
 	[ $$tests -eq 0 ] && [ $$built -eq 0 ] && [ $$linted -eq 0 ]
 
-# compare_plans.py is a comparison tool that needs a plans file, not a benchmark: not run here.
+# bench_replay_check.py needs a complete run to check: run by hand (docs/benchmarks.md).
 bench: $(VENV)/.stamp-dev
 	@set -e; for script in benchmarks/bench_*.py; do \
 		[ -f "$$script" ] || continue; \
+		[ "$$script" = benchmarks/bench_replay_check.py ] && continue; \
 		echo "== $$script"; \
 		$(BIN)/python "$$script"; \
 	done
