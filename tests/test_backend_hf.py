@@ -31,7 +31,7 @@ from llm_agents.backends.hf.scoring import (
     _SharedPrefixAttention,
     _split_attention_forward,
 )
-from llm_agents.backends.hf.thinking import ThinkingBudget
+from llm_agents.backends.hf.thinking import ThinkingBudgetLogitsProcessor
 
 FRANCE = [
     ChatMessage(role="system", content="Answer with one word."),
@@ -575,7 +575,7 @@ def test_the_candidate_trie_stores_a_shared_prefix_once() -> None:
 
 
 def test_thinking_budget_forces_the_closing_tag() -> None:
-    budget = ThinkingBudget(
+    budget = ThinkingBudgetLogitsProcessor(
         prompt_len=2,
         budget=3,
         open_ids=[7],

@@ -72,7 +72,7 @@ _WORDS: dict[str, tuple[str, ...]] = {"side": SIDES, "cross": CROSS_TYPES}
 __all__ = [
     "GROUND_TEMPLATE",
     "GroundingExample",
-    "Withheld",
+    "WorkedExample",
     "examples_digest",
     "examples_for",
     "goal_vocabulary",
@@ -147,7 +147,7 @@ def training_examples(dataset: Dataset, difficulty: Difficulty) -> tuple[Groundi
     return grounding_examples(dataset.split(category_split("train", difficulty)))
 
 
-class Withheld(Protocol):
+class WorkedExample(Protocol):
     """A worked example of some goal: withheld from a text that phrases that goal or whose own
     reading is it (grounding's examples, the skills agent's demonstrations)."""
 
@@ -157,7 +157,7 @@ class Withheld(Protocol):
     def texts(self) -> frozenset[str]: ...
 
 
-Example = TypeVar("Example", bound=Withheld)
+Example = TypeVar("Example", bound=WorkedExample)
 
 
 def examples_for(

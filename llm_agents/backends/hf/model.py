@@ -84,7 +84,7 @@ from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     supports_split_attention,
 )
-from llm_agents.backends.hf.thinking import ThinkingBudget
+from llm_agents.backends.hf.thinking import ThinkingBudgetLogitsProcessor
 from llm_agents.backends.hub import HubRevision
 from llm_agents.backends.reasoning import (
     THINK_CLOSE,
@@ -162,7 +162,7 @@ class ContextLengthError(ValueError):
 _OUT_OF_MEMORY = ("out of memory", "can't allocate memory", "CUBLAS_STATUS_ALLOC_FAILED")
 
 
-def backend_failure(err: BaseException) -> bool:
+def is_backend_failure(err: BaseException) -> bool:
     """Whether an error of a forward pass is the backend's failure (out of memory, or a prompt
     over the context length: the batch failed, the run goes on and retries it on resume)
     rather than a bug, which must surface."""
@@ -416,7 +416,7 @@ class HFModel(ModelAPI):
             # Thinking gets its own budget on top of the answer's max_tokens.
             max_new += config.reasoning_budget + len(self._think_close_ids)
             processors.append(
-                ThinkingBudget(
+                ThinkingBudgetLogitsProcessor(
                     prompt_len=prompt_width,
                     budget=config.reasoning_budget,
                     open_ids=self._encode(THINK_OPEN),
@@ -546,7 +546,7 @@ class HFModel(ModelAPI):
             except (RuntimeError, ValueError) as err:
                 # Out of memory or a prompt over the context length fails this batch only, as
                 # a backend failure; any other error is a bug, and raised.
-                if not backend_failure(err):
+                if not is_backend_failure(err):
                     raise
                 outputs.extend(
                     ModelOutput(

@@ -7,7 +7,7 @@ import torch
 from transformers import LogitsProcessor
 
 
-class ThinkingBudget(LogitsProcessor):
+class ThinkingBudgetLogitsProcessor(LogitsProcessor):
     """Forces the thinking block closed once a row has thought for `budget` tokens.
 
     A row thinks from its opening tag (or from the start, when the prompt opened the block)
