@@ -135,6 +135,21 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="--goal-flags: seeded worlds per goal the do-nothing agent plays (default 8)",
     )
+    card.add_argument(
+        "--reask",
+        type=int,
+        metavar="K",
+        help="--verify of a greedy run: also ask the run's model again for K of its answered "
+        "steps (a seeded choice), each prompt rebuilt from the records, and print how many "
+        "answers are the recorded ones (a figure: rounding on other hardware can flip a token)",
+    )
+    card.add_argument(
+        "--reask-seed",
+        type=int,
+        default=0,
+        metavar="S",
+        help="--reask: the seed of the choice of steps (default 0)",
+    )
 
     leaderboard = commands.add_parser(
         "leaderboard",
@@ -511,14 +526,43 @@ def cmd_card(args: argparse.Namespace) -> int:
         return EXIT_VERIFY_FAILED
 
 
+def _reask_checks(args: argparse.Namespace) -> None:
+    """Refuse `--reask` where it cannot run, before the (long) replay."""
+    from llm_agents.evaluation.reask import check_reask
+    from llm_agents.run_data.run_view import read_run
+
+    check_reask(read_run(args.run_dir), args.reask)
+
+
+def _print_reask(args: argparse.Namespace) -> None:
+    from llm_agents.evaluation.reask import reask
+    from llm_agents.run_data.run_view import read_run
+
+    found = reask(
+        read_run(args.run_dir), args.reask, seed=args.reask_seed, progress=not args.no_progress
+    )
+    print(
+        f"asked the model again for {found.asked} answered steps (seed {args.reask_seed}): "
+        f"{found.same} of {found.asked} answers are the recorded ones ({found.seconds:.0f} s)"
+    )
+    for line in found.differing:
+        print(f"  differs: {line}")
+    for line in found.not_rebuilt:
+        print(f"  not asked: {line}")
+
+
 def _card(args: argparse.Namespace) -> int:
     from llm_agents.evaluation.card import build_card, read_card, verify_card, write_card
 
     if args.do_nothing_worlds < 1:
         raise UserError(f"--do-nothing-worlds must be at least 1, not {args.do_nothing_worlds}")
+    if args.reask is not None and args.verify is None:
+        raise UserError("--reask asks a verified run's model again: give it with --verify CARD")
     if args.verify is not None:
         if args.out or args.goal_flags:
             raise UserError("--verify checks a card: leave out --out and --goal-flags")
+        if args.reask is not None:
+            _reask_checks(args)
         differences = verify_card(
             read_card(args.verify), args.run_dir, progress=not args.no_progress
         )
@@ -535,6 +579,8 @@ def _card(args: argparse.Namespace) -> int:
             f"{args.verify} matches the run in {args.run_dir}: its records replay, every "
             "figure recomputed"
         )
+        if args.reask is not None:
+            _print_reask(args)
         return 0
     card = build_card(
         args.run_dir,

@@ -582,3 +582,72 @@ def test_a_batch_mixing_goal_kinds_scores_each_slot_by_its_own_checker(classic_e
     stepped = vector.step(np.full(len(goals), NOOP))
     assert stepped.termination.tolist() == [0, Termination.SUCCESS, 0]
     assert stepped.reward[1] >= 1.0 and stepped.reward[0] < 1.0
+
+
+def test_a_game_over_step_is_checked_in_the_world_its_key_makes_whatever_its_row(
+    classic_env: Any,
+) -> None:
+    # Craftax's world generation vmapped on XLA:CPU makes other worlds in lanes 8 and up (about
+    # a tenth of their blocks differ), and a localization goal is met or not around a new spawn
+    # by its natural blocks: checked in vmapped worlds, a row's verdict would depend on its
+    # place in the batch. The env checks each row in the world its key makes alone.
+    from env.craftext_env import _step_keys
+    from env.goals import LocalizationGoal
+    from env.scenario_checker import goal_met
+    from env.scenario_tasks import encode_goals
+
+    goal = LocalizationGoal(
+        id="L",
+        split="medium_train",
+        scenario="medium",
+        instruction="t",
+        paraphrases=(),
+        place="STONE",
+        target="TREE",
+        side="right",
+        distance=2,
+    )
+    encoded = encode_goals([goal], Variant.CLASSIC)
+    task = make_task(encoded.required[0], encoded.forbidden[0], encoded.kind[0], encoded.params[0])
+    env = classic_env.env
+    rows = 16
+
+    def dying(state: Any) -> Any:
+        game = state.game
+        return state.replace(
+            game=game.replace(player_health=game.player_health * 0, player_recover=0.0)
+        )
+
+    batch = jax.tree.map(
+        lambda *leaves: jnp.stack(leaves),
+        *[dying(classic_env.reset(key(i), task)) for i in range(rows)],
+    )
+    _, info = env.batched_step(batch, jnp.zeros(rows, jnp.int32), jnp.ones(rows, bool))
+    reset_keys = [jax.random.split(k)[1] for k in _step_keys(batch)]
+
+    def verdicts(worlds: list[Any]) -> list[bool]:
+        return [
+            bool(
+                goal_met(
+                    jax.tree.map(lambda leaf, i=i: leaf[i], batch.game),
+                    world,
+                    task.kind,
+                    task.required,
+                    task.forbidden,
+                    task.params,
+                    Variant.CLASSIC,
+                )
+            )
+            for i, world in enumerate(worlds)
+        ]
+
+    generate = jax.jit(lambda k: env.craftax.reset_env(k, env.params)[1])
+    alone = verdicts([generate(k) for k in reset_keys])
+    vmapped = jax.jit(jax.vmap(lambda k: env.craftax.reset_env(k, env.params)[1]))(
+        jnp.stack(reset_keys)
+    )
+    in_lanes = verdicts([jax.tree.map(lambda leaf, i=i: leaf[i], vmapped) for i in range(rows)])
+    assert np.asarray(info.goal_in_new_world).tolist() == alone
+    assert any(alone)
+    # The case is exercised: vmapped worlds would have given other verdicts here.
+    assert in_lanes != alone
