@@ -119,3 +119,18 @@ def test_runs_that_cannot_be_asked_again_are_refused_in_one_line(
     assert "--verify" in _one_error(capsys)
 
     assert {path: path.stat().st_mtime_ns for path in tmp_path.rglob("*")} == before
+
+
+@pytest.mark.parametrize(
+    "spec", ["openai:m@https://user:***@example.invalid/v1", "hf:/no/such/model/folder"]
+)
+def test_a_model_not_at_hand_is_refused(greedy_run: Path, tmp_path: Path, spec: str) -> None:
+    from env.errors import UserError
+
+    run = tmp_path / "moved"
+    shutil.copytree(greedy_run, run)
+    results = json.loads((run / "results.json").read_text())
+    results["config"]["model"] = spec
+    (run / "results.json").write_text(json.dumps(results))
+    with pytest.raises(UserError, match="is not at hand here"):
+        reask(read_run(run), 2)
