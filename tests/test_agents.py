@@ -408,3 +408,11 @@ def test_compare_puts_the_other_run_beside(tmp_path: Path) -> None:
     assert lines[3].startswith("expert (scripted, no model)")
     assert "Qwen QwQ-32B (published)" in table
     assert "different datasets" not in table
+
+
+def test_a_run_of_an_agent_that_asks_no_model_is_not_labelled_with_one(tmp_path: Path) -> None:
+    noop = make_expert_run(tmp_path / "noop", agent="noop")
+    model_run = make_expert_run(tmp_path / "model", agent="zero-shot")
+    lines = compare_runs(model_run, noop).splitlines()
+    assert lines[2].startswith("hf:smollm2-135m (zero-shot")
+    assert lines[3].startswith("noop (NOOP only, no model)")

@@ -84,9 +84,14 @@ def run_actions(
     return {episode_id: dict(actions) for episode_id, actions in counts.items()}
 
 
+#: The built-in agents that never ask a model, as a report names their rows.
+MODEL_FREE_AGENTS = {"expert": "expert (scripted, no model)", "noop": "noop (NOOP only, no model)"}
+
+
 def model_name_of(results: RunResults) -> str:
-    if results.config.get("agent") == "expert":
-        return "expert (scripted, no model)"
+    agent = results.config.get("agent")
+    if agent in MODEL_FREE_AGENTS:
+        return MODEL_FREE_AGENTS[agent]
     model = results.config.get("model")
     return model if isinstance(model, str) and model else "this model"
 
