@@ -293,5 +293,5 @@ class _RecordedAnswers(ModelAPI):
             reasoning=source.reasoning,
             prompt_tokens=source.prompt_tokens,
             completion_tokens=source.completion_tokens,
-            finish_reason=source.finish_reason,  # type: ignore[arg-type]
+            finish_reason=source.finish_reason,
         )
