@@ -361,21 +361,31 @@ def _split(seed: int, count: int) -> Any:
     return jax.random.split(jax.random.key(seed), count)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def add_repository_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--dataset` (the official repository) and `--out` (where it is unpacked otherwise)."""
+    parser.add_argument("--dataset", type=Path, help="the official repository (default: unpacked)")
+    parser.add_argument("--out", type=Path, default=Path("/tmp/official_wrapper"))
+
+
+def repository_root(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Path:
+    """The official repository `--dataset` names, else the reference archive unpacked."""
     from benchmarks.official_clone import official_clone
 
+    root = args.dataset or official_clone(args.out)
+    if root is None:
+        parser.error("no official repository: pass --dataset")
+    return Path(root)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--difficulty", choices=sorted(DIFFICULTY_SPLITS), default="medium")
     parser.add_argument("--worlds", type=int, default=4)
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--dataset", type=Path, help="the official repository (default: unpacked)")
-    parser.add_argument("--out", type=Path, default=Path("/tmp/official_wrapper"))
+    add_repository_arguments(parser)
     args = parser.parse_args(argv)
-    root = args.dataset or official_clone(args.out)
-    if root is None:
-        parser.error("no official repository: pass --dataset")
-    root = Path(root)
+    root = repository_root(parser, args)
     official = official_modules(root)
     variant = Variant.FULL if args.difficulty == "hard" else Variant.CLASSIC
     harness = Harness(official, variant, args.steps)

@@ -35,17 +35,14 @@ from env.variant import Variant  # noqa: E402
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from benchmarks.official_clone import official_clone
+    from benchmarks.official_wrapper import add_repository_arguments, repository_root
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--worlds", type=int, default=16)
     parser.add_argument("--seed", type=int, default=7)
-    parser.add_argument("--dataset", type=Path, help="the official repository (default: unpacked)")
-    parser.add_argument("--out", type=Path, default=Path("/tmp/official_wrapper"))
+    add_repository_arguments(parser)
     args = parser.parse_args(argv)
-    root = args.dataset or official_clone(args.out)
-    if root is None:
-        parser.error("no official repository: pass --dataset")
+    root = repository_root(parser, args)
     env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, success_rule="official"))
     goals = [
         goal
