@@ -115,10 +115,7 @@ class Navigator:
         tier, achievement = MINING[block]
         return self.pickaxe >= tier and not self.forbidden(achievement)
 
-    def _cost(self, cell: Cell) -> int | None:
-        block = self.world.get(cell)
-        if block is None or cell in self.mobs:
-            return None
+    def _block_cost(self, block: str) -> int | None:
         if block in WALKABLE:
             return 1
         if self.minable(block):
@@ -126,6 +123,12 @@ class Navigator:
         return None
 
     def _search(self) -> tuple[dict[Cell, int], dict[Cell, Cell]]:
+        # The map holds thousands of cells late in an episode and this runs every step: each
+        # block name's cost is worked out once per search, not once per cell visited.
+        blocks = self.world.blocks
+        mobs = self.mobs
+        cost_of: dict[str, int | None] = {}
+        moves = tuple(MOVES.values())
         dist = {self.pos: 0}
         parent: dict[Cell, Cell] = {}
         heap = [(0, self.pos)]
@@ -133,8 +136,16 @@ class Navigator:
             d, cell = heapq.heappop(heap)
             if d > dist.get(cell, _UNREACHABLE):
                 continue
-            for nxt in neighbours(cell):
-                cost = self._cost(nxt)
+            x, y = cell
+            for dx, dy in moves:
+                nxt = (x + dx, y + dy)
+                block = blocks.get(nxt)
+                if block is None or nxt in mobs:
+                    continue
+                if block in cost_of:
+                    cost = cost_of[block]
+                else:
+                    cost = cost_of[block] = self._block_cost(block)
                 if cost is None:
                     continue
                 if d + cost < dist.get(nxt, _UNREACHABLE):
