@@ -136,7 +136,7 @@ def _score(tmp_path: Path, plans: Path, *extra: str, out: str = "out") -> int:
 @pytest.mark.parametrize(
     ("content", "message"),
     [
-        ("{not json", "is not JSON"),
+        ("{not json", "is not valid JSON"),
         ([TABLE], "must be one non-empty JSON object"),
         ({}, "must be one non-empty JSON object"),
         ({TABLE: 3}, "neither shape"),

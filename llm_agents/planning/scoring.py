@@ -41,6 +41,7 @@ from llm_agents.planning.export import dpo_rows, planner_prompt_text, rank_key, 
 from llm_agents.planning.records import FirstFailure, PlanScore
 from llm_agents.planning.steps import read_plan
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate
+from llm_agents.run_data.plans import load_candidates
 from llm_agents.run_data.store import (
     append_lines,
     atomic_write_json,
@@ -114,29 +115,6 @@ class _Settings(BaseModel):
     variant: Variant
     dataset: dict[str, Any]
     skill_steps: int
-
-
-def read_plans_file(path: Path) -> dict[str, list[str]]:
-    """A plans file as text -> candidate plans: the official shape gives one candidate each."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError(f"plans file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise UserError(f"cannot read plans file {path}: {err}") from err
-    except json.JSONDecodeError as err:
-        raise UserError(f"plans file {path} is not JSON: {err}") from err
-    shapes = "{text: plan} (a plans file) or {text: [plan, ...]} (a candidates file)"
-    if not isinstance(data, dict) or not data:
-        raise UserError(f"plans file {path} must be one non-empty JSON object, {shapes}")
-    if all(isinstance(value, str) for value in data.values()):
-        return {text: [plan] for text, plan in data.items()}
-    if all(
-        isinstance(value, list) and value and all(isinstance(p, str) for p in value)
-        for value in data.values()
-    ):
-        return {text: list(plans) for text, plans in data.items()}
-    raise UserError(f"plans file {path} is neither shape: it must be {shapes}")
 
 
 def _listed(texts: Sequence[str]) -> str:
@@ -247,7 +225,7 @@ def score_plans(
     from env.dataset import load_dataset as _load
 
     started = time.perf_counter()
-    plans = read_plans_file(config.plans)
+    plans = load_candidates(config.plans)
     texts = _texts(config, plans)
     _check_exports(config, plans, list(texts))
     dataset = _load(config.dataset)
