@@ -5,13 +5,15 @@ the protocol, each re-simulated from its world key and actions, the answers pars
     python benchmarks/bench_replay_check.py runs/paper-expert
 
 Prints the seconds of the first check in a fresh process (compiling the replay included) and of
-a second one, and what was checked. Goal: a complete paper-protocol EASY run (every episode,
-250 steps) in at most 2 minutes on a 2-core CPU.
+a second one, what was checked, and the process's peak memory (the step log is read line by
+line, so it stays far below the log's size). Goal: a complete paper-protocol EASY run (every
+episode, 250 steps) in at most 2 minutes on a 2-core CPU.
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
 import time
 
 from llm_agents.evaluation.replay_check import check_run
@@ -32,6 +34,8 @@ def main() -> None:
             f"check {repeat + 1}: {seconds:.1f} s for {check.episodes} episodes ({steps} steps, "
             f"{check.answers} answers parsed again), {len(check.differences)} differences"
         )
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"peak memory {peak_mib:.0f} MiB")
 
 
 if __name__ == "__main__":

@@ -141,6 +141,29 @@ def test_a_tampered_run_gets_no_card_and_fails_verification_naming_the_episode(
     assert sorted(p.name for p in forged.iterdir()) == before
 
 
+def test_the_step_log_is_checked_in_step_order_whatever_its_line_order(
+    expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    # Read line by line into compact arrays: the lines' order is the play's, which interleaves
+    # the episodes in flight; reversed, every episode's steps still replay.
+    run = _copy(expert_run, tmp_path)
+    _write(run / "steps.jsonl", _lines(run / "steps.jsonl")[::-1])
+    assert main(["card", str(run), "--no-progress"]) == 0
+    assert json.loads((run / "card.json").read_text())["replay"]["episodes"] == 8
+
+
+def test_a_step_logged_twice_is_named(expert_run: Path, tmp_path: Path, capsys: Any) -> None:
+    run = _copy(expert_run, tmp_path)
+    steps = _lines(run / "steps.jsonl")
+    episode = steps[0]["episode_id"]
+    count = sum(step["episode_id"] == episode for step in steps)
+    _write(run / "steps.jsonl", [*steps, steps[0]])
+    assert main(["card", str(run), "--no-progress"]) == 1
+    line = _one_error(capsys)
+    assert f"episode {episode}: steps: recorded {count}, the step log holds {count + 1}" in line
+    assert not (run / "card.json").exists()
+
+
 def test_an_extra_episode_is_refused(expert_run: Path, tmp_path: Path, capsys: Any) -> None:
     run = _copy(expert_run, tmp_path)
     episodes = _lines(run / "episodes.jsonl")

@@ -40,7 +40,7 @@ from llm_agents.evaluation.rescoring import rescore, run_scores
 from llm_agents.run_data.metrics import SuccessRate, summarize
 from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.run_view import RunView, read_run
-from llm_agents.run_data.store import atomic_write_text
+from llm_agents.run_data.store import STEPS_FILE, atomic_write_text, read_steps
 
 __all__ = [
     "CARD_FILE",
@@ -307,7 +307,9 @@ def _protocol(run: RunView) -> CardProtocol:
 def _model_seconds(run: RunView) -> float | None:
     if not run.has_steps:
         return None
-    total = math.fsum(step.latency_s for own in run.steps().values() for step in own)
+    # Streamed: a Medium run's step log does not fit in memory as records.
+    counted = {episode.episode_id for episode in run.episodes}
+    total = math.fsum(step.latency_s for step in read_steps(run.path / STEPS_FILE, counted))
     return total / len(run.episodes)
 
 

@@ -21,7 +21,8 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from array import array
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,7 +37,7 @@ from llm_agents.evaluation.protocol import PROTOCOL_NAMES, normalised_setting, p
 from llm_agents.evaluation.schedule import ScheduledEpisode, build_schedule
 from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
 from llm_agents.run_data.run_view import RunView
-from llm_agents.run_data.store import EPISODES_FILE, read_episodes
+from llm_agents.run_data.store import EPISODES_FILE, STEPS_FILE, read_episodes, read_steps
 
 __all__ = ["ReplayCheck", "RunDoesNotReplay", "check_run", "expected_schedule"]
 
@@ -171,42 +172,80 @@ def _episode_differences(
     return differences, pairs
 
 
-def _step_differences(record: EpisodeRecord, steps: list[StepRecord]) -> list[str]:
-    where = f"episode {record.episode_id}"
-    indices = [step.step for step in steps]
-    if indices != list(range(record.steps)):
-        return [
-            f"{where}: steps: recorded {record.steps}, the step log holds {len(indices)} "
-            "(or out of order)"
-        ]
-    invalid = sum(step.fallback_used for step in steps)
-    if invalid != record.invalid_actions:
-        return [f"{where}: invalid_actions: recorded {record.invalid_actions}, steps {invalid}"]
-    return []
+@dataclass
+class _LoggedEpisode:
+    """One episode's step log as the check keeps it: step numbers and action ids in compact
+    arrays (a Medium run logs tens of millions of steps), the fallbacks counted, and each
+    answer parsed again as its step is read."""
+
+    numbers: array[int] = field(default_factory=lambda: array("i"))
+    actions: array[int] = field(default_factory=lambda: array("i"))
+    fallbacks: int = 0
+    answers: int = 0
+    wrong_answers: list[tuple[int, str]] = field(default_factory=list)
+
+    def in_order(self) -> tuple[list[int], array[int]]:
+        """Step numbers and actions sorted by step number (the log's order is the play's)."""
+        numbers = list(self.numbers)
+        if numbers == sorted(numbers):
+            return numbers, self.actions
+        order = sorted(range(len(numbers)), key=numbers.__getitem__)
+        return [numbers[i] for i in order], array("i", (self.actions[i] for i in order))
 
 
-def _answer_differences(
-    record: EpisodeRecord, steps: list[StepRecord], variant: Any, fallback: int
-) -> tuple[int, list[str]]:
-    """Each answered step's raw answer parsed again against its recorded action."""
-    differences = []
-    parsed = 0
-    for step in steps:
+class _AnswerCheck:
+    """Parses each recorded raw answer again against its recorded action."""
+
+    def __init__(self, variant: Any, fallback: int):
+        self.variant = variant
+        self.fallback = fallback
+
+    def __call__(self, record: EpisodeRecord, step: StepRecord, logged: _LoggedEpisode) -> None:
         if step.finish_reason == "error" or step.skill is not None:
-            continue
+            return
         answer = step.raw_output
         if step.options_shown is not None:
             answer = LetteredOptions(order=step.options_shown).option_of(answer) or ""
-        result = parse_action(answer, variant, prompt=[step.observation, record.instruction])
-        action = fallback if result.action is None else result.action
-        parsed += 1
+        result = parse_action(answer, self.variant, prompt=[step.observation, record.instruction])
+        action = self.fallback if result.action is None else result.action
+        logged.answers += 1
         if action != step.action_id or (result.action is None) != step.fallback_used:
-            name = variant.action_names[action]
-            differences.append(
-                f"episode {record.episode_id}: step {step.step} action: recorded "
-                f"{step.action_name}, the answer {_shown(step.raw_output)} gives {name}"
+            name = self.variant.action_names[action]
+            logged.wrong_answers.append(
+                (
+                    step.step,
+                    f"episode {record.episode_id}: step {step.step} action: recorded "
+                    f"{step.action_name}, the answer {_shown(step.raw_output)} gives {name}",
+                )
             )
-    return parsed, differences
+
+
+def _read_log(
+    run: RunView, records: dict[str, EpisodeRecord], answers: _AnswerCheck | None
+) -> dict[str, _LoggedEpisode]:
+    """The step log of `records`' episodes, read line by line into compact arrays (never the
+    whole log's records in memory at once)."""
+    logged = {episode_id: _LoggedEpisode() for episode_id in records}
+    for step in read_steps(run.path / STEPS_FILE, logged.keys()):
+        own = logged[step.episode_id]
+        own.numbers.append(step.step)
+        own.actions.append(step.action_id)
+        own.fallbacks += step.fallback_used
+        if answers is not None:
+            answers(records[step.episode_id], step, own)
+    return logged
+
+
+def _step_differences(record: EpisodeRecord, numbers: list[int], fallbacks: int) -> list[str]:
+    where = f"episode {record.episode_id}"
+    if numbers != list(range(record.steps)):
+        return [
+            f"{where}: steps: recorded {record.steps}, the step log holds {len(numbers)} "
+            "(or out of order)"
+        ]
+    if fallbacks != record.invalid_actions:
+        return [f"{where}: invalid_actions: recorded {record.invalid_actions}, steps {fallbacks}"]
+    return []
 
 
 def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
@@ -224,10 +263,6 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
         )
     schedule = expected_schedule(run)
     differences, pairs = _episode_differences(run, schedule)
-    steps = run.steps()
-    if any(spec.episode_id not in steps for spec, _ in pairs):
-        # Episodes results.json does not list: read their steps too.
-        steps = _steps_of(run, [record.episode_id for _, record in pairs])
     config = EvalConfig.recorded(run.config)
     env_config = EnvConfig.model_validate_json(config.env_config().model_dump_json())
     variant = env_config.variant
@@ -236,21 +271,26 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
         and run.results.identity.agent is None
         and run.asked_a_model
     )
-    fallback = action_id(config.fallback_action, variant)
+    answer_check = (
+        _AnswerCheck(variant, action_id(config.fallback_action, variant))
+        if parsed_answers
+        else None
+    )
+    logs = _read_log(run, {record.episode_id: record for _, record in pairs}, answer_check)
     answers = 0
     playable = []
     for spec, record in pairs:
-        own = steps.get(record.episode_id, [])
-        problems = _step_differences(record, own)
-        if parsed_answers and not problems:
-            count, wrong = _answer_differences(record, own, variant, fallback)
-            answers += count
-            problems += wrong
+        log = logs[record.episode_id]
+        numbers, actions = log.in_order()
+        problems = _step_differences(record, numbers, log.fallbacks)
+        if answer_check is not None and not problems:
+            answers += log.answers
+            problems += [text for _, text in sorted(log.wrong_answers, key=lambda w: w[0])]
         differences += problems
         if record.termination == NOT_STARTED:
             continue
         if not problems or all(": step " in problem for problem in problems):
-            playable.append((spec, record, own))
+            playable.append((spec, record, actions))
     replayer = Replayer(shared_env(env_config), batch_size=_BATCH, render=False)
     # Episodes of similar length share a batch, so little of a batch is padding.
     playable.sort(key=lambda item: item[1].steps)
@@ -260,11 +300,11 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
             reset_key=np.asarray(record.reset_key or _key(run, spec), np.uint32),
             required=goals.required[row],
             forbidden=goals.forbidden[row],
-            actions=[step.action_id for step in own],
+            actions=actions,
             kind=int(goals.kind[row]),
             params=tuple(int(value) for value in goals.params[row]),
         )
-        for row, (spec, record, own) in enumerate(playable)
+        for row, (spec, record, actions) in enumerate(playable)
     ]
     bar = _bar(len(inputs), progress)
     for (_, record, _), replay in zip(playable, replayer.replay(inputs), strict=True):
@@ -286,17 +326,6 @@ def _key(run: RunView, spec: ScheduledEpisode) -> list[int]:
     return episode_key(
         seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat
     ).tolist()
-
-
-def _steps_of(run: RunView, wanted: list[str]) -> dict[str, list[StepRecord]]:
-    from llm_agents.run_data.store import STEPS_FILE, read_steps
-
-    steps: dict[str, list[StepRecord]] = {episode: [] for episode in wanted}
-    for step in read_steps(run.path / STEPS_FILE, set(wanted)):
-        steps[step.episode_id].append(step)
-    for own in steps.values():
-        own.sort(key=lambda step: step.step)
-    return steps
 
 
 def _outcome_differences(record: EpisodeRecord, replay: Any) -> list[str]:
