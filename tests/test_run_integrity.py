@@ -177,3 +177,30 @@ def test_a_smaller_limit_on_a_finished_run_summarises_only_its_schedule(
     assert (results.scheduled, results.finished, results.status) == (2, 2, "complete")
     assert results.summary is not None and results.summary.overall.episodes == 2
     assert len(read_episodes(tmp_path / "episodes.jsonl")) == 4
+
+
+def test_a_resumed_run_counts_the_time_its_sittings_played_not_its_stops(
+    tmp_path: Path, short_env: CrafTextEnv
+) -> None:
+    run = tmp_path / "run"
+    run_eval(config(run), FailingFor(["never asked"]), env=short_env)
+    results = read_results(run / "results.json")
+    assert results.status == "complete" and results.played_seconds is not None
+    first_sitting = results.played_seconds
+    assert 0 < first_sitting < 600
+
+    # The run stopped an hour ago with its last episode unfinished, then resumes.
+    episodes = (run / "episodes.jsonl").read_text().splitlines()
+    (run / "episodes.jsonl").write_text("\n".join(episodes[:-1]) + "\n")
+    raw = json.loads((run / "results.json").read_text())
+    raw["started_at"] = "2026-01-01T00:00:00Z"
+    raw["status"], raw["finished_at"] = "partial", None
+    (run / "results.json").write_text(json.dumps(raw))
+    with MockModel(SCRIPT.removeprefix("mock:")) as model:
+        run_eval(config(run), model, env=short_env)
+
+    resumed = read_results(run / "results.json")
+    assert resumed.status == "complete" and resumed.finished_at is not None
+    assert resumed.played_seconds is not None
+    assert first_sitting < resumed.played_seconds < 1200
+    assert (resumed.finished_at - resumed.started_at).total_seconds() > 3600

@@ -110,8 +110,9 @@ class CardCost(BaseModel):
     None without one). Episodes answered in one batch wait together, so over a batched run this
     exceeds the run's wall time per episode."""
     wall_seconds_per_episode: float | None
-    """The run's start-to-finish time over its episodes (model loading and any pause before a
-    resume included); None when the run recorded no finish time."""
+    """The wall time the run's sittings played (model loading included) over its episodes; for
+    a run recorded before sittings were timed, its start-to-finish time, any pause before a
+    resume included; None when neither was recorded."""
 
 
 class CardScores(BaseModel):
@@ -321,11 +322,13 @@ def _figures(run: RunView, worlds: int | None) -> CardFigures:
     scores = run_scores(results, episodes).overall
     n = len(episodes)
     calls = [e.model_calls for e in episodes]
-    wall = (
-        (results.finished_at - results.started_at).total_seconds() / n
-        if results.finished_at is not None
-        else None
-    )
+    if results.played_seconds is not None:
+        wall: float | None = results.played_seconds / n
+    elif results.finished_at is not None:
+        # Recorded before sittings were timed: the span, a resumed run's stops included.
+        wall = (results.finished_at - results.started_at).total_seconds() / n
+    else:
+        wall = None
     flags = None
     if worlds is not None:
         status = run_goal_status(results.config, episodes, rule=rule, worlds=worlds)

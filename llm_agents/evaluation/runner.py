@@ -396,6 +396,7 @@ def run_schedule(
         | {"missing_plans": len(prepared.missing_plans), "instructions": prepared.instructions},
         schedule=[spec.episode_id for spec in prepared.schedule],
         started_at=prepared.previous.started_at if prepared.previous else datetime.now(UTC),
+        played_seconds=prepared.previous.played_seconds if prepared.previous else 0.0,
         hardware=hardware(),
     )
     sink = RunSink(

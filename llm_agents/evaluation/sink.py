@@ -72,6 +72,8 @@ class RunSink:
         self.failure: str | None = None
         self._failures_in_a_row = 0
         self._started = time.perf_counter()
+        # This sitting's wall time is added to the earlier sittings' (None: not kept then).
+        self._played_before = results.played_seconds
         self._saved_at = -RESULTS_EVERY_S
         self._unsaved = False
         self._agent_steps = 0
@@ -176,6 +178,8 @@ class RunSink:
         else:
             results.status, results.failure = "partial", None
         results.finished_at = datetime.now(UTC) if results.status == "complete" else None
+        if self._played_before is not None:
+            results.played_seconds = self._played_before + time.perf_counter() - self._started
         write_results(self.out / RESULTS_FILE, results)
         self._saved_at, self._unsaved = time.monotonic(), False
 

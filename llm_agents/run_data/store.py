@@ -452,6 +452,10 @@ class RunResults(ResultsBase):
     """When the run started."""
     finished_at: datetime | None = None
     """When the run completed; None until then."""
+    played_seconds: float | None = None
+    """Wall seconds the run spent playing, summed over its sittings: a resumed run's stops are
+    not counted, unlike `finished_at - started_at`. None in runs whose first sitting was
+    recorded before it was kept."""
     hardware: dict[str, str] = Field(default_factory=dict)
     """The machine that last played episodes of the run (`provenance.hardware`): CPU, cores,
     memory, GPUs; on Ray, its workers' machines pooled (`provenance.pooled_hardware`); empty
