@@ -40,7 +40,7 @@ from llm_agents.evaluation.rescoring import rescore, run_scores
 from llm_agents.run_data.metrics import SuccessRate, summarize
 from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.run_view import RunView, read_run
-from llm_agents.run_data.store import STEPS_FILE, atomic_write_text, read_steps
+from llm_agents.run_data.store import atomic_write_text
 
 __all__ = [
     "CARD_FILE",
@@ -305,16 +305,7 @@ def _protocol(run: RunView) -> CardProtocol:
     )
 
 
-def _model_seconds(run: RunView) -> float | None:
-    if not run.has_steps:
-        return None
-    # Streamed: a Medium run's step log does not fit in memory as records.
-    counted = {episode.episode_id for episode in run.episodes}
-    total = math.fsum(step.latency_s for step in read_steps(run.path / STEPS_FILE, counted))
-    return total / len(run.episodes)
-
-
-def _figures(run: RunView, worlds: int | None) -> CardFigures:
+def _figures(run: RunView, worlds: int | None, check: ReplayCheck | None) -> CardFigures:
     results, episodes, rule = run.results, run.episodes, run.rule
     scored = rescore(episodes, rule)
     # From the records alone, never the summary results.json stored: that is what is checked.
@@ -361,7 +352,8 @@ def _figures(run: RunView, worlds: int | None) -> CardFigures:
             else None,
             prompt_tokens_per_episode=sum(e.prompt_tokens for e in episodes) / n,
             completion_tokens_per_episode=sum(e.completion_tokens for e in episodes) / n,
-            model_seconds_per_episode=_model_seconds(run),
+            # Summed as the replay check read the step log: the log is read once.
+            model_seconds_per_episode=None if check is None else check.model_seconds / n,
             wall_seconds_per_episode=wall,
         ),
         terminations=summary.terminations,
@@ -395,7 +387,7 @@ def build_card(
         hardware=run.results.hardware,
         started_at=run.results.started_at,
         finished_at=run.results.finished_at,
-        figures=_figures(run, goal_flags_worlds),
+        figures=_figures(run, goal_flags_worlds, check),
         replay=None
         if check is None
         else CardReplay(

@@ -72,6 +72,8 @@ class ReplayCheck:
     differences: list[str]
     """Each as `episode ID: FIELD: recorded X, replay Y`; empty when the run replays."""
     seconds: float
+    model_seconds: float = 0.0
+    """The logged steps' summed model latency (read in the same pass as their actions)."""
 
 
 def expected_schedule(run: RunView) -> list[ScheduledEpisode]:
@@ -181,6 +183,7 @@ class _LoggedEpisode:
     numbers: array[int] = field(default_factory=lambda: array("i"))
     actions: array[int] = field(default_factory=lambda: array("i"))
     fallbacks: int = 0
+    latency_s: float = 0.0
     answers: int = 0
     wrong_answers: list[tuple[int, str]] = field(default_factory=list)
 
@@ -231,6 +234,7 @@ def _read_log(
         own.numbers.append(step.step)
         own.actions.append(step.action_id)
         own.fallbacks += step.fallback_used
+        own.latency_s += step.latency_s
         if answers is not None:
             answers(records[step.episode_id], step, own)
     return logged
@@ -316,6 +320,7 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
         answers=answers,
         differences=differences,
         seconds=time.perf_counter() - started,
+        model_seconds=math.fsum(log.latency_s for log in logs.values()),
     )
 
 
