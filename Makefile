@@ -65,6 +65,8 @@ lint: $(VENV)/.stamp-dev
 		$(BIN)/mypy
 	$(BIN)/lint-imports
 
+# --max-worker-restart=0: a worker that crashes (a segfault in native code) fails the run at once,
+# naming its test; replacing it under --dist loadfile can leave the run waiting for ever.
 # JAX_COMPILATION_CACHE_DIR is not set here: the env enables JAX's persistent cache itself
 # (in the user cache directory unless the variable is already set).
 # Three jobs side by side, each one's output held back and printed after the tests': the vLLM-on-CPU
@@ -78,7 +80,7 @@ test: $(VENV)/.stamp-dev
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment" > "$$vllm_log"; \
 	fi & vllm_pid=$$!; \
 	$(MAKE) --no-print-directory lint > "$$lint_log" 2>&1 & lint_pid=$$!; \
-	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile; tests=$$?; \
+	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile --max-worker-restart=0; tests=$$?; \
 	wait $$vllm_pid; built=$$?; wait $$lint_pid; linted=$$?; \
 	echo "== scripts/setup_vllm_cpu.sh (ran beside the tests): exit $$built"; tail -n 40 "$$vllm_log"; \
 	echo "== make lint (ran beside the tests): exit $$linted"; cat "$$lint_log"; rm -f "$$vllm_log" "$$lint_log"; \

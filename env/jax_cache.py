@@ -16,8 +16,11 @@ _enabled_dir: Path | None = None
 
 def enable_compilation_cache(directory: Path | None = None) -> Path:
     """Point JAX's persistent cache at `directory` (default: `JAX_COMPILATION_CACHE_DIR`, else
-    `<cache_root>/jax`). Idempotent."""
+    `<cache_root>/jax`; the directory already enabled, when there is one). Idempotent."""
     global _enabled_dir
+    if directory is None and _enabled_dir is not None:
+        # An env made after the caller chose a directory keeps that choice.
+        return _enabled_dir
     if directory is None:
         from_env = os.environ.get("JAX_COMPILATION_CACHE_DIR")
         directory = Path(from_env) if from_env else cache_root() / "jax"

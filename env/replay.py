@@ -176,8 +176,15 @@ class Replayer:
         ]
         with ThreadPoolExecutor(max(1, workers), thread_name_prefix="replay") as pool:
             pending: deque[Future[list[Replay]]] = deque()
-            for batch in batches:
-                pending.append(pool.submit(self._compute, batch))
+            for index, batch in enumerate(batches):
+                if index == 0:
+                    # The first batch is launched from this thread, so the two functions are
+                    # compiled (or loaded from the persistent cache) once, before any worker
+                    # calls them: two threads loading the same executable at once crashed the
+                    # process (SIGSEGV in XLA's executable deserialization).
+                    pending.append(pool.submit(self._collect, batch, self._launch(batch)))
+                else:
+                    pending.append(pool.submit(self._compute, batch))
                 if len(pending) > max(1, workers):
                     yield from pending.popleft().result()
             while pending:

@@ -539,6 +539,24 @@ print(events["/jax/compilation_cache/cache_misses"], events["/jax/compilation_ca
     assert second_misses == 0 and second_hits >= first_misses
 
 
+def test_an_env_keeps_the_cache_directory_the_caller_chose(tmp_path: Path) -> None:
+    child = f"""
+import jax
+from env import CrafTextEnv, EnvConfig, Variant
+from env.jax_cache import enable_compilation_cache
+from pathlib import Path
+enable_compilation_cache(Path({str(tmp_path)!r}))
+CrafTextEnv(EnvConfig(variant=Variant.CLASSIC))
+print(jax.config.jax_compilation_cache_dir)
+"""
+    environ = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    done = subprocess.run(
+        [sys.executable, "-c", child], env=environ, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == str(tmp_path)
+
+
 @pytest.mark.parametrize("jax_started_first", [False, True])
 def test_the_env_keeps_jax_off_the_accelerator_by_default(jax_started_first: bool) -> None:
     """Before JAX starts, only its CPU client is allowed (no accelerator memory is claimed);

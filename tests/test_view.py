@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
 import shutil
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -479,6 +482,45 @@ def test_a_replay_does_not_depend_on_the_episodes_beside_it(
         alone.termination,
         alone.episode_return,
     )
+
+
+@pytest.mark.slow
+def test_a_replay_compiles_only_in_the_calling_thread(tmp_path: Path) -> None:
+    # Two threads loading the same executable from the persistent cache at once crashed a
+    # process (SIGSEGV in XLA's deserialization): the worker threads may only run what the
+    # calling thread compiled. A fresh process, so nothing is compiled before the replay.
+    child = """
+import threading
+import numpy as np
+from jax import monitoring
+from env import CrafTextEnv, EnvConfig, Variant, episode_key
+from env.replay import Replayer, ReplayInput
+threads = []
+monitoring.register_event_listener(lambda name, **_: threads.append(threading.current_thread().name))
+monitoring.register_event_duration_secs_listener(
+    lambda name, _, **__: threads.append(threading.current_thread().name)
+)
+replayer = Replayer(CrafTextEnv(EnvConfig(variant=Variant.CLASSIC)), batch_size=2, render=False)
+masks = np.zeros(22, bool)
+episodes = [
+    ReplayInput(reset_key=episode_key(0, "g", 0, i), required=masks, forbidden=masks, actions=[0] * 3)
+    for i in range(5)
+]
+threads.clear()
+assert len(list(replayer.replay(episodes, workers=2))) == 5
+print(len(threads), sorted(set(threads)))
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", child],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
+    assert done.returncode == 0, done.stderr
+    events, names = done.stdout.split(maxsplit=1)
+    assert int(events) > 0
+    assert names.strip() == "['MainThread']"
 
 
 @pytest.mark.slow
