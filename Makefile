@@ -65,8 +65,10 @@ lint: $(VENV)/.stamp-dev
 		$(BIN)/mypy
 	$(BIN)/lint-imports
 
-# --max-worker-restart=0: a worker that crashes (a segfault in native code) fails the run at once,
-# naming its test; replacing it under --dist loadfile can leave the run waiting for ever.
+# --max-worker-restart=0: a worker that crashes (a segfault in native code) stops the run at once,
+# naming its test (replacing it under --dist loadfile can leave the run waiting for ever); the tests
+# it left unfinished (tests/conftest.py lists them) then run once more in fresh workers, and their
+# result is the target's.
 # JAX_COMPILATION_CACHE_DIR is not set here: the env enables JAX's persistent cache itself
 # (in the user cache directory unless the variable is already set).
 # Three jobs side by side, each one's output held back and printed after the tests': the vLLM-on-CPU
@@ -80,7 +82,14 @@ test: $(VENV)/.stamp-dev
 	else echo "scripts/setup_vllm_cpu.sh not found: skipping the vLLM-on-CPU environment" > "$$vllm_log"; \
 	fi & vllm_pid=$$!; \
 	$(MAKE) --no-print-directory lint > "$$lint_log" 2>&1 & lint_pid=$$!; \
-	$(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile --max-worker-restart=0; tests=$$?; \
+	unfinished=$$(mktemp); \
+	CRAFTEXT_UNFINISHED_TESTS="$$unfinished" $(BIN)/python -m pytest -ra --durations=10 -n $(TEST_WORKERS) \
+		--dist loadfile --max-worker-restart=0; tests=$$?; \
+	if [ -s "$$unfinished" ]; then \
+		echo "== a test worker crashed: the $$(wc -l < "$$unfinished") tests it left unfinished, once more"; \
+		$(BIN)/python -m pytest -ra -n $(TEST_WORKERS) --dist loadfile --max-worker-restart=0 "@$$unfinished"; \
+		tests=$$?; \
+	fi; rm -f "$$unfinished"; \
 	wait $$vllm_pid; built=$$?; wait $$lint_pid; linted=$$?; \
 	echo "== scripts/setup_vllm_cpu.sh (ran beside the tests): exit $$built"; tail -n 40 "$$vllm_log"; \
 	echo "== make lint (ran beside the tests): exit $$linted"; cat "$$lint_log"; rm -f "$$vllm_log" "$$lint_log"; \

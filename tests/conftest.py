@@ -49,6 +49,48 @@ def pytest_runtest_makereport(
     return report
 
 
+# A worker that crashes in native code (a rare segmentation fault inside XLA, seen late in a long
+# worker's life) stops the run at once (`make test` passes --max-worker-restart=0). `make test`
+# then runs what the crash left unfinished once more, in fresh workers: the controller writes the
+# collected tests that never finished, the crashed one included, to the file this names (nothing
+# when another test failed: that fails the run).
+UNFINISHED_TESTS_FILE = os.environ.get("CRAFTEXT_UNFINISHED_TESTS")
+_collected: list[str] = []
+_finished: set[str] = set()
+_crashed: list[str] = []
+_failed: set[str] = set()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node: Any, ids: list[str]) -> None:
+    if not _collected:
+        _collected.extend(ids)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_handlecrashitem(crashitem: str, report: pytest.TestReport, sched: Any) -> None:
+    _crashed.append(crashitem)
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if report.when == "teardown":
+        _finished.add(report.nodeid)
+    if report.failed and report.when != "???":  # "???": xdist's report of a crashed worker
+        _failed.add(report.nodeid)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    # Only a crash is run again: a test that failed on its own fails the run as it is.
+    if (
+        UNFINISHED_TESTS_FILE
+        and _crashed
+        and not _failed
+        and not hasattr(session.config, "workerinput")
+    ):
+        unfinished = [test for test in _collected if test not in _finished]
+        Path(UNFINISHED_TESTS_FILE).write_text("".join(f"{test}\n" for test in unfinished))
+
+
 # Port 9 (discard) on loopback refuses connections: no test reaches the real code host.
 UNREACHABLE_CODE_HOST = "http://127.0.0.1:9"
 
