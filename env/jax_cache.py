@@ -18,10 +18,10 @@ def enable_compilation_cache(directory: Path | None = None) -> Path:
     """Point JAX's persistent cache at `directory` (default: `JAX_COMPILATION_CACHE_DIR`, else
     `<cache_root>/jax`; the directory already enabled, when there is one). Idempotent."""
     global _enabled_dir
-    if directory is None and _enabled_dir is not None:
-        # An env made after the caller chose a directory keeps that choice.
-        return _enabled_dir
     if directory is None:
+        if _enabled_dir is not None:
+            # An env made after the caller chose a directory keeps that choice.
+            return _enabled_dir
         from_env = os.environ.get("JAX_COMPILATION_CACHE_DIR")
         directory = Path(from_env) if from_env else cache_root() / "jax"
     if _enabled_dir == directory:

@@ -180,8 +180,8 @@ class Replayer:
                 if index == 0:
                     # The first batch is launched from this thread, so the two functions are
                     # compiled (or loaded from the persistent cache) once, before any worker
-                    # calls them: two threads loading the same executable at once crashed the
-                    # process (SIGSEGV in XLA's executable deserialization).
+                    # calls them: a test process once died (SIGSEGV in XLA's executable
+                    # deserialization) while two replay threads loaded the same executable.
                     pending.append(pool.submit(self._collect, batch, self._launch(batch)))
                 else:
                     pending.append(pool.submit(self._compute, batch))

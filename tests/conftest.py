@@ -57,7 +57,7 @@ def pytest_runtest_makereport(
 UNFINISHED_TESTS_FILE = os.environ.get("CRAFTEXT_UNFINISHED_TESTS")
 _collected: list[str] = []
 _finished: set[str] = set()
-_crashed: list[str] = []
+_crashed: set[str] = set()
 _failed: set[str] = set()
 
 
@@ -67,15 +67,12 @@ def pytest_xdist_node_collection_finished(node: Any, ids: list[str]) -> None:
         _collected.extend(ids)
 
 
-@pytest.hookimpl(optionalhook=True)
-def pytest_handlecrashitem(crashitem: str, report: pytest.TestReport, sched: Any) -> None:
-    _crashed.append(crashitem)
-
-
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     if report.when == "teardown":
         _finished.add(report.nodeid)
-    if report.failed and report.when != "???":  # "???": xdist's report of a crashed worker
+    elif report.when == "???":  # xdist's report of the test a worker crashed in
+        _crashed.add(report.nodeid)
+    elif report.failed:
         _failed.add(report.nodeid)
 
 
