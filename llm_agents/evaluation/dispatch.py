@@ -3,6 +3,7 @@ arrive, so each episode can step as soon as its own answer is in."""
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 
@@ -11,6 +12,8 @@ from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
 
 Answer = tuple[StepPrompt, ModelOutput]
 
+logger = logging.getLogger(__name__)
+
 
 class Dispatcher:
     """Every model request of a run goes through here; answers come back as they arrive.
@@ -18,7 +21,8 @@ class Dispatcher:
     A backend with `concurrent_requests` (an HTTP server) gets up to `max_concurrency`
     one-conversation calls in flight, from as many threads; any other (an in-process engine)
     gets one call at a time holding every prompt that is ready, so its own batching does the
-    rest. Worker threads are daemons: an interrupted run does not wait for a slow answer.
+    rest. Worker threads are daemons: an interrupted run does not wait for a server's slow
+    answer. An engine's call is waited for when the dispatcher closes (see `close`).
     """
 
     def __init__(self, model: ModelAPI, choices: ChoiceSet | None):
@@ -28,9 +32,15 @@ class Dispatcher:
         self._answers: queue.SimpleQueue[list[Answer] | BaseException] = queue.SimpleQueue()
         self.in_flight = 0
         self._workers = model.config.max_concurrency if model.concurrent_requests else 1
+        self._closed = threading.Event()
+        self._calling = threading.Event()
         serve = self._serve_one_by_one if model.concurrent_requests else self._serve_batches
-        for index in range(self._workers):
-            threading.Thread(target=serve, name=f"dispatch-{index}", daemon=True).start()
+        self._threads = [
+            threading.Thread(target=serve, name=f"dispatch-{index}", daemon=True)
+            for index in range(self._workers)
+        ]
+        for thread in self._threads:
+            thread.start()
 
     def submit(self, prompts: list[StepPrompt]) -> None:
         """Queue prompts; an engine gets them in one call (with whatever else is waiting)."""
@@ -67,29 +77,39 @@ class Dispatcher:
         return answers
 
     def close(self) -> None:
+        """Start no more calls; wait for an engine's call in progress to end.
+
+        An engine computes in this process: a thread still inside its native code when the
+        interpreter exits is torn down there, which aborts the process ("terminate called
+        without an active exception", exit 134) after an interrupted run saved its results.
+        A server's answer is not waited for: its thread only waits on a socket.
+        """
+        self._closed.set()
         for _ in range(self._workers):
             self._requests.put(None)
+        if self.model.concurrent_requests:
+            return
+        if self._calling.is_set():
+            logger.warning("waiting for the model's current call to end")
+        for thread in self._threads:
+            thread.join()
 
     def _serve_one_by_one(self) -> None:
-        while (item := self._requests.get()) is not None:
+        while (item := self._requests.get()) is not None and not self._closed.is_set():
             self._answer(item)
 
     def _serve_batches(self) -> None:
-        while (item := self._requests.get()) is not None:
+        while (item := self._requests.get()) is not None and not self._closed.is_set():
             batch = list(item)
-            closing = False
             while True:
                 try:
                     more = self._requests.get_nowait()
                 except queue.Empty:
                     break
-                if more is None:
-                    closing = True
-                    break
+                if more is None:  # only `close` queues None
+                    return
                 batch.extend(more)
             self._answer(batch)
-            if closing:
-                return
 
     def _answer(self, prompts: list[StepPrompt]) -> None:
         # Prompts with options of their own (the skills valid now) go in a call per option set.
@@ -98,6 +118,7 @@ class Dispatcher:
             key = prompt.choices if prompt.choices is not None else self.choices
             groups.setdefault(key, []).append(prompt)
         answers: list[Answer] = []
+        self._calling.set()
         try:
             for choices, group in groups.items():
                 outputs = self.model.generate([p.messages for p in group], choices=choices)
@@ -110,4 +131,6 @@ class Dispatcher:
         except BaseException as err:  # handed to the scheduler thread, which raises it
             self._answers.put(err)
             return
+        finally:
+            self._calling.clear()
         self._answers.put(answers)
