@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -11,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
+from interrupt import interruptible_run
 
 from llm_agents.agents.types import StepPrompt
 from llm_agents.backends.base import ChatMessage, ChoiceSet, Conversation, ModelOutput
@@ -90,14 +90,7 @@ def test_ctrl_c_during_a_transformers_call_exits_130_without_aborting(tmp_path: 
         "--variant", "classic", "--categories", "combo", "--max-steps", "3", "--max-tokens", "48",
         "--batch-size", "4", "--limit", "40", "--output-dir", str(out), "--no-progress",
     ]  # fmt: skip
-    process = subprocess.Popen(
-        command,
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        # A background job starts with SIGINT ignored: give the run a terminal's default.
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    process = interruptible_run(command, REPO)
     episodes = out / "episodes.jsonl"
     deadline = time.monotonic() + 600
     while process.poll() is None and time.monotonic() < deadline:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from interrupt import interruptible_run
 
 from env import CrafTextEnv, EnvConfig, Variant, shared_env
 from env.errors import UserError
@@ -209,15 +210,7 @@ def test_ctrl_c_writes_a_partial_summary(tmp_path: Path) -> None:
     # Answers slow enough that the run cannot finish between its first episode and the signal,
     # even on a loaded machine: 4 more rounds of 12 steps at 0.25 s each remain.
     slow = _cli(out, "--backend-option", "latency_s=0.25")
-    process = subprocess.Popen(
-        slow,
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        # A shell's background job (CI scripts, nohup) starts with SIGINT ignored, and Python keeps
-        # an ignored SIGINT ignored: give the run the default, as a terminal's Ctrl-C finds it.
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    process = interruptible_run(slow, REPO)
     _wait_for_episodes(out / "episodes.jsonl", process, 1)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)

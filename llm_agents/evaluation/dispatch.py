@@ -33,7 +33,6 @@ class Dispatcher:
         self.in_flight = 0
         self._workers = model.config.max_concurrency if model.concurrent_requests else 1
         self._closed = threading.Event()
-        self._calling = threading.Event()
         serve = self._serve_one_by_one if model.concurrent_requests else self._serve_batches
         self._threads = [
             threading.Thread(target=serve, name=f"dispatch-{index}", daemon=True)
@@ -89,10 +88,11 @@ class Dispatcher:
             self._requests.put(None)
         if self.model.concurrent_requests:
             return
-        if self._calling.is_set():
+        (engine,) = self._threads
+        engine.join(timeout=0.1)  # an idle worker ends at once on its None
+        if engine.is_alive():
             logger.warning("waiting for the model's current call to end")
-        for thread in self._threads:
-            thread.join()
+            engine.join()
 
     def _serve_one_by_one(self) -> None:
         while (item := self._requests.get()) is not None and not self._closed.is_set():
@@ -118,7 +118,6 @@ class Dispatcher:
             key = prompt.choices if prompt.choices is not None else self.choices
             groups.setdefault(key, []).append(prompt)
         answers: list[Answer] = []
-        self._calling.set()
         try:
             for choices, group in groups.items():
                 outputs = self.model.generate([p.messages for p in group], choices=choices)
@@ -131,6 +130,4 @@ class Dispatcher:
         except BaseException as err:  # handed to the scheduler thread, which raises it
             self._answers.put(err)
             return
-        finally:
-            self._calling.clear()
         self._answers.put(answers)
