@@ -142,6 +142,29 @@ def test_results_are_rewritten_at_most_every_results_every_s_and_always_at_the_e
         assert len(written) > 3
 
 
+def test_results_rewrites_wait_longer_when_a_rewrite_is_slow(
+    tmp_path: Path, short_env: CrafTextEnv, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from llm_agents.evaluation import sink
+
+    # No fixed wait: each round that ends an episode would rewrite it (the test above); a
+    # rewrite as slow as a long run's, kept to a small share of the time, waits past this run.
+    monkeypatch.setattr(sink, "RESULTS_EVERY_S", 0.0)
+    monkeypatch.setattr(sink, "RESULTS_TIME_SHARE", 0.001)
+    written: list[str] = []
+    write = sink.write_results
+
+    def slow_write(path: Path, results: sink.RunResults) -> None:
+        written.append(results.status)
+        time.sleep(0.2)
+        write(path, results)
+
+    monkeypatch.setattr(sink, "write_results", slow_write)
+    run(config(tmp_path, limit=5), short_env)
+    assert written == ["partial", "complete"]
+    assert read_results(tmp_path / "results.json").finished == 5
+
+
 def test_limited_schedule_samples_every_category_originals_first(tmp_path: Path) -> None:
     from env.dataset import load_dataset
 

@@ -37,12 +37,17 @@ from llm_agents.run_data.store import (
 #: rewrite. The run's end, its stop on failures and Ctrl-C always write it; a resume rebuilds
 #: it from `episodes.jsonl`, so a killed run loses nothing to the wait.
 RESULTS_EVERY_S = 1.0
+#: ...and at most this share of a run's time goes to them: on a Medium run one rewrite summarises
+#: tens of thousands of episodes in seconds, and a fixed wait let the rewrites take all of the
+#: driver's time (81,400 episodes played at half speed and slowing), so the wait grows with it.
+RESULTS_TIME_SHARE = 0.05
 
 
 class RunSink:
     """The run's sink: hands out the episodes still to play, writes what comes back, stops the
     run when the backend fails too often in a row, and keeps `results.json` current (rewritten
-    at the first round `RESULTS_EVERY_S` after the last rewrite, once an episode has ended)."""
+    once an episode has ended, at the first round `RESULTS_EVERY_S` after the last rewrite, or
+    later when rewrites would take more than `RESULTS_TIME_SHARE` of the time)."""
 
     def __init__(
         self,
@@ -75,7 +80,9 @@ class RunSink:
         # This sitting's wall time is added to the earlier sittings' (None: not kept then).
         self._played_before = results.played_seconds
         self._saved_at = -RESULTS_EVERY_S
+        self._save_s = 0.0
         self._unsaved = False
+        self._successes = sum(e.success for e in finished)
         self._agent_steps = 0
         self._tokens = 0
 
@@ -112,9 +119,10 @@ class RunSink:
         if ended:
             append_records(self.out / EPISODES_FILE, ended)
             self.episodes.extend(ended)
+            self._successes += sum(e.success for e in ended)
         self._count_failures(decisions, aborted)
         self._unsaved = self._unsaved or bool(ended or aborted)
-        if self._unsaved and time.monotonic() - self._saved_at >= RESULTS_EVERY_S:
+        if self._unsaved and self._save_due():
             self.save()
         self._agent_steps += len(decisions)
         self._tokens += sum(d.output.prompt_tokens + d.output.completion_tokens for d in decisions)
@@ -123,11 +131,15 @@ class RunSink:
         if self.interrupted.is_set():
             raise KeyboardInterrupt
 
+    def _save_due(self) -> bool:
+        wait = max(RESULTS_EVERY_S, self._save_s / RESULTS_TIME_SHARE)
+        return time.monotonic() - self._saved_at >= wait
+
     def _show_progress(self, ended: int) -> None:
         elapsed = max(time.perf_counter() - self._started, 1e-9)
         self.bar.update(ended)
         self.bar.set_postfix(
-            success=f"{sum(e.success for e in self.episodes)}/{len(self.episodes)}",
+            success=f"{self._successes}/{len(self.episodes)}",
             steps_s=f"{self._agent_steps / elapsed:.1f}",
             tok_s=f"{self._tokens / elapsed:.0f}",
             errors=self.results.backend_errors.failed_calls,
@@ -150,6 +162,7 @@ class RunSink:
 
     def save(self, failure: str | None = None) -> None:
         """Write `results.json` for the episodes finished so far."""
+        started = time.monotonic()
         results = self.results
         counted = [e for e in self.episodes if e.episode_id in self.scheduled_ids]
         results.finished = len(counted)
@@ -182,6 +195,7 @@ class RunSink:
             results.played_seconds = self._played_before + time.perf_counter() - self._started
         write_results(self.out / RESULTS_FILE, results)
         self._saved_at, self._unsaved = time.monotonic(), False
+        self._save_s = self._saved_at - started
 
 
 def finished_episodes(out: Path) -> list[EpisodeRecord]:
