@@ -16,6 +16,7 @@ from llm_agents.run_data.store import (
     atomic_write_text,
     check_output_dir,
     complete_lines,
+    keep_steps_of,
     read_episodes,
     read_steps,
 )
@@ -135,6 +136,31 @@ def test_a_whole_line_that_is_no_step_record_is_an_error_naming_it(
         handle.write(line + "\n")
     with pytest.raises(UserError, match=r"steps\.jsonl, line 2: not a step record"):
         list(read_steps(path))
+
+
+def test_keeping_the_steps_of_finished_episodes_drops_the_others_and_a_torn_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "steps.jsonl"
+    append_records(path, [step("a", 0), step("b", 0), step("a", 1), step("c", 0), step("b", 1)])
+    with path.open("a") as handle:
+        handle.write(step("a", 2).model_dump_json()[:40])
+    # Read a line at a time: a long run's log does not fit in memory whole.
+    monkeypatch.setattr(Path, "read_bytes", lambda self: pytest.fail("read whole"))
+    monkeypatch.setattr(Path, "read_text", lambda self, **_: pytest.fail("read whole"))
+    assert keep_steps_of(path, {"a", "c"}) == 3
+    assert [(s.episode_id, s.step) for s in read_steps(path)] == [("a", 0), ("a", 1), ("c", 0)]
+    assert os.listdir(tmp_path) == ["steps.jsonl"]
+
+
+def test_a_step_log_with_nothing_to_drop_is_left_as_it_is(tmp_path: Path) -> None:
+    path = tmp_path / "steps.jsonl"
+    append_records(path, [step("a", 0), step("b", 0)])
+    before = path.stat()
+    assert keep_steps_of(path, {"a", "b", "c"}) == 0
+    assert keep_steps_of(tmp_path / "none.jsonl", {"a"}) == 0
+    after = path.stat()
+    assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
 
 
 @pytest.mark.parametrize("contents", [b"", b"\n\n", b"   \n"])

@@ -7,6 +7,7 @@ import contextlib
 import gc
 import hashlib
 import json
+import math
 import random
 import signal
 import subprocess
@@ -125,6 +126,7 @@ def test_results_are_rewritten_at_most_every_results_every_s_and_always_at_the_e
     from llm_agents.evaluation import sink
 
     monkeypatch.setattr(sink, "RESULTS_EVERY_S", every_s)
+    monkeypatch.setattr(sink, "RESULTS_TIME_SHARE", math.inf)  # no wait for a rewrite's cost
     written: list[str] = []
     write = sink.write_results
     monkeypatch.setattr(

@@ -24,7 +24,7 @@ from llm_agents.run_data.store import (
     STEPS_FILE,
     RunResults,
     append_records,
-    episode_ids_of_steps,
+    keep_steps_of,
     read_episodes,
     read_steps,
     rewrite_lines,
@@ -211,11 +211,7 @@ def finished_episodes(out: Path) -> list[EpisodeRecord]:
 
 def drop_unfinished_steps(out: Path, finished_ids: set[str]) -> None:
     """Forget the steps of episodes that did not finish: they are replayed from the start."""
-    path = out / STEPS_FILE
-    if path.exists():
-        rewrite_lines(
-            path, [line for id_, line in episode_ids_of_steps(path) if id_ in finished_ids]
-        )
+    keep_steps_of(out / STEPS_FILE, finished_ids)
 
 
 def recorded_actions(out: Path, finished_ids: set[str]) -> dict[str, Counter[str]]:

@@ -25,7 +25,7 @@ import tempfile
 from collections.abc import Collection, Iterable, Iterator, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import IO, Any, Literal, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -62,12 +62,14 @@ def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Replace `path` with `text` so that a reader (or a crash) sees the old file or the new one."""
+@contextlib.contextmanager
+def _replacing(path: Path, mode: Literal["w", "wb"]) -> Iterator[IO[Any]]:
+    """A new file that replaces `path`, fsynced, when the block ends without an error, so that a
+    reader (or a crash) sees the old file or the new one."""
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(handle, "w", encoding="utf-8") as file:
-            file.write(text)
+        with os.fdopen(handle, mode, encoding=None if "b" in mode else "utf-8") as file:
+            yield file
             file.flush()
             os.fsync(file.fileno())
         os.replace(temporary, path)
@@ -75,6 +77,12 @@ def atomic_write_text(path: Path, text: str) -> None:
         with contextlib.suppress(OSError):
             os.unlink(temporary)
         raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Replace `path` with `text` so that a reader (or a crash) sees the old file or the new one."""
+    with _replacing(path, "w") as file:
+        file.write(text)
 
 
 def atomic_write_json(path: Path, data: Any) -> None:
@@ -524,12 +532,36 @@ def read_steps(path: Path, episodes: Collection[str] | None = None) -> Iterator[
             raise UserError(f"{path} is not UTF-8 text: {err}") from err
 
 
-def episode_ids_of_steps(path: Path) -> list[tuple[str, str]]:
-    """(episode id, line) for every whole line of `steps.jsonl`."""
-    pairs = []
-    for line in complete_lines(path):
-        try:
-            pairs.append((str(json.loads(line)["episode_id"]), line))
-        except (json.JSONDecodeError, KeyError, TypeError) as err:
-            raise UserError(f"{path} holds a line that is not a step record: {err}") from err
-    return pairs
+def _episode_lines(path: Path) -> Iterator[tuple[str | None, bytes]]:
+    """(episode id, line) for each line of `steps.jsonl`, read one at a time; None for a torn
+    last line (no newline: an append killed mid-write)."""
+    try:
+        handle = path.open("rb")
+    except OSError as err:
+        raise UserError(f"cannot read {path}: {err.strerror}") from err
+    with handle:
+        for number, line in enumerate(handle, start=1):
+            if not line.endswith(b"\n"):
+                yield None, line
+            elif line.strip():
+                try:
+                    yield str(json.loads(line)["episode_id"]), line
+                except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as err:
+                    raise UserError(f"{path}, line {number}: not a step record: {err}") from err
+
+
+def keep_steps_of(path: Path, episodes: Collection[str]) -> int:
+    """Drop from the step log `path` the lines of every episode not in `episodes` and a torn last
+    line; returns the lines dropped. The log is read a line at a time, never whole (a Medium
+    run's holds gigabytes: reading it whole took more memory than the machine had), and
+    rewritten atomically, only when a line goes."""
+    if not path.exists() or all(id_ in episodes for id_, _ in _episode_lines(path)):
+        return 0
+    dropped = 0
+    with _replacing(path, "wb") as file:
+        for id_, line in _episode_lines(path):
+            if id_ in episodes:
+                file.write(line)
+            else:
+                dropped += 1
+    return dropped
