@@ -39,7 +39,8 @@ from llm_agents.run_data.store import (
 RESULTS_EVERY_S = 1.0
 #: ...and at most this share of a run's time goes to them: on a Medium run one rewrite summarises
 #: tens of thousands of episodes in seconds, and a fixed wait let the rewrites take all of the
-#: driver's time (81,400 episodes played at half speed and slowing), so the wait grows with it.
+#: driver's time (past 50,000 episodes a Medium run played at a quarter of its speed), so the
+#: wait grows with the rewrite.
 RESULTS_TIME_SHARE = 0.05
 
 
