@@ -52,7 +52,6 @@ from llm_agents.evaluation.play import play_episodes
 from llm_agents.evaluation.schedule import EpisodeQueue, ScheduledEpisode, build_schedule
 from llm_agents.evaluation.sink import (
     RunSink,
-    drop_unfinished_steps,
     finished_episodes,
     recorded_actions,
 )
@@ -66,6 +65,7 @@ from llm_agents.run_data.store import (
     RunResults,
     check_output_dir,
     file_sha256,
+    keep_steps_of,
     make_output_dir,
     read_results,
     split_digests,
@@ -385,7 +385,8 @@ def run_schedule(
     make_output_dir(out)
     finished = finished_episodes(out)
     done_ids = {e.episode_id for e in finished}
-    drop_unfinished_steps(out, done_ids)
+    # Steps of episodes that did not finish are dropped: those are played again from the start.
+    keep_steps_of(out / STEPS_FILE, done_ids)
     pending = [spec for spec in prepared.schedule if spec.episode_id not in done_ids]
 
     results = RunResults(

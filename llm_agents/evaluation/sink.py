@@ -24,7 +24,6 @@ from llm_agents.run_data.store import (
     STEPS_FILE,
     RunResults,
     append_records,
-    keep_steps_of,
     read_episodes,
     read_steps,
     rewrite_lines,
@@ -208,11 +207,6 @@ def finished_episodes(out: Path) -> list[EpisodeRecord]:
     episodes = read_episodes(path, repair=True)
     rewrite_lines(path, [e.model_dump_json() for e in episodes])
     return episodes
-
-
-def drop_unfinished_steps(out: Path, finished_ids: set[str]) -> None:
-    """Forget the steps of episodes that did not finish: they are replayed from the start."""
-    keep_steps_of(out / STEPS_FILE, finished_ids)
 
 
 def recorded_actions(out: Path, finished_ids: set[str]) -> dict[str, Counter[str]]:

@@ -532,36 +532,47 @@ def read_steps(path: Path, episodes: Collection[str] | None = None) -> Iterator[
             raise UserError(f"{path} is not UTF-8 text: {err}") from err
 
 
-def _episode_lines(path: Path) -> Iterator[tuple[str | None, bytes]]:
-    """(episode id, line) for each line of `steps.jsonl`, read one at a time; None for a torn
-    last line (no newline: an append killed mid-write)."""
-    try:
-        handle = path.open("rb")
-    except OSError as err:
-        raise UserError(f"cannot read {path}: {err.strerror}") from err
-    with handle:
-        for number, line in enumerate(handle, start=1):
-            if not line.endswith(b"\n"):
-                yield None, line
-            elif line.strip():
-                try:
-                    yield str(json.loads(line)["episode_id"]), line
-                except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as err:
-                    raise UserError(f"{path}, line {number}: not a step record: {err}") from err
+def _episode_lines(handle: IO[bytes], path: Path) -> Iterator[tuple[str | None, bytes]]:
+    """(episode id, line) for each line of the step log open in `handle`, read one at a time;
+    None for a torn last line (no newline: an append killed mid-write)."""
+    for number, line in enumerate(handle, start=1):
+        if not line.endswith(b"\n"):
+            yield None, line
+        elif line.strip():
+            try:
+                yield str(json.loads(line)["episode_id"]), line
+            except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as err:
+                raise UserError(f"{path}, line {number}: not a step record: {err}") from err
 
 
 def keep_steps_of(path: Path, episodes: Collection[str]) -> int:
     """Drop from the step log `path` the lines of every episode not in `episodes` and a torn last
     line; returns the lines dropped. The log is read a line at a time, never whole (a Medium
-    run's holds gigabytes: reading it whole took more memory than the machine had), and
-    rewritten atomically, only when a line goes."""
-    if not path.exists() or all(id_ in episodes for id_, _ in _episode_lines(path)):
+    run's holds gigabytes: reading it whole took more memory than the machine had), each line
+    parsed once, and rewritten atomically, only when a line goes: the lines before the first
+    that goes are copied as they are."""
+    if not path.exists():
         return 0
-    dropped = 0
-    with _replacing(path, "wb") as file:
-        for id_, line in _episode_lines(path):
-            if id_ in episodes:
-                file.write(line)
-            else:
-                dropped += 1
+    try:
+        source = path.open("rb")
+    except OSError as err:
+        raise UserError(f"cannot read {path}: {err.strerror}") from err
+    with source:
+        lines = _episode_lines(source, path)
+        head = 0
+        for id_, line in lines:
+            if id_ not in episodes:
+                break
+            head += len(line)
+        else:
+            return 0
+        dropped = 1
+        with _replacing(path, "wb") as file, path.open("rb") as copy:
+            while head:
+                head -= file.write(copy.read(min(head, 1 << 20)))
+            for id_, line in lines:
+                if id_ in episodes:
+                    file.write(line)
+                else:
+                    dropped += 1
     return dropped
