@@ -34,8 +34,8 @@ from env.dataset import Dataset, DatasetSource, Goal, category_of, load_dataset
 from env.goals import DIFFICULTY_CATEGORIES, AnyGoal, Category, Difficulty, run_category
 from llm_agents.agents import NoModel
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.published import PUBLISHED_MEDIUM, SCENARIO_ROWS
 from llm_agents.evaluation.runner import run_eval
+from llm_agents.judging.published import PUBLISHED_MEDIUM, SCENARIO_ROWS
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import EPISODES_FILE, STEPS_FILE, read_episodes, read_steps
 

@@ -16,8 +16,8 @@ import argparse
 import resource
 import time
 
-from llm_agents.evaluation.replay_check import check_run
-from llm_agents.run_data.run_view import read_run
+from llm_agents.evaluation.run_view import read_run
+from llm_agents.judging.replay_check import check_run
 
 
 def main() -> None:

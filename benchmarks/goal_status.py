@@ -23,7 +23,7 @@ from pathlib import Path
 from env.dataset import load_dataset
 from env.goals import DIFFICULTIES
 from llm_agents.evaluation.config import EvalConfig
-from llm_agents.evaluation.goal_flags import goal_status
+from llm_agents.judging.goal_flags import goal_status
 
 OFFICIAL_ZIP = (
     Path(__file__).resolve().parents[2] / "shared" / "data" / "craftext_official_1c518ae.zip"

@@ -14,7 +14,7 @@ rung's runs played, loading the model and compiling included, over the episodes 
 (kept in `cpu.json`, so a resumed rung keeps its first measurement). Zero-shot, a call per step,
 plays a subset by default (`--zero-shot-episodes`, spread over the categories), and the table
 says so. Below the table, what the skills agent got wrong in each failed episode, from its
-records (`evaluation.skill_errors`): the address of a failure between reading and acting.
+records (`judging.skill_errors`): the address of a failure between reading and acting.
 
     python benchmarks/ladder.py --model hf:qwen2.5-coder-0.5b
         [--categories one combo new_objects] [--limit N] [--zero-shot-episodes 16]
@@ -344,17 +344,17 @@ def format_ladder(settings: LadderSettings, rows: Sequence[LadderRow]) -> str:
 class SkillErrors:
     """What the `plans` episodes got wrong, and what stopping to ask saved."""
 
-    counts: dict[str, int]  # failed episodes per label of `evaluation.skill_errors`
+    counts: dict[str, int]  # failed episodes per label of `judging.skill_errors`
     stopped: int  # episodes whose agent stopped asking (invalid answers, stuck)
     calls_saved: int  # the model calls those stops saved, one per step left
 
 
 def skill_errors(settings: LadderSettings) -> SkillErrors | None:
-    """The `plans` episodes' errors (`evaluation.skill_errors`); None before any ran."""
+    """The `plans` episodes' errors (`judging.skill_errors`); None before any ran."""
     from env.dataset import load_dataset
     from env.goals import AnyGoal, run_category
     from env.variant import Variant
-    from llm_agents.evaluation.skill_errors import (
+    from llm_agents.judging.skill_errors import (
         model_calls_saved,
         skill_error_table,
         stopped_asking,
@@ -385,7 +385,7 @@ def skill_errors(settings: LadderSettings) -> SkillErrors | None:
 
 
 def format_skill_errors(errors: SkillErrors) -> str:
-    from llm_agents.evaluation.skill_errors import SKILL_ERROR_TITLES
+    from llm_agents.judging.skill_errors import SKILL_ERROR_TITLES
 
     failed = sum(errors.counts.values())
     lines = [f"What the skills agent got wrong ({failed} failed episodes):"]

@@ -1,5 +1,5 @@
 """Skills-agent runs side by side: success with its clustered interval, invalid answers, and
-what went wrong (`evaluation.skill_errors`), for each run and on the episodes every run played.
+what went wrong (`judging.skill_errors`), for each run and on the episodes every run played.
 
 Runs cut short (the CPU runs of issue 47 play a few of their episodes in a session) are
 compared on their common episodes, where the same worlds and texts were played; each run's own
@@ -19,7 +19,7 @@ from pathlib import Path
 from env.dataset import load_dataset
 from env.goals import AnyGoal, run_category
 from env.variant import Variant
-from llm_agents.evaluation.skill_errors import SKILL_ERROR_TITLES, skill_error_table
+from llm_agents.judging.skill_errors import SKILL_ERROR_TITLES, skill_error_table
 from llm_agents.run_data.metrics import clustered_rate
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import read_episodes

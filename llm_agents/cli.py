@@ -325,8 +325,8 @@ def _progress_bar(enabled: bool, unit: str = "episode") -> Any:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from llm_agents.agents import NoModel, agent_class
-    from llm_agents.evaluation.report import report_run
     from llm_agents.evaluation.runner import execute_run, open_model, prepare_run
+    from llm_agents.judging.report import report_run
 
     config: EvalConfig = _settings(args)
     prepared = prepare_run(config)
@@ -367,16 +367,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _print_report(run_dir: str | Path) -> None:
-    from llm_agents.evaluation.report import report_run
+    from llm_agents.judging.report import report_run
 
     with contextlib.suppress(UserError):
         print(report_run(run_dir))
 
 
 def cmd_ground(args: argparse.Namespace) -> int:
-    from llm_agents.evaluation.grounding_report import report_grounding
     from llm_agents.evaluation.grounding_run import execute_grounding, prepare_grounding
     from llm_agents.evaluation.runner import open_model
+    from llm_agents.judging.grounding_report import report_grounding
 
     config = _settings(args)
     prepared = prepare_grounding(config)
@@ -427,12 +427,12 @@ def _check_goal_status_flags(args: argparse.Namespace, *, gif: bool = False) -> 
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from llm_agents.evaluation.report import report_run
+    from llm_agents.judging.report import report_run
     from llm_agents.run_data.store import RESULTS_FILE, results_kind
 
     results_path = Path(args.run_dir) / RESULTS_FILE
     if results_path.is_file() and results_kind(results_path) == "ground":
-        from llm_agents.evaluation.grounding_report import report_grounding
+        from llm_agents.judging.grounding_report import report_grounding
 
         if args.success_rule or args.compare or args.goal_status:
             raise UserError(
@@ -444,7 +444,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     _check_goal_status_flags(args)
     if args.compare:
-        from llm_agents.evaluation.comparison import compare_runs
+        from llm_agents.judging.comparison import compare_runs
 
         if args.success_rule:
             raise UserError(
@@ -510,14 +510,14 @@ def cmd_data(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from llm_agents.evaluation.balrog_export import export_balrog
+    from llm_agents.judging.balrog_export import export_balrog
 
     print(export_balrog(args.run_dir, args.out))
     return 0
 
 
 def cmd_card(args: argparse.Namespace) -> int:
-    from llm_agents.evaluation.replay_check import RunDoesNotReplay
+    from llm_agents.judging.replay_check import RunDoesNotReplay
 
     try:
         return _card(args)
@@ -528,15 +528,15 @@ def cmd_card(args: argparse.Namespace) -> int:
 
 def _reask_checks(args: argparse.Namespace) -> None:
     """Refuse `--reask` where it cannot run, before the (long) replay."""
-    from llm_agents.evaluation.reask import check_reask
-    from llm_agents.run_data.run_view import read_run
+    from llm_agents.evaluation.run_view import read_run
+    from llm_agents.judging.reask import check_reask
 
     check_reask(read_run(args.run_dir), args.reask)
 
 
 def _print_reask(args: argparse.Namespace) -> None:
-    from llm_agents.evaluation.reask import reask
-    from llm_agents.run_data.run_view import read_run
+    from llm_agents.evaluation.run_view import read_run
+    from llm_agents.judging.reask import reask
 
     found = reask(
         read_run(args.run_dir), args.reask, seed=args.reask_seed, progress=not args.no_progress
@@ -552,7 +552,7 @@ def _print_reask(args: argparse.Namespace) -> None:
 
 
 def _card(args: argparse.Namespace) -> int:
-    from llm_agents.evaluation.card import build_card, read_card, verify_card, write_card
+    from llm_agents.judging.card import build_card, read_card, verify_card, write_card
 
     if args.do_nothing_worlds < 1:
         raise UserError(f"--do-nothing-worlds must be at least 1, not {args.do_nothing_worlds}")

@@ -459,7 +459,7 @@ def _model_sections(roots: list[type[BaseModel]], done: set[type], level: str) -
 
 
 def records_page() -> str:
-    from llm_agents.evaluation.card import CARD_FILE, CARD_SCHEMA_VERSION, Card
+    from llm_agents.judging.card import CARD_FILE, CARD_SCHEMA_VERSION, Card
     from llm_agents.run_data.records import EpisodeRecord, StepRecord
     from llm_agents.run_data.store import EPISODES_FILE, RESULTS_FILE, STEPS_FILE, RunResults
 

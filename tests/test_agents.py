@@ -23,8 +23,8 @@ from llm_agents.agents.strategies.skills import SkillsAgent
 from llm_agents.agents.strategies.zero_shot import ZeroShotAgent
 from llm_agents.agents.types import EpisodeStart
 from llm_agents.backends.mock import MockModel
-from llm_agents.evaluation.comparison import compare_runs
 from llm_agents.evaluation.config import build_config
+from llm_agents.judging.comparison import compare_runs
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
 from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results
 from prompts import PACKAGE_TEMPLATES_DIR

@@ -13,12 +13,12 @@ import yaml
 from env.craftax_names import CLASSIC_ACHIEVEMENTS
 from env.open_ended import OPEN_ENDED_ID, OPEN_ENDED_TEXT
 from llm_agents.cli import main
-from llm_agents.evaluation.balrog_export import (
+from llm_agents.evaluation.config import build_config
+from llm_agents.judging.balrog_export import (
     export_balrog,
     read_balrog_submission,
     submission_scores,
 )
-from llm_agents.evaluation.config import build_config
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.scores import score_run
 from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results
@@ -132,8 +132,8 @@ def test_an_overridden_protocol_or_a_used_folder_is_refused(
 def test_an_open_ended_run_is_reported_beside_balrogs_published_rows(
     tmp_path: Path, shared_data: Path
 ) -> None:
-    from llm_agents.evaluation.published import BALROG_PUBLISHED
-    from llm_agents.evaluation.report import report_run
+    from llm_agents.judging.published import BALROG_PUBLISHED
+    from llm_agents.judging.report import report_run
 
     text = report_run(_balrog_run(tmp_path / "run"))
     ours = score_run([_episode(i, n) for i, n in enumerate((3, 9, 0, 14, 5, 5, 22, 1, 8, 11))])

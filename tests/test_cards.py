@@ -19,10 +19,10 @@ from headless import launch_chromium, open_page
 from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import main
-from llm_agents.evaluation.card import model_size_billions
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.published import PUBLISHED, PUBLISHED_MEDIUM, PUBLISHED_TRAINED_EASY
 from llm_agents.evaluation.runner import run_eval
+from llm_agents.judging.card import model_size_billions
+from llm_agents.judging.published import PUBLISHED, PUBLISHED_MEDIUM, PUBLISHED_TRAINED_EASY
 from llm_agents.run_data.metrics import clustered_rate
 
 MAX_STEPS = 30

@@ -300,7 +300,7 @@ def test_every_record_file_names_its_schema_version(generated: dict[str, str]) -
     for name in ("results.json", "episodes.jsonl", "steps.jsonl", "card.json"):
         [row] = [line for line in page.splitlines() if line.startswith(f"| `{name}` |")]
         assert row.rstrip(" |").rsplit(" | ", 1)[1], row
-    from llm_agents.evaluation.card import CARD_SCHEMA_VERSION
+    from llm_agents.judging.card import CARD_SCHEMA_VERSION
 
     assert f"`schema_version` {CARD_SCHEMA_VERSION}" in page
 

@@ -347,7 +347,7 @@ def test_ground_resumes_under_other_code_and_its_report_says_so(
     monkeypatch: pytest.MonkeyPatch,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    from llm_agents.evaluation.grounding_report import report_grounding
+    from llm_agents.judging.grounding_report import report_grounding
     from llm_agents.run_data import provenance
 
     out = tmp_path / "run"
@@ -702,7 +702,7 @@ def test_guided_examples_and_code_are_the_runs_identity(
     monkeypatch: pytest.MonkeyPatch,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    from llm_agents.evaluation.report import report_run
+    from llm_agents.judging.report import report_run
     from llm_agents.run_data import provenance
 
     out = tmp_path / "run"

@@ -10,8 +10,8 @@ from pathlib import Path
 from scipy.stats import binomtest
 
 from env.dataset import OFFICIAL_SPLIT_SHA256
-from llm_agents.evaluation.report import report_run
-from llm_agents.evaluation.report_tables import format_table
+from llm_agents.judging.report import report_run
+from llm_agents.judging.report_tables import format_table
 from llm_agents.run_data.metrics import summarize
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results

@@ -17,8 +17,8 @@ from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import main
 from llm_agents.evaluation.config import EvalConfig, build_config
-from llm_agents.evaluation.report import report_run
 from llm_agents.evaluation.runner import prepare_run, run_eval
+from llm_agents.judging.report import report_run
 from llm_agents.run_data.store import read_episodes, read_results
 from llm_agents.viewer import build_view
 

@@ -27,7 +27,7 @@ from env.errors import UserError
 from llm_agents.agents import AGENT_PROTOCOL_VERSION, agent_class
 from llm_agents.agents.loading import agent_identity, agent_shipment, registered_agents
 from llm_agents.cli import EXIT_USER_ERROR, main
-from llm_agents.evaluation.report import report_run
+from llm_agents.judging.report import report_run
 from llm_agents.run_data.store import read_episodes, read_results
 from llm_agents.viewer import build_view
 

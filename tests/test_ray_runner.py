@@ -24,8 +24,8 @@ from env import EnvConfig, Variant, shared_env
 from env.errors import UserError
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.report import report_run
 from llm_agents.evaluation.runner import BackendFailure, prepare_run, run_eval
+from llm_agents.judging.report import report_run
 from llm_agents.run_data.store import read_episodes, read_results
 
 ray = pytest.importorskip("ray")

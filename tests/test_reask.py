@@ -16,9 +16,9 @@ from llm_agents.agents import NoModel
 from llm_agents.backends import get_model
 from llm_agents.cli import main
 from llm_agents.evaluation.config import build_config
-from llm_agents.evaluation.reask import reask
+from llm_agents.evaluation.run_view import read_run
 from llm_agents.evaluation.runner import run_eval
-from llm_agents.run_data.run_view import read_run
+from llm_agents.judging.reask import reask
 
 # Answers picked by the prompt's hash: the same prompt always gets the same answer, as a greedy
 # model's would.

@@ -13,11 +13,11 @@ from scipy.stats import binomtest
 
 from env.dataset import OFFICIAL_SPLIT_SHA256
 from env.errors import UserError
-from llm_agents.evaluation.published import PUBLISHED
-from llm_agents.evaluation.report import report_run
-from llm_agents.evaluation.report_chart import plot_success
-from llm_agents.evaluation.report_tables import format_table
-from llm_agents.evaluation.rescoring import rescore
+from llm_agents.judging.published import PUBLISHED
+from llm_agents.judging.report import report_run
+from llm_agents.judging.report_chart import plot_success
+from llm_agents.judging.report_tables import format_table
+from llm_agents.judging.rescoring import rescore
 from llm_agents.run_data.metrics import summarize
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.store import RunIdentity, RunResults, append_records, write_results
@@ -480,7 +480,7 @@ def test_a_run_whose_episodes_came_from_different_code_says_so(tmp_path: Path) -
 def test_compared_runs_that_differ_in_a_setting_changing_the_numbers_say_which(
     tmp_path: Path,
 ) -> None:
-    from llm_agents.evaluation.comparison import compare_runs
+    from llm_agents.judging.comparison import compare_runs
 
     played = episodes_with({"one": (1, 3)})
     config = {"model": "hf:m", "variant": "full", "protocol": "default", "choice": None,

@@ -139,8 +139,8 @@ def _run_dir(path: Path, episodes: list[EpisodeRecord], variant: str) -> Path:
 
 
 def test_report_and_compare_compute_the_scores_from_the_records(tmp_path: Path) -> None:
-    from llm_agents.evaluation.comparison import compare_runs
-    from llm_agents.evaluation.report import report_run
+    from llm_agents.judging.comparison import compare_runs
+    from llm_agents.judging.report import report_run
 
     episodes = [
         _episode("a", "one", ["COLLECT_WOOD", "PLACE_TABLE"]),

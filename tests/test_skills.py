@@ -22,9 +22,9 @@ from llm_agents.backends.base import ChatMessage, ChoiceSet, ModelOutput
 from llm_agents.backends.mock import MockModel
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.dispatch import Dispatcher
-from llm_agents.evaluation.report import format_table
 from llm_agents.evaluation.runner import run_eval
-from llm_agents.evaluation.skill_errors import model_calls_saved, skill_error
+from llm_agents.judging.report import format_table
+from llm_agents.judging.skill_errors import model_calls_saved, skill_error
 from llm_agents.run_data.metrics import action_counts
 from llm_agents.run_data.records import EpisodeRecord, SkillRecord
 from llm_agents.run_data.store import read_episodes, read_results, read_steps

@@ -527,8 +527,8 @@ print(len(threads), sorted(set(threads)))
 def test_run_page_shows_the_achievement_scores_report_prints(
     run_dir: Path, expert_dir: Path, viewed: Any
 ) -> None:
-    from llm_agents.evaluation.rescoring import run_scores
-    from llm_agents.run_data.run_view import read_run
+    from llm_agents.evaluation.run_view import read_run
+    from llm_agents.judging.rescoring import run_scores
 
     index = (run_dir / "report" / "index.html").read_text()
     section = index.split('id="scores-table"')[1].split("</table>")[0]

@@ -1,3 +1,3 @@
-"""Evaluating a model: settings and protocols, the episode scheduler and runner (local or
-on Ray), the report of a run (published numbers, rescoring, tables, chart, comparison), and
-grounding runs and their report."""
+"""Playing a run: settings and protocols, the episode scheduler and runner (local or on Ray),
+the play loop and its sink, the typed view of a recorded run and its replay through the play
+loop, and grounding runs."""

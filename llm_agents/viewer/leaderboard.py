@@ -31,7 +31,7 @@ from pydantic import BaseModel
 
 from env.errors import UserError
 from env.goals import ALL_CATEGORIES, DIFFICULTY_CATEGORIES, Difficulty
-from llm_agents.evaluation.card import (
+from llm_agents.judging.card import (
     CARD_FILE,
     CARD_MD_FILE,
     Card,
@@ -40,13 +40,13 @@ from llm_agents.evaluation.card import (
     read_card,
     verify_card,
 )
-from llm_agents.evaluation.published import (
+from llm_agents.judging.published import (
     BALROG_PUBLISHED,
     PUBLISHED_BY_DIFFICULTY,
     PUBLISHED_KIND,
     PUBLISHED_TRAINED_EASY,
 )
-from llm_agents.evaluation.replay_check import RunDoesNotReplay
+from llm_agents.judging.replay_check import RunDoesNotReplay
 from llm_agents.run_data.metrics import SuccessRate
 from llm_agents.run_data.store import STEPS_FILE, atomic_write_text
 

@@ -27,16 +27,16 @@ import markupsafe
 import numpy as np
 
 from env.errors import UserError
-from llm_agents.evaluation.comparison import (
+from llm_agents.evaluation.config import EvalConfig
+from llm_agents.judging.comparison import (
     ComparedRun,
     compared_run,
     comparison_columns,
     comparison_notes,
 )
-from llm_agents.evaluation.config import EvalConfig
-from llm_agents.evaluation.goal_flags import DEFAULT_WORLDS, run_goal_status
-from llm_agents.evaluation.published import PUBLISHED_KIND, paper_differences, published_for
-from llm_agents.evaluation.report_tables import (
+from llm_agents.judging.goal_flags import DEFAULT_WORLDS, run_goal_status
+from llm_agents.judging.published import PUBLISHED_KIND, paper_differences, published_for
+from llm_agents.judging.report_tables import (
     CATEGORY_LABELS,
     GoalStatusTables,
     chart_categories,
@@ -47,7 +47,7 @@ from llm_agents.evaluation.report_tables import (
     scenario_rows,
     table_columns,
 )
-from llm_agents.evaluation.rescoring import model_name_of, rescore, run_scores, run_summary
+from llm_agents.judging.rescoring import model_name_of, rescore, run_scores, run_summary
 from llm_agents.run_data.metrics import DOMINANT_SHARE, action_histogram, goal_key
 from llm_agents.run_data.records import StepRecord
 from llm_agents.viewer.frames import SpriteSheet, export_animation, sprite_sheet

@@ -12,8 +12,8 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import AnyGoal, Difficulty, run_category
 from env.open_ended import open_ended_dataset
+from llm_agents.evaluation.run_view import RunView, read_run
 from llm_agents.run_data.records import EpisodeRecord, StepRecord
-from llm_agents.run_data.run_view import RunView, read_run
 from llm_agents.run_data.store import EPISODES_FILE, RESULTS_FILE, RunResults
 
 

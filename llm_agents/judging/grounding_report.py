@@ -11,11 +11,11 @@ from pathlib import Path
 
 from env.errors import UserError
 from llm_agents.evaluation.grounding_run import read_ground_results, read_groundings
-from llm_agents.evaluation.report_tables import render_rows
+from llm_agents.evaluation.run_view import recorded_difficulty
+from llm_agents.judging.report_tables import render_rows
 from llm_agents.run_data.grounding_metrics import GroundingScore
 from llm_agents.run_data.metrics import SuccessRate
 from llm_agents.run_data.provenance import code_note
-from llm_agents.run_data.run_view import recorded_difficulty
 from llm_agents.run_data.store import RESULTS_FILE
 
 __all__ = ["report_grounding"]

@@ -1,19 +1,18 @@
 """A recorded run's figures for a report: its episodes re-scored under either success rule (from
 the records alone), its summary and action counts, and its achievement scores. Reading the run
-itself is `llm_agents.run_data.run_view`'s."""
+itself is `llm_agents.evaluation.run_view`'s."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 from env.goals import Difficulty
 from env.rules import SuccessRule
+from llm_agents.evaluation.run_view import RunView, recorded_difficulty, recorded_rule
 from llm_agents.run_data.metrics import Summary, action_counts, summarize
 from llm_agents.run_data.records import EpisodeRecord
-from llm_agents.run_data.run_view import recorded_difficulty, recorded_rule
 from llm_agents.run_data.scores import RunScores, achievement_list_of, score_run
-from llm_agents.run_data.store import STEPS_FILE, RunResults, read_steps
+from llm_agents.run_data.store import RunResults
 
 
 def difficulty_of_run(results: RunResults) -> Difficulty:
@@ -70,17 +69,15 @@ def run_summary(
     return summarize(rescore(episodes, rule), actions)
 
 
-def run_actions(
-    run_dir: Path, results: RunResults, episodes: Sequence[EpisodeRecord]
-) -> dict[str, dict[str, int]] | None:
-    """Episode id -> action -> steps of `episodes`: from `results.json` when it holds every
-    one, else from the step log; None without one."""
+def run_actions(run: RunView) -> dict[str, dict[str, int]] | None:
+    """Episode id -> action -> steps of the run's finished episodes: from `results.json` when it
+    holds every one, else from the step log; None without one."""
+    results, episodes = run.results, run.episodes
     if all(e.episode_id in results.actions for e in episodes):
         return {e.episode_id: results.actions[e.episode_id].counts for e in episodes}
-    path = run_dir / STEPS_FILE
-    if not path.is_file():
+    if not run.has_steps:
         return None
-    counts = action_counts(read_steps(path, {e.episode_id for e in episodes}))
+    counts = action_counts(run.step_stream({e.episode_id for e in episodes}))
     return {episode_id: dict(actions) for episode_id, actions in counts.items()}
 
 

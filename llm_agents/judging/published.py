@@ -11,7 +11,7 @@ from env.dataset import OFFICIAL_COMMIT, OFFICIAL_SPLIT_SHA256, PAPER_CATEGORIES
 from env.goals import DIFFICULTY_CATEGORIES, Difficulty, ScenarioClass, category_split
 from env.rules import SuccessRule
 from llm_agents.evaluation.protocol import protocol_for
-from llm_agents.evaluation.rescoring import difficulty_of_run
+from llm_agents.judging.rescoring import difficulty_of_run
 from llm_agents.run_data.store import RunResults
 
 

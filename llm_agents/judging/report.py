@@ -19,10 +19,11 @@ from pathlib import Path
 
 from env.errors import UserError
 from env.rules import SUCCESS_RULES, SuccessRule
-from llm_agents.evaluation.goal_flags import DEFAULT_WORLDS, run_goal_status
-from llm_agents.evaluation.published import paper_differences
-from llm_agents.evaluation.report_chart import CHART_FILE, plot_success
-from llm_agents.evaluation.report_tables import (
+from llm_agents.evaluation.run_view import read_run
+from llm_agents.judging.goal_flags import DEFAULT_WORLDS, run_goal_status
+from llm_agents.judging.published import paper_differences
+from llm_agents.judging.report_chart import CHART_FILE, plot_success
+from llm_agents.judging.report_tables import (
     balrog_rows,
     episode_actions_line,
     format_scores,
@@ -32,7 +33,7 @@ from llm_agents.evaluation.report_tables import (
     run_status,
     success_rule_note,
 )
-from llm_agents.evaluation.rescoring import (
+from llm_agents.judging.rescoring import (
     model_name_of,
     rescore,
     run_actions,
@@ -40,7 +41,6 @@ from llm_agents.evaluation.rescoring import (
     run_summary,
 )
 from llm_agents.run_data.provenance import code_note
-from llm_agents.run_data.run_view import read_run
 from llm_agents.run_data.store import RunResults
 
 
@@ -74,7 +74,7 @@ def report_run(
     mixed = code_note(episode.code for episode in episodes)
     if mixed:
         notes.append(mixed)
-    actions = run_actions(run_dir, results, episodes)
+    actions = run_actions(run)
     summary = run_summary(results, episodes, rule, actions)
     notes += episode_actions_line(actions)
     model_name = model_name_of(results)

@@ -18,9 +18,9 @@ from env.goals import AnyGoal, run_category
 from env.rules import SuccessRule
 from llm_agents.agents.expert.plan import expert_cannot
 from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.run_view import recorded_difficulty
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate
 from llm_agents.run_data.records import EpisodeRecord
-from llm_agents.run_data.run_view import recorded_difficulty
 
 __all__ = [
     "DEFAULT_WORLDS",

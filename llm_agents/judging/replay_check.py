@@ -13,7 +13,7 @@ Three checks, each naming the episode and the field that differ:
   parsed again and must give the recorded action.
 
 None of them can tell where the actions came from: a run fabricated whole, with actions taken
-from elsewhere, replays fine (`llm_agents.evaluation.reask` asks the model again for that).
+from elsewhere, replays fine (`llm_agents.judging.reask` asks the model again for that).
 """
 
 from __future__ import annotations
@@ -32,12 +32,10 @@ from llm_agents.agents.answers.actions import action_id
 from llm_agents.agents.answers.lettered import LetteredOptions
 from llm_agents.agents.answers.parser import parse_action
 from llm_agents.agents.registry import PARSED_ANSWER_AGENTS
-from llm_agents.evaluation.config import EvalConfig
-from llm_agents.evaluation.protocol import PROTOCOL_NAMES, normalised_setting, protocol_for
-from llm_agents.evaluation.schedule import ScheduledEpisode, build_schedule
+from llm_agents.evaluation.protocol import normalised_setting, protocol_for
+from llm_agents.evaluation.run_view import RunView, ScheduledEpisode
 from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
-from llm_agents.run_data.run_view import RunView
-from llm_agents.run_data.store import EPISODES_FILE, STEPS_FILE, read_episodes, read_steps
+from llm_agents.run_data.store import EPISODES_FILE, read_episodes
 
 __all__ = ["ReplayCheck", "RunDoesNotReplay", "check_run", "expected_schedule"]
 
@@ -79,34 +77,12 @@ class ReplayCheck:
 def expected_schedule(run: RunView) -> list[ScheduledEpisode]:
     """The episodes the run must hold: its protocol's schedule under the departures it
     recorded, over the dataset here (a `UserError` when its digest is not the run's)."""
-    from env.dataset import load_dataset
-    from env.open_ended import open_ended_dataset
-
-    if run.protocol not in PROTOCOL_NAMES:
-        raise UserError(
-            f"the run in {run.path} records no protocol (it predates them): only a run under a "
-            f"named protocol ({', '.join(PROTOCOL_NAMES)}) can be checked by replay"
-        )
-    config = EvalConfig.recorded(run.config)
-    _check_departures(run, config)
-    if config.task == "open_ended":
-        dataset = open_ended_dataset()
-    else:
-        dataset = load_dataset(config.dataset)
-        recorded = run.results.identity.dataset
-        if recorded is not None and dataset.source.sha256 != recorded:
-            raise UserError(
-                f"the dataset here ({dataset.source.path}, digest {(dataset.source.sha256 or 'none')[:12]}) "
-                f"is not the one the run in {run.path} played (digest {recorded[:12]}): its "
-                "episodes cannot be derived"
-            )
-    instructions = dataset.instructions(
-        config.categories, include_paraphrases=config.paraphrases, difficulty=config.difficulty
-    )
-    return build_schedule(config, instructions, None)
+    if run.named_protocol is not None:
+        _check_departures(run)
+    return run.schedule()
 
 
-def _check_departures(run: RunView, config: EvalConfig) -> None:
+def _check_departures(run: RunView) -> None:
     """Every protocol setting the run played with another value than its protocol's must be
     a recorded departure (else the schedule derived would not be the protocol's)."""
 
@@ -229,7 +205,7 @@ def _read_log(
     """The step log of `records`' episodes, read line by line into compact arrays (never the
     whole log's records in memory at once)."""
     logged = {episode_id: _LoggedEpisode() for episode_id in records}
-    for step in read_steps(run.path / STEPS_FILE, logged.keys()):
+    for step in run.step_stream(logged.keys()):
         own = logged[step.episode_id]
         own.numbers.append(step.step)
         own.actions.append(step.action_id)
@@ -267,7 +243,7 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
         )
     schedule = expected_schedule(run)
     differences, pairs = _episode_differences(run, schedule)
-    config = EvalConfig.recorded(run.config)
+    config = run.settings
     env_config = EnvConfig.model_validate_json(config.env_config().model_dump_json())
     variant = env_config.variant
     parsed_answers = (

@@ -29,10 +29,11 @@ from pydantic import BaseModel
 
 from env.craftax_names import CLASSIC_ACHIEVEMENTS
 from env.errors import UserError
-from llm_agents.evaluation.rescoring import model_name_of
+from llm_agents.evaluation.run_view import read_run
+from llm_agents.judging.rescoring import model_name_of
 from llm_agents.run_data.records import EpisodeRecord
 from llm_agents.run_data.scores import progression, score_episodes
-from llm_agents.run_data.store import RESULTS_FILE, RunResults, read_episodes, read_results
+from llm_agents.run_data.store import RunResults
 
 __all__ = ["BalrogSubmission", "export_balrog", "read_balrog_submission", "submission_scores"]
 
@@ -141,12 +142,8 @@ def export_balrog(run_dir: str | Path, out: str | Path) -> Path:
     """Write the run in `run_dir` as a BALROG submission folder `out`; a `UserError` (nothing
     written) for a run that is not a complete balrog-protocol run or an `out` already used."""
     run_dir, out = Path(run_dir), Path(out)
-    if not (run_dir / RESULTS_FILE).is_file():
-        raise UserError(f"{run_dir} has no {RESULTS_FILE}: it is not a run directory")
-    results = read_results(run_dir / RESULTS_FILE)
-    wanted = set(results.schedule)
-    path = run_dir / "episodes.jsonl"
-    episodes = [e for e in read_episodes(path) if e.episode_id in wanted] if path.is_file() else []
+    run = read_run(run_dir, require_episodes=False)
+    results, episodes = run.results, list(run.episodes)
     why = _refusal(results, episodes)
     if why is not None:
         raise UserError(f"{run_dir} is not a complete balrog-protocol run: {why}")

@@ -32,14 +32,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from env.errors import UserError
 from env.goals import DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SuccessRule
-from llm_agents.evaluation.goal_flags import run_goal_status
 from llm_agents.evaluation.protocol import PROTOCOL_NAMES, ProtocolName, protocol_for
-from llm_agents.evaluation.published import paper_differences
-from llm_agents.evaluation.replay_check import ReplayCheck, RunDoesNotReplay, check_run
-from llm_agents.evaluation.rescoring import rescore, run_scores
+from llm_agents.evaluation.run_view import RunView, read_run
+from llm_agents.judging.goal_flags import run_goal_status
+from llm_agents.judging.published import paper_differences
+from llm_agents.judging.replay_check import ReplayCheck, RunDoesNotReplay, check_run
+from llm_agents.judging.rescoring import rescore, run_scores
 from llm_agents.run_data.metrics import SuccessRate, summarize
 from llm_agents.run_data.provenance import code_version
-from llm_agents.run_data.run_view import RunView, read_run
 from llm_agents.run_data.store import atomic_write_text
 
 __all__ = [
@@ -167,7 +167,7 @@ class CardFigures(BaseModel):
 
 class CardReplay(BaseModel):
     """How the run's records were checked by replay before the card was written
-    (`llm_agents.evaluation.replay_check`)."""
+    (`llm_agents.judging.replay_check`)."""
 
     model_config = ConfigDict(extra="forbid")
 

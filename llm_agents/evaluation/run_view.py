@@ -1,7 +1,8 @@
-"""One reading of an evaluation run directory: its results, its scheduled finished episodes, its
-step log, and what it was played under (protocol, difficulty, success rule, agent, model), read
-once and typed, for every command that reads a run (report, card, its verification, the viewer,
-the leaderboard).
+"""One reading of an evaluation run directory: its results, its episode records (every line, and
+the scheduled finished episodes by id), its step log as a stream, and what it was played under
+(the recorded settings typed, protocol, difficulty, success rule, agent, model, and the schedule
+they derive), read once, for every command that reads a run (report, card, its verification,
+re-asking, the viewer, the leaderboard, exports). The judging room reads a run only through it.
 
 What the run was played under is read from `results.json` as the run recorded it; runs recorded
 before a setting existed played its old value (`recorded_difficulty`, `recorded_rule`).
@@ -9,27 +10,38 @@ before a setting existed played its old value (`recorded_difficulty`, `recorded_
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from env.dataset import Dataset
 from env.errors import UserError
 from env.goals import DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.evaluation.config import EvalConfig
+from llm_agents.evaluation.protocol import PROTOCOL_NAMES, Protocol, protocol_for
+from llm_agents.evaluation.schedule import ScheduledEpisode, build_schedule
 from llm_agents.run_data.records import SKILL_STAGE, EpisodeRecord, StepRecord
 from llm_agents.run_data.store import (
     EPISODES_FILE,
     RESULTS_FILE,
     STEPS_FILE,
     RunResults,
-    read_episodes,
+    read_records,
     read_results,
     read_steps,
     results_kind,
 )
 
-__all__ = ["RunView", "read_run", "recorded_difficulty", "recorded_rule"]
+__all__ = [
+    "RunView",
+    "ScheduledEpisode",
+    "read_run",
+    "recorded_difficulty",
+    "recorded_rule",
+]
 
 # Runs recorded before the difficulty was a setting played EASY.
 _RECORDED_DIFFICULTY_BEFORE_SETTING: Difficulty = "easy"
@@ -61,14 +73,80 @@ class RunView:
     results: RunResults
     episodes: list[EpisodeRecord]
     """The finished episodes of the run's schedule as `results.json` lists it, in schedule
-    order (`episode_index`)."""
+    order (`episode_index`); where an id is recorded twice, its later line."""
     difficulty: Difficulty
     rule: SuccessRule
     """The success rule the run was played (and scored) under."""
     protocol: str | None
     """The named protocol the run followed; None for runs that predate protocols."""
     agent: str
+    records: list[EpisodeRecord] = field(default_factory=list, repr=False)
+    """Every line of `episodes.jsonl` in file order: an id recorded twice, or not listed by
+    `results.json`, is here as it was written (what a check of the run must see)."""
     _steps: dict[str, list[StepRecord]] | None = field(default=None, repr=False)
+    _dataset: Dataset | None = field(default=None, repr=False)
+
+    @cached_property
+    def by_id(self) -> dict[str, EpisodeRecord]:
+        """`episodes` by episode id."""
+        return {e.episode_id: e for e in self.episodes}
+
+    @cached_property
+    def settings(self) -> EvalConfig:
+        """The settings the run recorded, typed (`EvalConfig.recorded`: a setting it predates
+        counts as the value it played)."""
+        return EvalConfig.recorded(self.config)
+
+    @property
+    def named_protocol(self) -> Protocol | None:
+        """The protocol the run followed, at its difficulty; None for a run that predates them."""
+        if self.protocol not in PROTOCOL_NAMES:
+            return None
+        return protocol_for(str(self.protocol), self.difficulty)
+
+    def schedule(self) -> list[ScheduledEpisode]:
+        """The episodes the run must hold: its protocol's schedule under the settings it
+        recorded, over the dataset here, never the list `results.json` keeps (a `UserError`
+        for a run under no named protocol, or when the dataset here is not the run's)."""
+        if self.named_protocol is None:
+            raise UserError(
+                f"the run in {self.path} records no protocol (it predates them): only a run "
+                f"under a named protocol ({', '.join(PROTOCOL_NAMES)}) can be checked by replay"
+            )
+        config = self.settings
+        instructions = self.dataset_here().instructions(
+            config.categories, include_paraphrases=config.paraphrases, difficulty=config.difficulty
+        )
+        return build_schedule(config, instructions, None)
+
+    def dataset_here(self) -> Dataset:
+        """The dataset the run names, loaded here once (a `UserError` when its digest is not
+        the one the run recorded: the run's episodes cannot be derived from it)."""
+        if self._dataset is None:
+            from env.dataset import load_dataset
+            from env.open_ended import open_ended_dataset
+
+            config = self.settings
+            if config.task == "open_ended":
+                self._dataset = open_ended_dataset()
+            else:
+                dataset = load_dataset(config.dataset)
+                recorded = self.results.identity.dataset
+                if recorded is not None and dataset.source.sha256 != recorded:
+                    raise UserError(
+                        f"the dataset here ({dataset.source.path}, digest "
+                        f"{(dataset.source.sha256 or 'none')[:12]}) is not the one the run in "
+                        f"{self.path} played (digest {recorded[:12]}): its episodes cannot be "
+                        "derived"
+                    )
+                self._dataset = dataset
+        return self._dataset
+
+    def step_stream(self, episodes: Collection[str] | None = None) -> Iterator[StepRecord]:
+        """The step log's records in file order, only `episodes`' when given, read a line at a
+        time (a Medium run logs tens of millions of steps); nothing without a step log."""
+        if self.has_steps:
+            yield from read_steps(self.path / STEPS_FILE, episodes)
 
     @property
     def config(self) -> dict[str, Any]:
@@ -105,9 +183,8 @@ class RunView:
         step log on first use, then kept (empty without a step log)."""
         if self._steps is None:
             steps: dict[str, list[StepRecord]] = {e.episode_id: [] for e in self.episodes}
-            if self.has_steps:
-                for step in read_steps(self.path / STEPS_FILE, set(steps)):
-                    steps[step.episode_id].append(step)
+            for step in self.step_stream(set(steps)):
+                steps[step.episode_id].append(step)
             for own in steps.values():
                 own.sort(key=lambda step: step.step)
             self._steps = steps
@@ -138,11 +215,12 @@ def read_run(run_dir: str | Path, *, require_episodes: bool = True) -> RunView:
     results = read_results(results_path)
     wanted = set(results.schedule)
     episodes_path = path / EPISODES_FILE
-    episodes = (
-        [e for e in read_episodes(episodes_path) if e.episode_id in wanted]
-        if episodes_path.is_file()
-        else []
+    records = (
+        read_records(episodes_path, EpisodeRecord, repair=False) if episodes_path.is_file() else []
     )
+    # The later line of an id recorded twice, as a resumed run's reader keeps it.
+    latest = {e.episode_id: e for e in records}
+    episodes = [e for e in latest.values() if e.episode_id in wanted]
     if require_episodes and not episodes:
         raise UserError(f"no episode of the run in {path} has finished yet")
     episodes.sort(key=lambda e: e.episode_index)
@@ -155,4 +233,5 @@ def read_run(run_dir: str | Path, *, require_episodes: bool = True) -> RunView:
         rule=recorded_rule(results.config),
         protocol=protocol if isinstance(protocol, str) else None,
         agent=str(results.config.get("agent", _RECORDED_AGENT_BEFORE_SETTING)),
+        records=records,
     )

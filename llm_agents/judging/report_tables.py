@@ -12,15 +12,15 @@ from dataclasses import dataclass
 from env.dataset import PAPER_CATEGORIES
 from env.goals import DEFAULT_DIFFICULTY, DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SuccessRule
-from llm_agents.evaluation.goal_flags import EXPERT_PLAYED, GoalStatus
-from llm_agents.evaluation.published import (
+from llm_agents.judging.goal_flags import EXPERT_PLAYED, GoalStatus
+from llm_agents.judging.published import (
     BALROG_PUBLISHED,
     PUBLISHED_KIND,
     SCENARIO_ROWS,
     PublishedResult,
     published_for,
 )
-from llm_agents.evaluation.rescoring import model_name_of
+from llm_agents.judging.rescoring import model_name_of
 from llm_agents.run_data.metrics import (
     DOMINANT_SHARE,
     SuccessRate,

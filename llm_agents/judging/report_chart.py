@@ -9,8 +9,8 @@ from pathlib import Path
 
 from env.errors import UserError
 from env.goals import DEFAULT_DIFFICULTY, Difficulty
-from llm_agents.evaluation.published import PublishedResult, published_for
-from llm_agents.evaluation.report_tables import CATEGORY_LABELS, chart_categories, our_rate
+from llm_agents.judging.published import PublishedResult, published_for
+from llm_agents.judging.report_tables import CATEGORY_LABELS, chart_categories, our_rate
 from llm_agents.run_data.metrics import SuccessRate, Summary
 
 CHART_FILE = "success.png"

@@ -11,8 +11,9 @@ from pathlib import Path
 from env.dataset import PAPER_CATEGORIES
 from env.errors import UserError
 from env.goals import DIFFICULTY_CATEGORIES
-from llm_agents.evaluation.published import PUBLISHED_KIND, published_for
-from llm_agents.evaluation.report_tables import (
+from llm_agents.evaluation.run_view import read_run, recorded_rule
+from llm_agents.judging.published import PUBLISHED_KIND, published_for
+from llm_agents.judging.report_tables import (
     CATEGORY_LABELS,
     SCORES_HEADER,
     action_lines,
@@ -23,7 +24,7 @@ from llm_agents.evaluation.report_tables import (
     render_rows,
     scores_cells,
 )
-from llm_agents.evaluation.rescoring import (
+from llm_agents.judging.rescoring import (
     difficulty_of_run,
     model_name_of,
     run_actions,
@@ -32,7 +33,6 @@ from llm_agents.evaluation.rescoring import (
 )
 from llm_agents.run_data.metrics import Summary
 from llm_agents.run_data.records import EpisodeRecord
-from llm_agents.run_data.run_view import read_run, recorded_rule
 from llm_agents.run_data.store import RESULTS_FILE, RunResults
 
 
@@ -60,7 +60,7 @@ def compared_run(run_dir: str | Path) -> ComparedRun:
     name = model_name_of(results)
     label = name if run.agent == "expert" else f"{name} ({run.agent})"
     partial = results.status != "complete"
-    summary = run_summary(results, episodes, run.rule, run_actions(run.path, results, episodes))
+    summary = run_summary(results, episodes, run.rule, run_actions(run))
     return ComparedRun(f"{label}{', partial' if partial else ''}", summary, results, episodes)
 
 

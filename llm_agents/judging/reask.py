@@ -12,17 +12,15 @@ from __future__ import annotations
 
 import random
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
 
 from env.errors import UserError
-from llm_agents.agents.types import NO_PROMPT_HASH, Decision, messages_hash
-from llm_agents.backends.base import ChoiceSet, Conversation, GenerateConfig, ModelAPI, ModelOutput
+from llm_agents.agents.types import NO_PROMPT_HASH
+from llm_agents.backends.base import GenerateConfig, ModelAPI
 from llm_agents.evaluation.config import EvalConfig
-from llm_agents.evaluation.schedule import ScheduledEpisode
-from llm_agents.run_data.records import EpisodeRecord, StepRecord
-from llm_agents.run_data.run_view import RunView
+from llm_agents.evaluation.replay import AskedAgain, open_run_model, replay_answers
+from llm_agents.evaluation.run_view import RunView, ScheduledEpisode
+from llm_agents.run_data.records import StepRecord
 
 __all__ = ["ReaskResult", "check_reask", "reask"]
 
@@ -120,7 +118,7 @@ def _chosen_steps(run: RunView, count: int, seed: int) -> list[StepRecord]:
 
 
 def _schedule(run: RunView, config: EvalConfig) -> list[ScheduledEpisode]:
-    from llm_agents.evaluation.replay_check import expected_schedule
+    from llm_agents.judging.replay_check import expected_schedule
 
     schedule = expected_schedule(run)
     if config.plans is None:
@@ -138,8 +136,6 @@ def _schedule(run: RunView, config: EvalConfig) -> list[ScheduledEpisode]:
 
 
 def _open(run: RunView, config: EvalConfig) -> ModelAPI:
-    from llm_agents.evaluation.runner import open_model
-
     spec = run.model
     if spec is None or "***" in spec:
         raise UserError(
@@ -148,18 +144,9 @@ def _open(run: RunView, config: EvalConfig) -> ModelAPI:
         )
     commit = getattr(run.results.identity, "model_revision", None)
     try:
-        return open_model(config, commit)
+        return open_run_model(config, commit)
     except UserError as err:
         raise UserError(f"the model of the run in {run.path} is not at hand here: {err}") from None
-
-
-@dataclass
-class _Outcome:
-    step: StepRecord
-    now: str | None = None
-    """The model's answer now; None when it was not asked."""
-    why: str | None = None
-    """Why the step's prompt could not be rebuilt."""
 
 
 def _ask(
@@ -169,11 +156,10 @@ def _ask(
     schedule: dict[str, ScheduledEpisode],
     chosen: list[StepRecord],
     progress: bool,
-) -> list[_Outcome]:
+) -> list[AskedAgain]:
     from tqdm import tqdm
 
     from env import shared_env
-    from llm_agents.evaluation.play import play_episodes
 
     env = shared_env(config.env_config())
     # A prompt some other episode asked (a text a `guided` run read once) answers from there.
@@ -186,112 +172,16 @@ def _ask(
     wanted: dict[str, list[StepRecord]] = {}
     for step in chosen:
         wanted.setdefault(step.episode_id, []).append(step)
-    outcomes: list[_Outcome] = []
+    outcomes: list[AskedAgain] = []
     with tqdm(total=len(chosen), desc="re-asking", unit="answer", disable=not progress) as bar:
         for episode_id, steps in wanted.items():
-            episode = [_Outcome(step) for step in steps]
+            episode = [AskedAgain(step) for step in steps]
             spec = schedule.get(episode_id)
             if spec is None:
                 for outcome in episode:
                     outcome.why = "the episode is not in the run's schedule"
             else:
-                sink = _OneEpisode(spec, last_step=steps[-1].step)
-                answers = _RecordedAnswers(
-                    model, run.steps()[episode_id], by_hash, {o.step.step: o for o in episode}, sink
-                )
-                play_episodes(config, env, answers, sink)
-                for outcome in episode:
-                    if outcome.now is None and outcome.why is None:
-                        outcome.why = sink.ended_early or "the replayed episode never reached it"
+                replay_answers(config, env, model, spec, run.steps()[episode_id], by_hash, episode)
             outcomes.extend(episode)
             bar.update(len(steps))
     return outcomes
-
-
-class _OneEpisode:
-    """The play loop's sink for one episode, stopped once its last wanted step is played."""
-
-    def __init__(self, spec: ScheduledEpisode, last_step: int):
-        self._pending = [spec]
-        self.last_step = last_step
-        self.played = 0
-        """Steps played so far: the index of the step whose prompt is asked next."""
-        self.stopped = False
-        self.ended_early: str | None = None
-
-    def take(self, count: int) -> list[ScheduledEpisode]:
-        taken, self._pending = self._pending[:count], self._pending[count:]
-        return taken
-
-    def record(
-        self,
-        decisions: list[Decision],
-        steps: list[StepRecord],
-        ended: list[EpisodeRecord],
-        aborted: list[str],
-    ) -> None:
-        self.played += len(steps)
-        if self.played > self.last_step:
-            self.stopped = True
-        elif ended or aborted:
-            self.ended_early = "the replayed episode ended before it"
-            self.stopped = True
-
-    def stop(self, why: str) -> None:
-        self.ended_early, self.stopped = why, True
-
-
-class _RecordedAnswers(ModelAPI):
-    """A backend answering a replayed episode with its recorded answers; at the chosen steps it
-    also asks the run's model the same conversation and keeps what it says."""
-
-    backend_name = "recorded"
-
-    def __init__(
-        self,
-        model: ModelAPI,
-        recorded: list[StepRecord],
-        by_hash: dict[str, StepRecord],
-        chosen: dict[int, _Outcome],
-        sink: _OneEpisode,
-    ):
-        super().__init__(model.model_name, model.config)
-        self.model, self.sink, self.chosen = model, sink, chosen
-        self.recorded = {step.step: step for step in recorded}
-        self.by_hash = by_hash
-
-    def _generate(
-        self, conversations: Sequence[Conversation], choices: ChoiceSet | None
-    ) -> list[ModelOutput]:
-        return [self._answer(conversation, choices) for conversation in conversations]
-
-    def check_choice_rule(self, rule: Any) -> None:
-        self.model.check_choice_rule(rule)
-
-    def _answer(self, conversation: Conversation, choices: ChoiceSet | None) -> ModelOutput:
-        index = self.sink.played
-        rebuilt = messages_hash(conversation)
-        own = self.recorded.get(index)
-        if own is not None and own.prompt_hash != NO_PROMPT_HASH:
-            source = own if own.prompt_hash == rebuilt else None
-        else:
-            source = self.by_hash.get(rebuilt)
-        if source is None:
-            why = (
-                "its prompt, rebuilt, is not the recorded one (another template, or a record "
-                "edited)"
-            )
-            for outcome in self.chosen.values():
-                if outcome.step.step >= index and outcome.now is None:
-                    outcome.why = why
-            self.sink.stop(why)
-            return ModelOutput(text="", finish_reason="error", error=why)
-        if index in self.chosen:
-            self.chosen[index].now = self.model.generate([conversation], choices=choices)[0].text
-        return ModelOutput(
-            text=source.raw_output,
-            reasoning=source.reasoning,
-            prompt_tokens=source.prompt_tokens,
-            completion_tokens=source.completion_tokens,
-            finish_reason=source.finish_reason,
-        )
