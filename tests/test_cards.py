@@ -337,7 +337,10 @@ def test_leaderboard_refuses_a_card_its_run_does_not_give(
     card = carded["expert"] / "card.json"
     out = tmp_path / "site"
     code = main(
-        ["leaderboard", f"{carded['model'] / 'card.json'}", f"{card}={run}", "--out", str(out)]
+        [
+            *("leaderboard", f"{carded['model'] / 'card.json'}", f"{card}={run}"),
+            *("--unverified", "--out", str(out)),
+        ]
     )
     assert code == 1
     err = capsys.readouterr().err
@@ -346,23 +349,48 @@ def test_leaderboard_refuses_a_card_its_run_does_not_give(
     assert not out.exists()
 
 
-def test_the_markdown_table_has_a_row_per_card(
+def test_the_markdown_tables_rank_only_cards_replayed_here(
     carded: dict[str, Path], tmp_path: Path, capsys: Any
 ) -> None:
     target = tmp_path / "results.md"
-    cards = [carded[name] / "card.json" for name in ("model", "expert")]
-    assert main(["leaderboard", *map(str, cards), "--markdown", str(target)]) == 0
-    table = target.read_text().splitlines()
-    assert len(table) == 2 + len(cards)
-    for path in cards:
+    model, expert = (carded[name] / "card.json" for name in ("model", "expert"))
+    # The model's card records the replay it passed at `card` time: given alone, it is still
+    # not replayed here.
+    assert json.loads(model.read_text())["replay"] is not None
+    assert main(["leaderboard", str(model), "--markdown", str(target)]) == 2
+    assert "cannot be replayed here (it is given without its run)" in _one_error(capsys)
+    assert not target.exists()
+
+    arguments = [str(model), f"{expert}={carded['expert']}", "--unverified"]
+    assert main(["leaderboard", *arguments, "--markdown", str(target)]) == 0
+    assert "1 replayed here and ranked, 1 not replayed here" in capsys.readouterr().out
+    text = target.read_text()
+    ranked, _, apart = text.partition("NOT replayed here")
+    for path, part, replay in ((expert, ranked, "replayed here"), (model, apart, "the card says")):
         card = json.loads(path.read_text())
-        # Each row links its card.md, beside its card.json.
+        # Each row links its card.md, beside its card.json, and says what ran under what rule.
         link = Path(os.path.relpath(path.with_name("card.md"), tmp_path)).as_posix()
-        row = next(line for line in table if line.startswith(f"| [{card['run']}]({link}) |"))
+        row = next(
+            line for line in part.splitlines() if line.startswith(f"| [{card['run']}]({link}) |")
+        )
         rate = card["figures"]["success"]
         assert f"| {rate['rate']:.2f} [{rate['low']:.2f}, {rate['high']:.2f}] |" in row
-        assert f"`{card['code_version']}`" in row
+        assert f"`{card['code_version']}`" in row and f"| `{card['success_rule']}` |" in row
+        assert "step cap: 30 steps (paper: 250)" in row and row.endswith(" |")
+        assert replay in row.split("|")[-2]
+    # Both runs differ from the paper's protocol (30 steps): neither is beside the paper's rows.
+    assert "**EASY, protocol paper: not comparable with the paper's numbers**" in ranked
+    assert "**EASY, protocol paper**" not in text
     assert not (tmp_path / "site").exists()
+
+    # A card.md edited by hand is not the card's: the row no longer links it.
+    edited = tmp_path / "edited"
+    shutil.copytree(carded["model"], edited, ignore=shutil.ignore_patterns("report"))
+    (edited / "card.md").write_text("# Results card\n\n<script>alert(1)</script>\n")
+    arguments = [str(edited / "card.json"), "--unverified", "--markdown", str(target)]
+    assert main(["leaderboard", *arguments]) == 0
+    assert "not linked, having no card.md of their own" in capsys.readouterr().out
+    assert "card.md" not in target.read_text()
 
 
 @pytest.fixture(scope="module")
@@ -389,30 +417,34 @@ def test_leaderboard_page_in_chromium_sorts_filters_and_links(
     build_view(expert, progress=False)
     out = tmp_path / "site"
     arguments = [str(carded["model"] / "card.json"), f"{expert / 'card.json'}={expert}"]
-    assert main(["leaderboard", *arguments, "--out", str(out)]) == 0
+    assert main(["leaderboard", *arguments, "--unverified", "--out", str(out)]) == 0
     # A rebuild replaces the earlier site whole.
-    assert main(["leaderboard", *arguments, "--out", str(out)]) == 0
+    assert main(["leaderboard", *arguments, "--unverified", "--out", str(out)]) == 0
     capsys.readouterr()
     assert not [p for p in tmp_path.iterdir() if p.name != "site"]
 
     page, problems = open_page(browser, out / "index.html")
     cards = {name: json.loads((carded[name] / "card.json").read_text()) for name in carded}
-    runs = {card["run"]: card for card in cards.values()}
+    model_name, expert_name = cards["model"]["run"], cards["expert"]["run"]
 
-    # EASY paper: both cards, then the paper's zero-shot rows and its trained agent, marked
-    # published.
+    # EASY paper: only the paper's zero-shot rows and its trained agent, marked published:
+    # both cards depart from the paper's protocol (30 steps), the model's is not replayed here.
     easy_published = [*PUBLISHED, *PUBLISHED_TRAINED_EASY]
-    names = _board_rows(page, "easy-paper")
-    # Sorted by the overall rate, highest first (ties in the order given).
-    assert names[:2] == sorted(runs, key=lambda r: -runs[r]["figures"]["success"]["rate"])
-    assert names[2:] == [p.model for p in easy_published]
+    assert _board_rows(page, "easy-paper") == [p.model for p in easy_published]
     published = page.locator("#table-easy-paper tr.published")
-    assert published.count() == len(easy_published)
     assert published.locator(".badge").all_inner_texts() == ["published"] * len(easy_published)
     assert _board_rows(page, "medium-paper") == [p.model for p in PUBLISHED_MEDIUM]
-    # The intervals are drawn for cards (a bar per goal set and overall), not published rows.
-    card_rows = page.locator("#table-easy-paper tr.card")
-    assert card_rows.first.locator("line.ci").count() >= 2
+    assert _board_rows(page, "easy-paper-differs") == [expert_name]
+    assert _board_rows(page, "easy-paper-unverified") == [model_name]
+    headings = page.locator("h2").all_inner_texts()
+    assert "EASY, protocol paper: NOT replayed here" in headings
+    assert "nothing here checked them" in page.locator("p.unverified-note").inner_text()
+    # Each card's row: its rule, its data source, its departures; intervals drawn for cards.
+    row = page.locator("#table-easy-paper-differs tr.card").first
+    assert row.locator("td.rule").inner_text() == cards["expert"]["success_rule"]
+    assert row.locator("td.data").inner_text()
+    assert "max_steps = 30" in row.locator(".departure-list").inner_text()
+    assert row.locator("line.ci").count() >= 2
     assert published.first.locator("line.ci").count() == 0
 
     # Sorting: by `combo` ascending, then descending; rows without the figure stay last.
@@ -424,8 +456,6 @@ def test_leaderboard_page_in_chromium_sorts_filters_and_links(
     assert header.get_attribute("aria-sort") == "ascending"
 
     def combo(name: str) -> float:
-        if name in runs:
-            return float(runs[name]["figures"]["success_by_category"]["combo"]["rate"])
         return next(p.rates["combo"] for p in easy_published if p.model == name)
 
     assert [combo(n) for n in ascending] == sorted(combo(n) for n in ascending)
@@ -433,27 +463,30 @@ def test_leaderboard_page_in_chromium_sorts_filters_and_links(
 
     # Filters: by agent, and by model size (the expert has no model; the paper's are 24-32B).
     page.locator("#agent-filter input[value='expert']").uncheck()
-    assert "expert" not in _board_rows(page, "easy-paper")
+    assert _board_rows(page, "easy-paper-differs") == []
     page.locator("#agent-filter input[value='expert']").check()
     page.select_option("#size-filter", "none")
-    no_model = ["expert", *(p.model for p in PUBLISHED_TRAINED_EASY)]
+    no_model = [p.model for p in PUBLISHED_TRAINED_EASY]
     assert sorted(_board_rows(page, "easy-paper")) == sorted(no_model)
+    assert _board_rows(page, "easy-paper-differs") == [expert_name]
     page.select_option("#size-filter", "large")
     assert sorted(_board_rows(page, "easy-paper")) == sorted(p.model for p in PUBLISHED)
     page.select_option("#size-filter", "all")
 
-    # Links: each card row to its card in the site; the expert's, given its run, to its report.
-    for name, card in runs.items():
-        row = page.locator("#table-easy-paper tr.card", has_text=name).first
+    # Links: each card row to its card in the site; the expert's, given its run, to the copy
+    # of its report in the site. Nothing the page links is outside the folder.
+    for name, section in (("model", "easy-paper-unverified"), ("expert", "easy-paper-differs")):
+        row = page.locator(f"#table-{section} tr.card").first
         href = row.locator("a.card-link").get_attribute("href")
-        assert json.loads((out / href).read_text())["digest"] == card["digest"]
+        assert json.loads((out / href).read_text())["digest"] == cards[name]["digest"]
         assert (out / row.locator("a.card-md-link").get_attribute("href")).is_file()
-    expert_row = page.locator("#table-easy-paper tr.card", has_text="expert").first
+    hrefs = page.locator("a[href]").evaluate_all("links => links.map(a => a.href)")
+    assert hrefs and all(h.startswith(out.resolve().as_uri() + "/") for h in hrefs), hrefs
+    assert page.locator("#table-easy-paper-unverified a.view-link").count() == 0
+    expert_row = page.locator("#table-easy-paper-differs tr.card").first
     view = expert_row.locator("a.view-link").get_attribute("href")
-    assert (out / view).resolve() == (expert / "report" / "index.html").resolve()
-    model_row = page.locator("#table-easy-paper tr.card", has_text=cards["model"]["run"]).first
-    assert model_row.locator("a.view-link").count() == 0
+    assert (out / view).is_file() and (out / view).resolve().is_relative_to(out.resolve())
     expert_row.locator("a.view-link").click()
     page.wait_for_load_state("load")
-    assert page.url == (expert / "report" / "index.html").resolve().as_uri()
+    assert page.url == (out / view).resolve().as_uri()
     assert problems == []

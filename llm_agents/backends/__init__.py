@@ -10,16 +10,17 @@ import importlib
 import re
 from collections.abc import Mapping
 from typing import Any
-from urllib.parse import urlsplit, urlunsplit
 
 from pydantic import BaseModel
 
 from env.errors import UserError
 from llm_agents.backends.base import ChatMessage, GenerateConfig, ModelAPI, ModelOutput, hub_id_of
 from llm_agents.backends.cache import CachedModel
+from llm_agents.backends.redaction import REDACTED, redact_secrets, redact_settings
 
 __all__ = [
     "BACKENDS",
+    "REDACTED",
     "BackendNotInstalled",
     "CachedModel",
     "ChatMessage",
@@ -31,6 +32,7 @@ __all__ = [
     "model_revision",
     "parse_model_spec",
     "redact_secrets",
+    "redact_settings",
 ]
 
 #: backend name -> "module:Class"
@@ -43,36 +45,6 @@ BACKENDS: dict[str, str] = {
 
 #: backend name -> the extra that installs its dependencies
 EXTRAS: dict[str, str] = {"hf": "hf", "vllm": "vllm", "openai": "openai"}
-
-
-#: A URL inside a spec or a message: up to the next comma (specs list URLs so) or blank.
-_URL = re.compile(r"https?://[^\s,]+")
-#: What a secret is replaced by.
-REDACTED = "***"
-
-
-def _redact_url(url: str) -> str:
-    scheme, _, rest = url.partition("://")
-    # Up to the last `@` is user info, even where a password holds a `/` or `@` unencoded: a
-    # path with an `@` loses a little more than needed, a password none of itself.
-    _userinfo, at, rest = rest.rpartition("@")
-    _, netloc, path, query, _fragment = urlsplit(f"{scheme}://{rest}")
-    if at:
-        netloc = f"{REDACTED}@{netloc}"
-    # Every query value goes: which parameter carries a token (`api_key`, `sig`, `code`...) is
-    # the server's choice, and none of them changes what a run measures.
-    query = "&".join(
-        f"{name}={REDACTED}" if sep else name
-        for name, sep, _value in (part.partition("=") for part in query.split("&") if part)
-    )
-    return urlunsplit((scheme, netloc, path, query, ""))
-
-
-def redact_secrets(text: str) -> str:
-    """`text` (a model spec, a URL, a message) with each URL's user info and query values
-    replaced by `***` and its fragment dropped: the one form in which a spec is recorded,
-    shown or written."""
-    return _URL.sub(lambda found: _redact_url(found.group()), text)
 
 
 class BackendNotInstalled(UserError):

@@ -37,7 +37,6 @@ from pydantic import ConfigDict, Field, SecretStr, ValidationError
 from tenacity import RetryError
 
 from env.errors import UserError
-from llm_agents.backends import redact_secrets
 from llm_agents.backends.base import (
     PROBE_TIMEOUT_S,
     ChatMessage,
@@ -53,6 +52,7 @@ from llm_agents.backends.base import (
 )
 from llm_agents.backends.endpoints import Endpoint, EndpointPool, EndpointStats, takes_out
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
+from llm_agents.backends.redaction import redact_secrets, split_urls
 from llm_agents.backends.retry import (
     RetryPolicy,
     RetryWaits,
@@ -145,7 +145,7 @@ class OpenAIModel(ModelAPI):
         self._auth: dict[str, httpx.BasicAuth | None] = {}
         self._params: dict[str, httpx.QueryParams] = {}
         self._url_secrets: list[SecretStr] = []
-        for written_url in (part.strip() for part in base_url.split(",")):
+        for written_url in split_urls(base_url):
             self._add_endpoint(written_url)
         #: Every endpoint's URL, comma-separated, as messages and results name the server.
         self.base_url = ",".join(self._auth)
@@ -177,7 +177,12 @@ class OpenAIModel(ModelAPI):
         try:
             url = httpx.URL(written.rstrip("/"))
         except httpx.InvalidURL as err:
-            raise UserError(f"server URL is not a valid URL: {err}") from None
+            # httpx quotes the part it could not read, which may be a piece of a password:
+            # only its kind of fault is kept.
+            fault = str(err).partition(":")[0]
+            raise UserError(
+                f"server URL {redact_secrets(written)} is not a valid URL ({fault})"
+            ) from None
         # Credentials in the URL travel as a Basic auth header instead, and its query (a token,
         # an API version) as each request's parameters, so that neither httpx's request log nor
         # any message shows them; they are then redacted like the key.

@@ -35,7 +35,7 @@ from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.answers.actions import action_names
 from llm_agents.agents.loading import check_agent_name
 from llm_agents.agents.registry import IMAGE_AGENTS, LETTER_AGENTS, ObservationMode
-from llm_agents.backends import parse_model_spec, redact_secrets
+from llm_agents.backends import parse_model_spec, redact_secrets, redact_settings
 from llm_agents.backends.base import (
     CHANGES_RESULTS,
     ChoiceRule,
@@ -76,7 +76,10 @@ class ModelSettings(BaseModel):
     backend_options: Annotated[dict[str, Any], CHANGES_RESULTS] = Field(default_factory=dict)
     """Backend option KEY=VALUE (repeatable; values read as JSON when they parse), e.g.
     threads=2, device=cuda, dtype=float32 (hf), enforce_eager=true (vllm), revision=v1.0 (a hub
-    id's branch, tag or commit; hf, vllm), api_key_env=MY_KEY (openai)."""
+    id's branch, tag or commit; hf, vllm), api_key_env=MY_KEY (openai). Secrets are kept out of
+    everything recorded or shown (`***`): a URL's user info and query values, and the value of
+    any option or `extra_body` field whose name says key, token, secret or password, or that is
+    a header."""
     cache: str | None = None
     """SQLite file caching model responses, so a repeated run does not pay twice."""
     limit: int | None = Field(None, ge=1)
@@ -110,9 +113,11 @@ class ModelSettings(BaseModel):
         }
         return settings
 
-    # The spec as written, when it carries credentials: only the backend is given it (it is
-    # never dumped, so no results file, card or page can carry it).
+    # The spec and the backend options as written, when they carry credentials: only the
+    # backend is given them (they are never dumped, so no results file, card or page can carry
+    # them).
     _written_model: str | None = PrivateAttr(None)
+    _written_backend_options: dict[str, Any] | None = PrivateAttr(None)
 
     @field_validator("model")
     @classmethod
@@ -130,12 +135,27 @@ class ModelSettings(BaseModel):
             self.__dict__["model"] = shown
         elif self._written_model is not None and redact_secrets(self._written_model) != shown:
             self._written_model = None  # another spec was assigned since
+        options = redact_settings(self.backend_options)
+        if options != self.backend_options:
+            self._written_backend_options = self.backend_options
+            self.__dict__["backend_options"] = options
+        elif (
+            self._written_backend_options is not None
+            and redact_settings(self._written_backend_options) != options
+        ):
+            self._written_backend_options = None  # other options were assigned since
         return self
 
     @property
     def backend_spec(self) -> str:
         """The spec the backend is built from: `model` with its credentials, never recorded."""
         return self._written_model or self.model
+
+    @property
+    def backend_option_values(self) -> dict[str, Any]:
+        """The backend options the backend is built with: `backend_options` with their
+        secrets, never recorded."""
+        return self._written_backend_options or self.backend_options
 
     @field_validator("templates_dir", "dataset", "cache", mode="before")
     @classmethod

@@ -253,7 +253,7 @@ def run_eval(
 def hub_commit(settings: ModelSettings) -> str | None:
     """The hub commit the settings' model is at now (`backends.model_revision`): resolved when a
     run is prepared, recorded in its identity, and the one its model is then loaded at."""
-    return model_revision(settings.backend_spec, settings.backend_options)
+    return model_revision(settings.backend_spec, settings.backend_option_values)
 
 
 def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
@@ -262,7 +262,7 @@ def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
     else at its `revision` option's commit now."""
     from llm_agents.backends import get_model
 
-    options = settings.backend_options | ({HUB_REVISION_KEY: commit} if commit else {})
+    options = settings.backend_option_values | ({HUB_REVISION_KEY: commit} if commit else {})
     model = get_model(settings.backend_spec, settings.generation, **options)
     choice = getattr(settings, "choice", None)
     if choice is not None:

@@ -38,6 +38,7 @@ from llm_agents.judging.goal_flags import run_goal_status
 from llm_agents.judging.published import paper_differences
 from llm_agents.judging.replay_check import ReplayCheck, RunDoesNotReplay, check_run
 from llm_agents.judging.rescoring import rescore, run_scores
+from llm_agents.run_data.markup import markdown_code, markdown_text
 from llm_agents.run_data.metrics import SuccessRate, summarize
 from llm_agents.run_data.provenance import code_version
 from llm_agents.run_data.store import atomic_write_text
@@ -504,36 +505,40 @@ def _number(value: float | None, digits: int = 1) -> str:
 
 
 def card_markdown(card: Card) -> str:
-    """The short human-readable `card.md` of a card."""
+    """The short human-readable `card.md` of a card, every recorded text in it escaped
+    (`markup`): a card is anyone's file, and its page is rendered as HTML."""
+    text, code = markdown_text, markdown_code
     figures = card.figures
     protocol = card.protocol
-    model = card.model.spec or "none (scripted)"
+    model = text(card.model.spec or "none (scripted)")
     pinned = card.model.resolved_revision or card.model.pinned_digest
     departures = (
         ", ".join(
-            f"{name} = {_canonical(d['run'])} (protocol: {_canonical(d['protocol'])})"
+            f"{text(name)} = {text(_canonical(d['run']))} "
+            f"(protocol: {text(_canonical(d['protocol']))})"
             for name, d in protocol.departures.items()
         )
         or "none"
     )
     lines = [
-        f"# Results card: {card.run}",
+        f"# Results card: {text(card.run)}",
         "",
-        f"- **Agent**: {card.agent}; **model**: {model}"
-        + (f" (pinned: `{pinned}`)" if pinned else ""),
+        f"- **Agent**: {text(card.agent)}; **model**: {model}"
+        + (f" (pinned: {code(pinned)})" if pinned else ""),
         f"- **Protocol**: `{protocol.name}`, {protocol.difficulty}; departures: {departures}"
         + (f"; first {protocol.limit} episodes of its schedule" if protocol.limit else ""),
-        f"- **Game**: {card.variant} Craftax, success rule `{card.success_rule}`",
-        f"- **Code**: `{card.code_version}`; settings digest `{card.settings_digest[:12]}`; "
-        f"dataset digest `{(card.dataset_digest or 'not recorded')[:12]}`",
+        f"- **Game**: {text(card.variant)} Craftax, success rule `{card.success_rule}`",
+        f"- **Code**: {code(card.code_version)}; settings digest "
+        f"{code(card.settings_digest[:12])}; "
+        f"dataset digest {code((card.dataset_digest or 'not recorded')[:12])}",
         "- **Hardware**: "
-        + (", ".join(f"{k} {v}" for k, v in card.hardware.items()) or "not recorded"),
+        + (", ".join(f"{text(k)} {text(v)}" for k, v in card.hardware.items()) or "not recorded"),
         _replay_line(card.replay),
         "",
         "| Goal set | Success [95% interval clustered by goal] |",
         "|---|---|",
         *(
-            f"| {name} | {_rate(figures.success_by_category[name])} |"
+            f"| {text(name)} | {_rate(figures.success_by_category[name])} |"
             for name in dict.fromkeys(
                 (*DIFFICULTY_CATEGORIES[protocol.difficulty], *figures.success_by_category)
             )
@@ -541,7 +546,7 @@ def card_markdown(card: Card) -> str:
         ),
         f"| **overall** | {_rate(figures.success)} |",
         "",
-        f"Scores over {figures.scores.achievement_list} achievements: progression "
+        f"Scores over {text(figures.scores.achievement_list)} achievements: progression "
         f"{figures.scores.progression:.1f} ± {figures.scores.progression_stderr:.1f}, Crafter "
         f"score {figures.scores.crafter_score:.2f}, craftaxlm {figures.scores.craftaxlm_score:.2f}.",
         "",
@@ -552,17 +557,21 @@ def card_markdown(card: Card) -> str:
         f"{_number(figures.cost.wall_seconds_per_episode)} s of the run's wall time.",
     ]
     if protocol.paper_differences:
-        lines += ["", "Departs from the paper's protocol: " + "; ".join(protocol.paper_differences)]
+        lines += [
+            "",
+            "Departs from the paper's protocol: "
+            + "; ".join(text(d) for d in protocol.paper_differences),
+        ]
     if figures.goal_flags is not None:
         flags = figures.goal_flags
-        listed = [f"{g.goal} (trivial: {g.reason})" for g in flags.trivial] + [
-            f"{g.goal} (impossible: {g.reason})" for g in flags.impossible
+        listed = [f"{text(g.goal)} (trivial: {text(g.reason)})" for g in flags.trivial] + [
+            f"{text(g.goal)} (impossible: {text(g.reason)})" for g in flags.impossible
         ]
         lines += ["", "Goals to read the table without: " + ("; ".join(listed) or "none")]
     lines += [
         "",
         f"Check it against the run: `craftext-llm card --verify card.json RUN_DIR` "
-        f"(card digest `{card.digest[:12]}`).",
+        f"(card digest {markdown_code(card.digest[:12])}).",
     ]
     return "\n".join(lines) + "\n"
 
@@ -574,7 +583,7 @@ def _replay_line(replay: CardReplay | None) -> str:
         f"- **Replayed**: {replay.episodes} episodes re-simulated from their world keys and "
         "actions"
         + (f", {replay.answers} answers parsed again" if replay.answers else "")
-        + f", by code `{replay.code_version}` on {replay.replayed_at:%Y-%m-%d}"
+        + f", by code {markdown_code(replay.code_version)} on {replay.replayed_at:%Y-%m-%d}"
     )
 
 
