@@ -3,6 +3,7 @@ under the `official` success rule, game-over steps included.
 
     python -m benchmarks.official_wrapper [--difficulty medium|hard] [--worlds 4] [--steps 300]
         [--seed 0] [--dataset PATH]
+    python -m benchmarks.official_wrapper --case CASE.jsonl --case-goal SPLIT/GOAL_ID
 
 Each world is one episode of Craftax with its default parameters (zombies and skeletons spawn, so
 many worlds end in game over) played by a random player. Our env plays it once per goal of every
@@ -13,9 +14,15 @@ game-over step is the new world. Per (world, text) pair both give the step of th
 kind, and how many official successes fell on a game-over step. Exit 1 on any disagreement.
 
 The wrapper needs `gym` and a text encoder, which scoring never uses: both are stubbed. Its inner
-env is Craftax's `EnvironmentAutoReset.step` with one change, the key: Craftax steps with the
-first half of the split key, our env with the step key itself (both reset from the second half),
-so the inner env steps with the key itself and both play the same trajectory.
+env is Craftax's `EnvironmentAutoReset.step`, unmodified, called with our env's step keys: both
+step the game with the first half of the key's split and make a game over's new world from the
+second.
+
+`--case` replays one recorded episode instead (a JSON line: `world_key`, `actions`, from the
+official wrapper's `reset(world_key)` world), the real wrapper and its real auto-reset inner env
+stepped beside our env with the same key each step (`fold_in(world_key, t)` split in two, the
+second half: `case_step_key`), and prints every step where the two differ in the game, the end
+or the verdict. Exit 1 if any does.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ import types
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
@@ -37,10 +44,12 @@ if str(REPO) not in sys.path:
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from pydantic import BaseModel, ConfigDict, Field, ValidationError  # noqa: E402
 
 from env.craftext_env import CrafTextEnv, EnvConfig, EpisodeState, make_task  # noqa: E402
 from env.dataset import load_dataset  # noqa: E402
 from env.goals import AnyGoal  # noqa: E402
+from env.rules import DEFAULT_STEP_KEYS, StepKeys  # noqa: E402
 from env.scenario_tasks import encode_goals  # noqa: E402
 from env.termination import Termination  # noqa: E402
 from env.variant import Variant  # noqa: E402
@@ -72,6 +81,13 @@ def official_modules(root: Path) -> Callable[[str], Any]:
     stub.DistilBertEncode = None  # type: ignore[attr-defined]
     sys.modules.setdefault(encoder, stub)
     return importlib.import_module
+
+
+def auto_reset_env(variant: Variant) -> Any:
+    """Craftax's own auto-reset env of `variant`: the official wrapper's inner env."""
+    from craftax.craftax_env import make_craftax_env_from_name
+
+    return make_craftax_env_from_name(variant.craftax_name, auto_reset=True)
 
 
 class _Stepped:
@@ -112,14 +128,13 @@ class Harness:
     def __init__(self, official: Callable[[str], Any], variant: Variant, steps: int):
         self.variant, self.steps = variant, steps
         self.env = CrafTextEnv(EnvConfig(variant=variant, max_steps=steps, success_rule="official"))
-        craftax, params = self.env.craftax, self.env.params
+        params = self.env.params
         self.reset = jax.jit(self.env.reset)
         self.batch_step = jax.jit(self.env.step_batch)
+        self.inner = auto_reset_env(variant)
 
         def auto_reset_step(key: jax.Array, state: Any, action: jax.Array) -> Any:
-            _, stepped, _, done, _ = craftax.step_env(key, state, action, params)
-            _, world = craftax.reset_env(jax.random.split(key)[1], params)
-            after = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), world, stepped)
+            _, after, _, done, _ = self.inner.step(key, state, action, params)
             return after, done
 
         self.auto_reset_step = jax.jit(auto_reset_step)
@@ -361,6 +376,164 @@ def _split(seed: int, count: int) -> Any:
     return jax.random.split(jax.random.key(seed), count)
 
 
+class GameOverCase(BaseModel):
+    """One recorded episode (a line of a case file): the official wrapper's `reset(world_key)`
+    world, played with `actions` under Craftax-Classic's default parameters."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    world_key: tuple[int, int]
+    actions: list[int] = Field(min_length=1)
+    game_over_step: int | None = None
+    """The 1-based step the game ended on, as recorded (compared, not trusted)."""
+    peaceful: Literal[False] = False
+    """Only Craftax's default parameters (mobs spawn) are replayed."""
+
+
+@dataclass
+class CaseStep:
+    """What both sides made of one step of a case (1-based `step`)."""
+
+    step: int
+    game_over: bool
+    """Whether Craftax ended the game on this step (in our env's game)."""
+    games_equal: bool
+    """Whether the worlds both check after the step are the same, leaf for leaf: the games, or
+    on a game-over step the new world the wrapper's inner env started and the one our env
+    makes (`CrafTextEnv.new_world`)."""
+    official_ended: bool
+    official_met: bool
+    """The wrapper's `instruction_done`."""
+    ours: Termination
+
+    @property
+    def agrees(self) -> bool:
+        return (
+            self.games_equal
+            and self.official_ended == (self.ours is not Termination.RUNNING)
+            and self.official_met == (self.ours is Termination.SUCCESS)
+        )
+
+
+def same_game(one: Any, other: Any) -> bool:
+    """Whether two Craftax states are the same game: every leaf equal, floats to within a
+    millionth. A new world made inside a compiled step and the same world made alone differ in
+    the last bit of the light level (XLA compiles its cosine differently), never in anything a
+    checker reads."""
+
+    def equal(a: Any, b: Any) -> bool:
+        a, b = np.asarray(a), np.asarray(b)
+        if np.issubdtype(a.dtype, np.floating):
+            return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-6, atol=0))
+        return bool(np.array_equal(a, b))
+
+    return all(
+        equal(a, b) for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(other), strict=True)
+    )
+
+
+def read_case(path: Path) -> GameOverCase:
+    """The first line of a case file (a one-line `SystemExit` naming the file when it is not
+    one)."""
+    try:
+        return GameOverCase.model_validate_json(path.read_text().splitlines()[0])
+    except (OSError, IndexError, ValidationError) as error:
+        reason = str(error).splitlines()[0]
+        raise SystemExit(f"error: {path} is not a game-over case: {reason}") from None
+
+
+def case_step_key(world_key: jax.Array, step: int) -> jax.Array:
+    """The key both sides step with at `step` (0-based): the second half of the split of
+    `fold_in(world_key, step)` (the first is the recording player's)."""
+    return jax.random.split(jax.random.fold_in(world_key, step))[1]
+
+
+def replay_case(
+    official: Callable[[str], Any],
+    root: Path,
+    case: GameOverCase,
+    split: str,
+    goal_id: str,
+    step_keys: StepKeys = DEFAULT_STEP_KEYS,
+) -> list[CaseStep]:
+    """Each step of `case` under the official wrapper (its real auto-reset inner env) and our
+    Craftax-Classic env under `official`, until either side's episode ends. Our env steps with
+    the wrapper's key; under `step_keys="whole"` with the half of it the wrapper's game steps
+    with, so that the games are the same."""
+    module, variable = SPLIT_MODULES[split]
+    entries = getattr(official(f"craftext.dataset.scenarious.SMALL.{module}"), variable)
+    if goal_id not in entries:
+        raise SystemExit(f"error: no goal {goal_id!r} in {split}")
+    wrapper = official("craftext.environment.craftext_wrapper")
+    target_state = official("craftext.environment.scenarious.checkers.target_state").TargetState
+    game_data = official("craftext.environment.states.state_classic").GameDataClassic
+    inner = auto_reset_env(Variant.CLASSIC)
+    params = inner.default_params
+    shim = types.SimpleNamespace(
+        env=inner,
+        StateStructure=game_data,
+        batched_ts=target_state.stack([entries[goal_id]["arguments"]]),
+        steps=0,
+    )
+    world_key = jnp.asarray(case.world_key, jnp.uint32)
+    _, game = inner.reset(world_key, params)
+    theirs = wrapper.TextEnvState(
+        env_state=game,
+        timestep=game.timestep,
+        instruction=None,
+        idx=jnp.int32(0),
+        success_rate=jnp.float32(0),
+        total_success_rate=jnp.float32(0),
+        environment_key=jnp.int32(0),
+        rng=world_key,
+        instruction_done=jnp.bool_(False),
+        checker_id=jnp.int32(int(entries[goal_id]["scenario_checker"])),
+    )
+    official_step = jax.jit(
+        lambda key, state, action: wrapper.InstructionWrapper.step(shim, key, state, action, params)
+    )
+    env = CrafTextEnv(
+        EnvConfig(
+            variant=Variant.CLASSIC,
+            max_steps=len(case.actions) + 1,
+            success_rule="official",
+            step_keys=step_keys,
+        )
+    )
+    [goal] = [g for g in load_dataset(root).split(split) if g.id == goal_id]
+    task = encode_goals([goal], Variant.CLASSIC)
+    ours = EpisodeState(
+        game=game,
+        task=make_task(task.required[0], task.forbidden[0], task.kind[0], task.params[0]),
+        episode_key=world_key,
+        steps=jnp.int32(0),
+        termination=jnp.int32(Termination.RUNNING),
+    )
+    our_step, new_world = jax.jit(env.step), jax.jit(env.new_world)
+    steps = []
+    for t, action_id in enumerate(case.actions):
+        key, action = case_step_key(world_key, t), jnp.int32(action_id)
+        _, theirs, _, ended, _ = official_step(key, theirs, action)
+        our_key = key if step_keys == "auto_reset" else jax.random.split(key)[0]
+        ours, info = our_step(our_key, ours, action)
+        game_over = bool(inner.is_terminal(ours.game, params))
+        checked = new_world(our_key) if game_over else ours.game
+        same = same_game(theirs.env_state, checked)
+        steps.append(
+            CaseStep(
+                step=t + 1,
+                game_over=game_over,
+                games_equal=same,
+                official_ended=bool(ended),
+                official_met=bool(theirs.instruction_done),
+                ours=Termination(int(info.termination)),
+            )
+        )
+        if steps[-1].official_ended or steps[-1].ours is not Termination.RUNNING:
+            break
+    return steps
+
+
 def add_repository_arguments(parser: argparse.ArgumentParser) -> None:
     """`--dataset` (the official repository) and `--out` (where it is unpacked otherwise)."""
     parser.add_argument("--dataset", type=Path, help="the official repository (default: unpacked)")
@@ -373,7 +546,9 @@ def repository_root(parser: argparse.ArgumentParser, args: argparse.Namespace) -
 
     root = args.dataset or official_clone(args.out)
     if root is None:
-        parser.error("no official repository: pass --dataset")
+        raise SystemExit("error: no official repository (no reference archive): pass --dataset")
+    if not (Path(root) / "craftext" / "environment" / "craftext_wrapper.py").is_file():
+        raise SystemExit(f"error: {root} is not the official CrafText repository")
     return Path(root)
 
 
@@ -383,10 +558,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--worlds", type=int, default=4)
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--case", type=Path, help="replay this recorded episode instead")
+    parser.add_argument(
+        "--case-goal",
+        default="medium_train/INSTRUCTION_PLACE_STONE_IRON_2_2",
+        help="SPLIT/GOAL_ID the case is scored on",
+    )
     add_repository_arguments(parser)
     args = parser.parse_args(argv)
     root = repository_root(parser, args)
     official = official_modules(root)
+    if args.case is not None:
+        return print_case(official, root, read_case(args.case), args.case_goal)
     variant = Variant.FULL if args.difficulty == "hard" else Variant.CLASSIC
     harness = Harness(official, variant, args.steps)
     rng = np.random.default_rng(args.seed)
@@ -406,6 +589,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     for line in differences:
         print("  differs:", line)
     return 1 if differences else 0
+
+
+def print_case(official: Callable[[str], Any], root: Path, case: GameOverCase, goal: str) -> int:
+    """Replay `case` scored on `goal` (SPLIT/GOAL_ID); print where both sides differ."""
+    split, _, goal_id = goal.partition("/")
+    if split not in SPLIT_MODULES or split.startswith("hard"):
+        raise SystemExit(f"error: --case-goal {goal!r}: not SPLIT/GOAL_ID of a Medium split")
+    steps = replay_case(official, root, case, split, goal_id)
+    last = steps[-1]
+    print(
+        f"case {list(case.world_key)} on {goal}: {len(steps)} steps (recorded game over: "
+        f"{case.game_over_step}); last step: game over {last.game_over}, official ended "
+        f"{last.official_ended} met {last.official_met}, ours {last.ours.name.lower()}"
+    )
+    differing = [s for s in steps if not s.agrees]
+    for step in differing:
+        print("  differs:", step)
+    print(f"  {len(steps) - len(differing)} of {len(steps)} steps agree")
+    return 1 if differing else 0
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ slots refilled in place, and everything the caller needs pulled to numpy once pe
 
 Determinism: an episode's randomness comes only from its episode key (see `episode_key`); step t
 uses `fold_in(episode_key, t)`, so a trajectory does not depend on the batch size or on which slot
-the episode runs in.
+the episode runs in. A step spends its key as Craftax's auto-reset env does (`EnvConfig.step_keys`):
+the game steps with the first half of its split, the world a game over starts comes from the second.
 
 The step the game ends on is also checked in the world Craftax's auto-reset env would start next
 (the official wrapper's verdict there, see `env.checker.scored_success`): that world is generated
@@ -31,7 +32,7 @@ from env.achievements import NUM_ACHIEVEMENTS
 from env.checker import goal_reached, scored_success
 from env.device import EnvDevice, place_env
 from env.jax_cache import enable_compilation_cache
-from env.rules import DEFAULT_SUCCESS_RULE, STEP_CAP, SuccessRule
+from env.rules import DEFAULT_STEP_KEYS, DEFAULT_SUCCESS_RULE, STEP_CAP, StepKeys, SuccessRule
 from env.scenario_checker import goal_met
 from env.scenario_tasks import KIND_INDEX, NUM_PARAMS
 from env.termination import Termination
@@ -56,6 +57,10 @@ class EnvConfig(BaseModel):
     world_key: int | None = None
     """When set, every episode's world is generated from `jax.random.PRNGKey(world_key)` (the
     official loop uses 1) instead of its episode key; steps still draw from the episode key."""
+    step_keys: StepKeys = DEFAULT_STEP_KEYS
+    """How a step spends its key (`env.rules.StepKeys`): `auto_reset` as Craftax's auto-reset
+    env, so that the game and the world a game over starts are the official wrapper's; `whole`
+    as runs recorded before this setting played."""
     device: EnvDevice = "cpu"
     """Where JAX steps the worlds: `cpu` (the default: the accelerator stays the model's) or
     `default` (JAX's default device); see `env.device`."""
@@ -235,6 +240,11 @@ class CrafTextEnv:
         _, world = self.craftax.reset_env(jax.random.split(key)[1], self.params)
         return world
 
+    def game_key(self, key: jax.Array) -> jax.Array:
+        """The key the game steps with on a step with `key`: the first half of its split, as
+        craftax's `EnvironmentAutoReset.step` steps (under `step_keys="whole"`, `key` itself)."""
+        return jax.random.split(key)[0] if self.config.step_keys == "auto_reset" else key
+
     def _step_rows(
         self, keys: jax.Array, state: EpisodeState, actions: jax.Array, active: jax.Array
     ) -> tuple[EpisodeState, StepInfo]:
@@ -291,7 +301,7 @@ class CrafTextEnv:
         """One episode's Craftax step and its goal's verdict on the state after it: (game,
         Craftax's reward, whether the game ended, whether the goal is met)."""
         _, game, craftax_reward, game_over, _ = self.craftax.step_env(
-            key, state.game, action, self.params
+            self.game_key(key), state.game, action, self.params
         )
         task = state.task
         reached = goal_met(

@@ -6,7 +6,7 @@ no agent can meet on the variant.
   (`do_nothing_successes`). The official line and star checks make some goals true in a fresh
   world (a straight line of 2 of a block absent from the window, straight stars). Played, not
   listed by hand, and cached on disk (`cache_root()/do-nothing/`), keyed by everything that
-  decides it: the goals' checker encodings, variant, step cap, success rule, worlds and seed.
+  decides it: the goals' checker encodings, variant, step cap, success rule, step keys, worlds and seed.
 - **Not achievable on the variant** (`impossible_reason`), derived from the goal's parameters and
   the variant's tables: a conditional-placing goal succeeds when the collected count *falls*
   below `collect_count` (the official check), so an item nothing in the variant takes out of the
@@ -109,6 +109,7 @@ def do_nothing_successes(
         "max_steps": config.max_steps,
         "success_rule": config.success_rule,
         "world_key": config.world_key,
+        "step_keys": config.step_keys,
         "worlds": worlds,
         "seed": seed,
         "craftax": _craftax_version(),

@@ -14,6 +14,16 @@ SUCCESS_RULES: tuple[SuccessRule, ...] = get_args(SuccessRule)
 #: The rule the env, the settings and the `default` protocol start from.
 DEFAULT_SUCCESS_RULE: SuccessRule = "game_over_counts"
 
+StepKeys = Literal["auto_reset", "whole"]
+"""How a step's key is spent. `auto_reset`, as Craftax's `EnvironmentAutoReset.step` (the
+official wrapper's inner env) spends it: split in two, the game steps with the first half and
+the world a game-over step starts is made from the second. `whole`: the game steps with the
+whole key, the new world still from its second half, a key the game step itself draws from, so
+that world is not the one the official wrapper checks (runs recorded before this setting played
+so)."""
+STEP_KEYS: tuple[StepKeys, ...] = get_args(StepKeys)
+DEFAULT_STEP_KEYS: StepKeys = "auto_reset"
+
 #: Step cap per episode of the official LLM baseline loop (the paper states none); the env, the
 #: settings and both protocols start from it.
 STEP_CAP = 250

@@ -1,6 +1,10 @@
 """Whole episodes that end in game over, scored by the official CrafText wrapper (1c518ae, run
 unmodified through `benchmarks.official_wrapper`) and by our env under the `official` rule.
 
+The recorded case (`../shared/data/gameover_case.jsonl`: a Medium localization-placing episode
+whose player dies at step 277) is replayed step by step beside the real wrapper and its real
+auto-reset inner env: the worlds both check and the verdicts agree at every step.
+
 Each world's player is killed on purpose (health and recovery set to 0) at a chosen step, in
 Craftax's default parameters, after a stocked inventory and random play: on that step the
 official wrapper checks the goal on the world Craftax's auto-reset env starts. Every goal of
@@ -18,8 +22,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from benchmarks.official_wrapper import Harness, compare, official_modules, world_keys
+from benchmarks.official_wrapper import (
+    Harness,
+    compare,
+    official_modules,
+    read_case,
+    replay_case,
+    world_keys,
+)
 from env.goals import GOAL_KINDS
+from env.termination import Termination
 from env.variant import Variant
 
 pytestmark = pytest.mark.slow
@@ -79,3 +91,38 @@ def test_game_over_steps_score_like_the_official_wrapper(
     assert {name.split("/")[1] for name in tallies} == kinds
     game_over = {name.split("/")[1] for name, t in tallies.items() if t.game_over_successes}
     assert game_over == met_at_game_over, tallies
+
+
+CASE_GOAL = ("medium_train", "INSTRUCTION_PLACE_STONE_IRON_2_2")
+
+
+def test_the_recorded_game_over_case_agrees_at_every_step(
+    official_repository: Path, shared_data: Path
+) -> None:
+    case = read_case(shared_data / "gameover_case.jsonl")
+    steps = replay_case(
+        official_modules(official_repository), official_repository, case, *CASE_GOAL
+    )
+    assert [step for step in steps if not step.agrees] == []
+    *before, last = steps
+    assert last.step == case.game_over_step
+    assert last.game_over and not any(step.game_over for step in before)
+    # The new world around its spawn has no stone two tiles above an iron: no success on either side.
+    assert (last.official_ended, last.official_met, last.ours) == (True, False, Termination.DEATH)
+
+
+def test_stepping_the_game_with_the_whole_key_checks_another_new_world(
+    official_repository: Path, shared_data: Path
+) -> None:
+    """How the case disagreed before: with the game stepped on the half of the key the wrapper's
+    game steps with, the games agree until the game over, and then our env checks a world made
+    from a key the wrapper never resets from, where the goal happens to be met."""
+    case = read_case(shared_data / "gameover_case.jsonl")
+    steps = replay_case(
+        official_modules(official_repository), official_repository, case, *CASE_GOAL, "whole"
+    )
+    *before, last = steps
+    assert all(step.agrees for step in before)
+    assert last.step == case.game_over_step and last.game_over
+    assert not last.games_equal
+    assert (last.official_met, last.ours) == (False, Termination.SUCCESS)

@@ -271,6 +271,7 @@ OTHER_VALUES: dict[str, object] = {
     "protocol_overrides": ("max_steps",),
     "success_rule": "official",
     "world_seeding": "official",
+    "step_keys": "whole",
     "env_device": "default",
     "ray": True,
     "ray_workers": 3,

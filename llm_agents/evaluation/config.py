@@ -30,7 +30,15 @@ from env.device import EnvDevice
 from env.errors import UserError
 from env.goals import DEFAULT_DIFFICULTY, DIFFICULTIES, Difficulty, check_categories
 from env.open_ended import Task
-from env.rules import DEFAULT_SUCCESS_RULE, OFFICIAL_WORLD_KEY, STEP_CAP, SuccessRule, WorldSeeding
+from env.rules import (
+    DEFAULT_STEP_KEYS,
+    DEFAULT_SUCCESS_RULE,
+    OFFICIAL_WORLD_KEY,
+    STEP_CAP,
+    StepKeys,
+    SuccessRule,
+    WorldSeeding,
+)
 from env.variant import DEFAULT_VARIANT, Variant
 from llm_agents.agents.answers.actions import action_names
 from llm_agents.agents.loading import check_agent_name
@@ -292,6 +300,7 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     predated_settings: ClassVar[dict[str, Any]] = {
         **ChoiceSettings.predated_settings,
         "stuck_after": 0,
+        "step_keys": "whole",
     }
     predated_context: ClassVar[tuple[str, ...]] = ("choice", "agent")
 
@@ -358,6 +367,11 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
     world_seeding: Annotated[WorldSeeding, CHANGES_RESULTS] = "per_episode"
     """`per_episode`: a world per episode from (seed, goal, variant, episode); `official`: every
     episode in the one world of reset key PRNGKey(1), as the official loop plays."""
+    step_keys: Annotated[StepKeys, CHANGES_RESULTS] = DEFAULT_STEP_KEYS
+    """How the env spends each step's key: `auto_reset` (as Craftax's auto-reset env, the
+    official wrapper's inner env: the game and a game over's new world are the ones the official
+    wrapper would check) or `whole` (how runs recorded before this setting played; resume such a
+    run with it)."""
     env_device: EnvDevice = "cpu"
     """Where JAX steps the worlds: `cpu` (the accelerator stays the model's, and JAX claims none
     of its memory) or `default` (JAX's default device)."""
@@ -522,6 +536,7 @@ class EvalConfig(ChoiceSettings, GroundingSettings, FailureSettings):
             max_steps=self.max_steps,
             success_rule=self.success_rule,
             world_key=OFFICIAL_WORLD_KEY if self.world_seeding == "official" else None,
+            step_keys=self.step_keys,
             device=self.env_device,
         )
 
