@@ -21,6 +21,9 @@ class StepReading(BaseModel):
     unread: str | None = None
     """Why the step, or a part of it ("Find cow, kill it": the first part), reads as no skill
     (it names nothing the catalogue knows); None when all of it was read."""
+    notes: tuple[str, ...] = ()
+    """How the plan around it shaped its reading: a count read from the later steps, a crafted
+    table that a later step places."""
 
 
 class FirstFailure(BaseModel):
@@ -64,8 +67,8 @@ class PlanScore(BaseModel):
 
     @property
     def read(self) -> int:
-        """Steps read as at least one skill."""
-        return sum(1 for step in self.steps if step.skills)
+        """Steps read: as at least one skill, or as none because a later step does their work."""
+        return sum(1 for step in self.steps if step.skills or step.unread is None)
 
     @property
     def unread(self) -> int:
