@@ -68,7 +68,8 @@ class EpisodeOutcome(BaseModel):
     reason: str | None = None
     """Why it failed; None on success."""
     played: int = 0
-    """The plan's skills that finished before the episode ended."""
+    """The plan's skills that finished before the episode ended (on success, the one that met
+    the goal among them)."""
     reached: tuple[str, ...] = ()
     """The achievements reached by the end (craftax names, id order)."""
 
@@ -224,7 +225,8 @@ def play_plan_episodes(
                         key=live[slot].spec.key,
                         success=True,
                         steps=steps_after[slot],
-                        played=_played(live[slot]),
+                        # The skill that met the goal counts as played.
+                        played=live[slot].next_skill,
                         reached=tuple(live[slot].reached),
                     )
                 else:

@@ -434,12 +434,12 @@ def read_plan(steps: list[str], offer: SkillOffer) -> list[StepReading]:
         elif least > 1:
             notes[i].append(f"{plain}: {why}; no later step spends {material}")
     readings = []
-    for number, ((text, skills, unread), note) in enumerate(zip(marked, notes, strict=True), 1):
+    for number, ((text, read, unread), note) in enumerate(zip(marked, notes, strict=True), 1):
         readings.append(
             StepReading(
                 number=number,
                 text=text,
-                skills=tuple(_plain(skill, 0) for skill in skills),
+                skills=tuple(_plain(skill, 0) for skill in read),
                 unread=unread,
                 notes=tuple(note),
             )
