@@ -139,7 +139,7 @@ def read_lines(path: Path, limit: int | None = None) -> tuple[Method, list[dict[
     if not rows:
         raise UserError(f"{path} holds no examples")
     methods = [m for m, keys in METHOD_KEYS.items() if keys <= rows[0].keys()]
-    conversation = CONVERSATION_KEYS <= rows[0].keys() and not methods
+    conversation = "messages" in rows[0] and not methods
     if not methods and not conversation:
         raise UserError(
             f"{path}:1 has neither messages or prompt+completion (sft) nor "
