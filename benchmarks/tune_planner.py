@@ -2,8 +2,9 @@
 DPOTrainer, the merged model saved as a transformers folder that `plan --model hf:FOLDER` loads.
 
 The loop (docs/guides/tuning-a-planner.md): `craftext-llm plan --candidates N` proposes plans,
-`craftext-llm plan-score --export sft|dpo --out DATA` plays them and writes TRL's standard lines
-(`prompt` + `completion`, or `prompt` + `chosen` + `rejected`), this script tunes on them, and
+`craftext-llm plan-score --export sft|dpo --out DATA` plays them and writes TRL's conversational
+lines (`messages`, or `prompt` + `chosen` + `rejected` as message lists), this script tunes on
+them, and
 `plan` then `plan-score` measure the tuned model against the untuned one.
 
     python -m benchmarks.tune_planner train DATA/sft.jsonl --out TUNED
@@ -11,10 +12,12 @@ The loop (docs/guides/tuning-a-planner.md): `craftext-llm plan --candidates N` p
         [--learning-rate 2e-4] [--lora-rank 16] [--batch-size 1] [--grad-accum 4] [--beta 0.1]
     python -m benchmarks.tune_planner compare BEFORE_DIR AFTER_DIR [AFTER_DIR ...]
 
-Each line's prompt is put back into the chat the planner sends (its system block, then its
-`Instruction: ...` user block; a bare instruction gets the planner's own prompt around it), and
-each plan becomes the assistant's answer, so the model is tuned on the very tokens `plan` will
-show it, through its own chat template. The tuned folder holds a `tuning.json` sidecar
+An SFT conversation is handed to TRL as its prompt (the planner's messages) and its completion
+(the answer), so the loss falls on the answer alone. Lines in the standard form earlier exports
+wrote (`prompt` + `completion` strings) are read too: each prompt is put back into the chat the
+planner sends (its system block, then its `Instruction: ...` user block; a bare instruction gets
+the planner's own prompt around it). Either way the model is tuned on the very tokens `plan`
+will show it, through its own chat template. The tuned folder holds a `tuning.json` sidecar
 (base model, data file and its hash, settings, losses, seconds).
 
 trl, peft, datasets and torch are imported here only: `pip install -e '.[tune]'`.
@@ -55,6 +58,8 @@ METHOD_KEYS: dict[Method, frozenset[str]] = {
     "sft": frozenset({"prompt", "completion"}),
     "dpo": frozenset({"prompt", "chosen", "rejected"}),
 }
+#: The keys of a conversational SFT line (what `plan-score --export sft` writes).
+CONVERSATION_KEYS = frozenset({"messages"})
 Chat = list[dict[str, str]]
 
 
@@ -134,13 +139,16 @@ def read_lines(path: Path, limit: int | None = None) -> tuple[Method, list[dict[
     if not rows:
         raise UserError(f"{path} holds no examples")
     methods = [m for m, keys in METHOD_KEYS.items() if keys <= rows[0].keys()]
-    if not methods:
+    conversation = "messages" in rows[0] and not methods
+    if not methods and not conversation:
         raise UserError(
-            f"{path}:1 has neither prompt+completion (sft) nor prompt+chosen+rejected (dpo)"
+            f"{path}:1 has neither messages or prompt+completion (sft) nor "
+            "prompt+chosen+rejected (dpo)"
         )
-    method = methods[-1]  # a line with both shapes' keys is a preference pair
+    method = "sft" if conversation else methods[-1]  # both shapes' keys: a preference pair
+    keys = CONVERSATION_KEYS if conversation else METHOD_KEYS[method]
     for number, row in enumerate(rows, start=1):
-        missing = METHOD_KEYS[method] - row.keys()
+        missing = keys - row.keys()
         if missing:
             raise UserError(f"{path}:{number} lacks {', '.join(sorted(missing))}")
     return method, rows[:limit] if limit else rows
@@ -176,10 +184,14 @@ def answer(text: str | Chat) -> Chat:
 
 
 def conversational(rows: list[dict[str, Any]], method: Method, chats: PlannerChats) -> list[dict]:
-    """TRL's conversational lines: the prompt as the planner's chat, each plan as the answer."""
+    """TRL's conversational lines: the prompt as the planner's chat, each plan as the answer
+    (an SFT conversation split before its last message, the answer)."""
     keys = METHOD_KEYS[method] - {"prompt"}
     return [
-        {"prompt": chats.chat(row["prompt"]), **{k: answer(row[k]) for k in keys}} for row in rows
+        {"prompt": row["messages"][:-1], "completion": row["messages"][-1:]}
+        if "messages" in row
+        else {"prompt": chats.chat(row["prompt"]), **{k: answer(row[k]) for k in keys}}
+        for row in rows
     ]
 
 

@@ -379,15 +379,21 @@ def _step_keys(state: EpisodeState) -> jax.Array:
     return jax.vmap(jax.random.fold_in)(state.episode_key, state.steps)
 
 
-def episode_key(seed: int, goal_id: str, instruction_index: int, episode_index: int) -> np.ndarray:
+def episode_key(
+    seed: int, goal_id: str, instruction_index: int, episode_index: int, stream: str = ""
+) -> np.ndarray:
     """The raw PRNG key (two uint32 words) of one episode.
 
     Derived by hashing, so the world of (seed, goal, instruction variant, episode) is the same in
-    every run, whatever else the run contains or in which order it schedules episodes.
+    every run, whatever else the run contains or in which order it schedules episodes. A
+    non-empty `stream` names another family of worlds (`plan-score`'s selection and held-out
+    worlds): its hashed text can never equal an unnamed (eval's) one, so the families share no
+    key short of a 64-bit hash collision.
     """
-    digest = hashlib.blake2b(
-        f"{seed}\x1f{goal_id}\x1f{instruction_index}\x1f{episode_index}".encode(), digest_size=8
-    ).digest()
+    text = f"{seed}\x1f{goal_id}\x1f{instruction_index}\x1f{episode_index}"
+    if stream:
+        text = f"{stream}\x1e{text}"
+    digest = hashlib.blake2b(text.encode(), digest_size=8).digest()
     return np.frombuffer(digest, dtype=np.uint32).copy()
 
 

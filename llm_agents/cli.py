@@ -264,7 +264,26 @@ def _plan_score_parser(commands: Any) -> None:
     )
     score.add_argument("plans", help="the plans or candidates JSON file")
     score.add_argument("--out", required=True, metavar="DIR", help="the folder to write")
-    score.add_argument("--worlds", type=int, default=4, metavar="K", help="worlds per plan (4)")
+    score.add_argument(
+        "--worlds",
+        type=int,
+        default=4,
+        metavar="K",
+        help="selection worlds per plan, where each text's best plan is chosen (4)",
+    )
+    score.add_argument(
+        "--held-out-worlds",
+        type=int,
+        default=4,
+        metavar="H",
+        help="worlds, apart from the selection worlds and eval's, where each text's first and "
+        "best plans are played again (4; 0: none)",
+    )
+    score.add_argument(
+        "--eval-worlds",
+        action="store_true",
+        help="choose in eval's worlds (the seed's) instead of plan-score's selection worlds",
+    )
     score.add_argument("--seed", type=int, default=0, help="the worlds' seed (0)")
     score.add_argument("--dataset", help="dataset source (as eval's --dataset)")
     score.add_argument(
@@ -301,6 +320,13 @@ def _plan_score_parser(commands: Any) -> None:
     score.add_argument("--threshold", type=float, default=0.5, help="sft: least success rate (0.5)")
     score.add_argument(
         "--margin", type=float, default=0.25, help="dpo: least difference of success (0.25)"
+    )
+    score.add_argument(
+        "--pairs-per-text",
+        type=int,
+        default=4,
+        metavar="N",
+        help="dpo: the most pairs one text gives, widest margins first (4)",
     )
     score.add_argument("--restart", action="store_true", help="discard OUT's journal")
     score.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -730,6 +756,8 @@ def cmd_plan_score(args: argparse.Namespace) -> int:
         "plans": Path(args.plans),
         "out": Path(args.out),
         "worlds": args.worlds,
+        "held_out_worlds": args.held_out_worlds,
+        "eval_worlds": args.eval_worlds,
         "seed": args.seed,
         "dataset": args.dataset,
         "splits": tuple(
@@ -741,6 +769,7 @@ def cmd_plan_score(args: argparse.Namespace) -> int:
         "export": tuple(dict.fromkeys(args.export or [])),
         "threshold": args.threshold,
         "margin": args.margin,
+        "pairs_per_text": args.pairs_per_text,
         "restart": args.restart,
     }
     if args.variant is not None:
@@ -755,6 +784,10 @@ def cmd_plan_score(args: argparse.Namespace) -> int:
         raise UserError(f"{where}: {first['msg']}") from None
     summary = score_plans(config, progress=_progress_bar(not args.no_progress))
     exports = "".join(f"\n{kind}: {lines} lines" for kind, lines in summary.exports.items())
+    if summary.exports:
+        exports += "\nkept out of the exports: " + ", ".join(
+            f"{why} {count}" for why, count in summary.kept_out.items()
+        )
     print(
         f"{summary.texts} texts, {summary.plans} plans, {summary.episodes} episodes "
         f"({summary.resumed} resumed) in {summary.wall_s:.1f} s\n"

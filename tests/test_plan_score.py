@@ -13,7 +13,8 @@ from env.dataset import Dataset, DatasetSource, Goal
 from env.variant import Variant
 from llm_agents.agents.skills.catalogue import skill_offer
 from llm_agents.cli import main
-from llm_agents.planning.export import planner_prompt_text
+from llm_agents.planning.export import numbered
+from llm_agents.planning.loop import planner_messages
 from llm_agents.planning.steps import read_plan, read_step
 
 EASY = skill_offer(Variant.CLASSIC, "easy")
@@ -174,6 +175,8 @@ def test_texts_the_dataset_lacks_are_listed_and_counted_and_skipped_only_on_requ
     ("flags", "message"),
     [
         (("--worlds", "0"), "--worlds"),
+        (("--held-out-worlds", "-1"), "--held-out-worlds"),
+        (("--export", "dpo", "--pairs-per-text", "0"), "--pairs-per-text"),
         (("--export", "dpo"), "no scored text has two"),
         (("--export", "sft", "--threshold", "1.5"), "--threshold"),
         (("--splits", "hard_nowhere"), "no split hard_nowhere"),
@@ -198,7 +201,7 @@ def test_plans_are_scored_by_playing_them_and_the_best_exported(
         "Set up a workbench.": [NO_WOOD_TABLE],
     }
     plans = _write(tmp_path / "candidates.json", candidates)
-    flags = ("--worlds", "2", "--export", "dpo", "--export", "sft", "--threshold", "0.5")
+    flags = ("--worlds", "2", "--held-out-worlds", "1", "--export", "dpo", "--export", "sft")
     assert _score(tmp_path, plans, *flags) == 0
     out = tmp_path / "out"
     scores = json.loads((out / "scores.json").read_text())
@@ -225,20 +228,31 @@ def test_plans_are_scored_by_playing_them_and_the_best_exported(
         TABLE: COMPLETE_TABLE,
         "Set up a workbench.": NO_WOOD_TABLE,
     }
-    prompt = planner_prompt_text(TABLE, variant=Variant.CLASSIC)
+    # The first and the best candidate of each text, once more in a held-out world.
+    assert scores["splits"]["easy_train"]["best_held_out"]["episodes"] == 2
+    assert complete["held_out"]["episodes"] == 1 and no_wood["held_out"]["episodes"] == 1
+    prompt = [
+        {"role": m.role, "content": m.content}
+        for m in planner_messages(TABLE, None, Variant.CLASSIC)
+    ]
+
+    def said(plan: str) -> list[dict[str, str]]:
+        return [{"role": "assistant", "content": numbered(plan)}]
+
     dpo = [json.loads(line) for line in (out / "dpo.jsonl").read_text().splitlines()]
     assert sorted(dpo[0]) == ["chosen", "prompt", "rejected"]
-    assert {(row["chosen"], row["rejected"]) for row in dpo} == {
-        (COMPLETE_TABLE, NO_WOOD_TABLE),
-        (COMPLETE_TABLE, NO_PICKAXE),
+    pairs = {(row["chosen"][0]["content"], row["rejected"][0]["content"]) for row in dpo}
+    assert pairs == {
+        (numbered(COMPLETE_TABLE), numbered(NO_WOOD_TABLE)),
+        (numbered(COMPLETE_TABLE), numbered(NO_PICKAXE)),
     }
     assert all(row["prompt"] == prompt for row in dpo)
     sft = [json.loads(line) for line in (out / "sft.jsonl").read_text().splitlines()]
-    assert sft == [{"prompt": prompt, "completion": COMPLETE_TABLE}]
+    assert sft == [{"messages": prompt + said(COMPLETE_TABLE)}]
     capsys.readouterr()
     # A rerun plays nothing: every episode is in the journal.
     assert _score(tmp_path, plans, *flags) == 0
-    assert "8 episodes (8 resumed)" in capsys.readouterr().out
+    assert "11 episodes (11 resumed)" in capsys.readouterr().out
     assert json.loads((out / "scores.json").read_text()) == scores
     # Other worlds are other settings: refused unless restarted.
     assert _score(tmp_path, plans, "--worlds", "3") == 2

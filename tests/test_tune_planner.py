@@ -12,7 +12,6 @@ import pytest
 from benchmarks import tune_planner
 from env.errors import UserError
 from env.variant import Variant
-from llm_agents.planning.export import planner_prompt_text
 from llm_agents.planning.loop import planner_messages
 from llm_agents.run_data.metrics import SuccessRate
 
@@ -28,6 +27,22 @@ def _write(path: Path, rows: list[dict]) -> Path:
     return path
 
 
+def test_a_conversation_is_tuned_on_its_answer_alone(tmp_path: Path) -> None:
+    chat = [
+        {"role": "system", "content": "Write a plan."},
+        {"role": "user", "content": "Instruction: Get wood."},
+        {"role": "assistant", "content": "1. Collect wood."},
+    ]
+    sft = _write(tmp_path / "sft.jsonl", [{"messages": chat}])
+    method, rows = tune_planner.read_lines(sft)
+    assert method == "sft"
+    chats = tune_planner.PlannerChats(Variant.CLASSIC, None)
+    assert tune_planner.conversational(rows, method, chats) == [
+        {"prompt": chat[:2], "completion": chat[2:]}
+    ]
+    assert chats.rebuilt == 0
+
+
 def test_method_follows_the_keys(tmp_path: Path) -> None:
     sft = _write(tmp_path / "sft.jsonl", [{"prompt": "a", "completion": "1. b"}] * 3)
     dpo = _write(tmp_path / "dpo.jsonl", [{"prompt": "a", "chosen": "1. b", "rejected": "1. c"}])
@@ -41,7 +56,7 @@ def test_method_follows_the_keys(tmp_path: Path) -> None:
     [
         (["{not json"], ":1 is not JSON"),
         (["[1, 2]"], "1 is not a JSON object"),
-        ([json.dumps({"prompt": "a", "plan": "b"})], r"neither prompt\+completion"),
+        ([json.dumps({"prompt": "a", "plan": "b"})], r"neither messages or prompt\+completion"),
         (
             [json.dumps({"prompt": "a", "completion": "b"}), json.dumps({"prompt": "a"})],
             "2 lacks completion",
@@ -60,8 +75,8 @@ def test_the_planner_prompt_is_put_back_into_its_chat() -> None:
     planner = planner_messages("Make a wooden pickaxe.", None, Variant.CLASSIC)
     system, user = (m.content for m in planner)
     chats = tune_planner.PlannerChats(Variant.CLASSIC, None)
-    # As plan-score's export writes it: one string, the blocks joined.
-    assert chats.chat(planner_prompt_text("Make a wooden pickaxe.", None, Variant.CLASSIC)) == [
+    # As earlier plan-score exports wrote it: one string, the blocks joined.
+    assert chats.chat(f"{system}\n\n{user}\n") == [
         {"role": "system", "content": system},
         {"role": "user", "content": user},
     ]

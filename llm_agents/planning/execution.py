@@ -7,8 +7,10 @@ solved for the plan. A skill cut short by an attack starts again. The episode su
 instruction's checker sees its goal met (the env ends it there); it fails when the game ends
 first, or when every skill has played and the goal is not met.
 
-An episode's world comes from (seed, goal, phrasing, world index) alone (`env.episode_key`), so
-every candidate plan of a text is played in the same K worlds, whatever the batch.
+An episode's world comes from (seed, goal, phrasing, world index, stream) alone
+(`env.episode_key`), so every candidate plan of a text is played in the same K worlds, whatever
+the batch. Each outcome says how far the plan got (`played`: its skills that finished) and which
+achievements the episode had reached when it ended (`reached`), the parts a shaped reward reads.
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ class PlanEpisode:
     world: int
     skills: tuple[tuple[int, AnySkill], ...]
     """(plan step number, skill) in playing order."""
+    stream: str = ""
+    """The family of worlds (`env.episode_key`): empty for eval's."""
 
 
 class EpisodeOutcome(BaseModel):
@@ -63,6 +67,11 @@ class EpisodeOutcome(BaseModel):
     failed_skill: str | None = None
     reason: str | None = None
     """Why it failed; None on success."""
+    played: int = 0
+    """The plan's skills that finished before the episode ended (on success, the one that met
+    the goal among them)."""
+    reached: tuple[str, ...] = ()
+    """The achievements reached by the end (craftax names, id order)."""
 
 
 @dataclass
@@ -72,6 +81,7 @@ class _Live:
     next_skill: int = 0
     run: SkillRun | None = None
     current: tuple[int, AnySkill] | None = None
+    reached: list[str] = field(default_factory=list)
 
 
 class _Ended(Exception):
@@ -89,13 +99,21 @@ def _failed(live: _Live, steps: int, reason: str) -> _Ended:
             failed_step=number,
             failed_skill=None if skill is None else skill.text,
             reason=reason,
+            played=_played(live),
+            reached=tuple(live.reached),
         )
     )
+
+
+def _played(live: _Live) -> int:
+    """Skills finished: those started, less the one running or refused."""
+    return live.next_skill - (live.current is not None)
 
 
 def _action(live: _Live, obs: Observation, steps: int, skill_steps: int) -> str:
     """The next action of the episode's plan, or `_Ended` when the plan failed or ran out."""
     live.expert.world.update(obs)
+    live.reached = obs.achievements
     while True:
         if live.run is None:
             if live.next_skill >= len(live.spec.skills):
@@ -124,6 +142,7 @@ def _action(live: _Live, obs: Observation, steps: int, skill_steps: int) -> str:
         if result.outcome != "succeeded":
             raise _failed(live, steps, _reason(result))
         live.run = None
+        live.current = None
 
 
 def _reason(finished: Finished) -> str:
@@ -163,9 +182,12 @@ def play_plan_episodes(
     # another shape would compile the env's functions again.
     size = batch_size
     noop = action_id("NOOP", variant)
+    names = variant.achievement_names
 
     def rows(specs: Sequence[PlanEpisode]) -> tuple[np.ndarray, ...]:
-        keys = np.stack([episode_key(seed, s.goal.id, s.text_index, s.world) for s in specs])
+        keys = np.stack(
+            [episode_key(seed, s.goal.id, s.text_index, s.world, s.stream) for s in specs]
+        )
         tasks = encode_goals([s.goal for s in specs], variant)
         return keys, tasks.required, tasks.forbidden, tasks.kind, tasks.params
 
@@ -195,9 +217,17 @@ def play_plan_episodes(
                 code = termination[slot]
                 if code == Termination.RUNNING:
                     continue
+                live[slot].reached = [
+                    names[i] for i in np.flatnonzero(host.game.achievements[slot]).tolist()
+                ]
                 if code == Termination.SUCCESS:
                     outcome = EpisodeOutcome(
-                        key=live[slot].spec.key, success=True, steps=steps_after[slot]
+                        key=live[slot].spec.key,
+                        success=True,
+                        steps=steps_after[slot],
+                        # The skill that met the goal counts as played.
+                        played=live[slot].next_skill,
+                        reached=tuple(live[slot].reached),
                     )
                 else:
                     label = Termination(code).label

@@ -21,6 +21,9 @@ class StepReading(BaseModel):
     unread: str | None = None
     """Why the step, or a part of it ("Find cow, kill it": the first part), reads as no skill
     (it names nothing the catalogue knows); None when all of it was read."""
+    notes: tuple[str, ...] = ()
+    """How the plan around it shaped its reading: a count read from the later steps, a crafted
+    table that a later step places."""
 
 
 class FirstFailure(BaseModel):
@@ -61,11 +64,41 @@ class PlanScore(BaseModel):
     """Environment steps played over all its episodes."""
     failures: list[FirstFailure] = Field(default_factory=list)
     """The first failures of its failed episodes, commonest first."""
+    goal_reached: float = 0.0
+    """The share of the goal's required achievements its episodes reached, on average (a goal
+    without required achievements: its success rate)."""
+    played: float = 0.0
+    """The share of its skills that finished before each episode ended, on average."""
+    breaks: list[str] = Field(default_factory=list)
+    """Its steps, played or not, that earn an achievement the instruction forbids
+    (`verdict.breaking_steps`)."""
+    met_without_acting: bool = False
+    """The text's goal is met by doing nothing in at least one of do-nothing worlds: no plan of
+    it says anything."""
+    held_out: SuccessRate | None = None
+    """Its success in the held-out worlds, where a text's first and best candidates are played
+    after the choice; None for the others."""
+
+    @property
+    def empty(self) -> bool:
+        """No step read as a skill."""
+        return not any(step.skills for step in self.steps)
+
+    @property
+    def excluded(self) -> str | None:
+        """Why no export may use it (as an answer to learn or to avoid), or None."""
+        if self.met_without_acting:
+            return "met_without_acting"
+        if self.empty:
+            return "empty"
+        if self.breaks:
+            return "breaks_instruction"
+        return None
 
     @property
     def read(self) -> int:
-        """Steps read as at least one skill."""
-        return sum(1 for step in self.steps if step.skills)
+        """Steps read: as at least one skill, or as none because a later step does their work."""
+        return sum(1 for step in self.steps if step.skills or step.unread is None)
 
     @property
     def unread(self) -> int:

@@ -2,15 +2,26 @@
 best candidate of each text and training data exported from the scores.
 
 Reads an official plans file (`{text: plan}`) or a candidates file (`{text: [plan, ...]}`),
-reads every step into skills (`steps`), plays each plan in `worlds` seeded worlds and writes,
-into the output folder:
+reads every step into skills (`steps`), plays each plan in `worlds` selection worlds, chooses
+each text's best candidate there, plays the first and the best again in `held_out_worlds` other
+worlds, and writes, into the output folder:
 - `episodes.jsonl`: the journal, one line per finished episode after a settings header; a rerun
   with the same settings plays only what it lacks;
-- `scores.json`: per plan its steps as read, success rate with its interval and first failures;
-  per split the rates of the texts' first and best candidates, clustered by goal;
+- `scores.json`: per plan its steps as read, success rate with its interval, first failures and
+  verdict (`verdict`: steps that break the instruction, a text met without acting); per split
+  the rates of the texts' first and best candidates, in the selection and held-out worlds,
+  clustered by goal, and the plans and texts kept out of the exports;
 - `best.json`: each text's best candidate (ties to the shorter plan), the official shape;
 - with `export`, `sft.jsonl` and `dpo.jsonl` (`export`).
 Every input is checked before anything is written.
+
+Worlds: selection and held-out worlds are two named families of keys (`env.episode_key`'s
+`stream`), apart from each other and from eval's, so `eval --plans best.json` plays none of the
+worlds a plan was chosen in; `eval_worlds` chooses in eval's own worlds instead (as versions
+before held-out worlds did).
+
+`PlanJudge` is the same execution for a trainer: plan texts for instructions in, per plan its
+success and the shaped parts of a reward out.
 """
 
 from __future__ import annotations
@@ -37,9 +48,11 @@ from llm_agents.planning.execution import (
     PlanEpisode,
     play_plan_episodes,
 )
-from llm_agents.planning.export import dpo_rows, planner_prompt_text, rank_key, sft_rows
-from llm_agents.planning.records import FirstFailure, PlanScore
+from llm_agents.planning.export import Prompter, dpo_rows, rank_key, sft_rows
+from llm_agents.planning.loop import planner_messages
+from llm_agents.planning.records import FirstFailure, PlanScore, StepReading
 from llm_agents.planning.steps import read_plan
+from llm_agents.planning.verdict import breaking_steps, goal_part_reached
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate
 from llm_agents.run_data.plans import load_candidates
 from llm_agents.run_data.store import (
@@ -57,6 +70,11 @@ SCORES = "scores.json"
 BEST = "best.json"
 EXPORT_FILES: dict[str, str] = {"sft": "sft.jsonl", "dpo": "dpo.jsonl"}
 _SHOWN = 5
+#: The families of worlds plans are chosen in and reported in (`env.episode_key`'s stream).
+SELECTION_WORLDS = "plan-score/selection"
+HELD_OUT_WORLDS = "plan-score/held-out"
+#: What a journal's lines mean; older journals are refused rather than misread.
+_JOURNAL_FORMAT = 2
 
 
 class ScoreConfig(BaseModel):
@@ -69,7 +87,13 @@ class ScoreConfig(BaseModel):
     out: Path
     """The folder to write."""
     worlds: int = Field(4, ge=1)
-    """Seeded worlds each plan is played in."""
+    """Selection worlds each plan is played in (each text's best candidate is chosen there)."""
+    held_out_worlds: int = Field(4, ge=0)
+    """Worlds, apart from the selection worlds and from eval's, each text's first and best
+    candidates are played in again (0: none)."""
+    eval_worlds: bool = False
+    """Choose in eval's own worlds (the seed's, as `eval` plays them) instead of the selection
+    worlds: to compare with earlier scores."""
     seed: int = 0
     """The seed the worlds come from."""
     dataset: str | None = None
@@ -92,6 +116,8 @@ class ScoreConfig(BaseModel):
     """SFT: the least success rate a plan needs."""
     margin: float = Field(0.25, gt=0.0, le=1.0)
     """DPO: the least difference of success rates between the chosen and the rejected plan."""
+    pairs_per_text: int = Field(4, ge=1)
+    """DPO: the most pairs one text gives (the widest margins first)."""
     restart: bool = False
     """Discard the folder's journal instead of resuming it."""
 
@@ -109,8 +135,11 @@ class _Settings(BaseModel):
 
     model_config = ConfigDict(frozen=True)
 
+    format: int = _JOURNAL_FORMAT
     plans_sha256: str
     worlds: int
+    held_out_worlds: int
+    eval_worlds: bool
     seed: int
     variant: Variant
     dataset: dict[str, Any]
@@ -153,8 +182,8 @@ def _texts(config: ScoreConfig, plans: dict[str, list[str]]) -> dict[str, tuple[
     return chosen
 
 
-def _episode_key(text: str, candidate: int, world: int) -> str:
-    return json.dumps([text, candidate, world], ensure_ascii=False)
+def _episode_key(text: str, candidate: int, world: int, stream: str) -> str:
+    return json.dumps([text, candidate, world, stream], ensure_ascii=False)
 
 
 class _Journal:
@@ -169,8 +198,14 @@ class _Journal:
             append_lines(path, [json.dumps({"settings": settings.model_dump(mode="json")})])
             return
         try:
-            previous = _Settings.model_validate(json.loads(lines[0])["settings"])
-        except (json.JSONDecodeError, KeyError, TypeError, ValidationError) as err:
+            header = json.loads(lines[0])["settings"]
+            if header.get("format") != _JOURNAL_FORMAT:
+                raise UserError(
+                    f"{path} was written by an older plan-score (other worlds and readings): "
+                    "write to another --out or pass --restart"
+                )
+            previous = _Settings.model_validate(header)
+        except (json.JSONDecodeError, KeyError, TypeError, AttributeError, ValidationError) as err:
             raise UserError(f"{path} is not a plan-score journal ({err}); pass --restart") from err
         if previous != settings:
             changed = [
@@ -205,6 +240,9 @@ class ScoreSummary(BaseModel):
     best: Path
     exports: dict[str, int] = Field(default_factory=dict)
     """Export kind -> lines written."""
+    kept_out: dict[str, int] = Field(default_factory=dict)
+    """Why plans were kept out of the exports -> how many (texts met without acting count
+    every plan of theirs)."""
 
 
 def _check_exports(config: ScoreConfig, plans: dict[str, list[str]], texts: Sequence[str]) -> None:
@@ -215,46 +253,37 @@ def _check_exports(config: ScoreConfig, plans: dict[str, list[str]], texts: Sequ
         )
 
 
-def score_plans(
-    config: ScoreConfig,
-    *,
-    progress: Callable[[int, int], Any] | None = None,
-) -> ScoreSummary:
-    """Score every plan (see the module); `progress(total, initial)` makes a progress bar."""
-    from env import EnvConfig, shared_env
-    from env.dataset import load_dataset as _load
-
-    started = time.perf_counter()
-    plans = load_candidates(config.plans)
-    texts = _texts(config, plans)
-    _check_exports(config, plans, list(texts))
-    dataset = _load(config.dataset)
-    settings = _Settings(
-        plans_sha256=hashlib.sha256(config.plans.read_bytes()).hexdigest(),
-        worlds=config.worlds,
-        seed=config.seed,
-        variant=config.variant,
-        dataset=dataset.source.model_dump(mode="json"),
-        skill_steps=config.skill_steps,
+def _plan_episodes(
+    key_text: str,
+    goal: AnyGoal,
+    index: int,
+    candidate: int,
+    steps: list[StepReading],
+    offer: Any,
+    worlds: int,
+    stream: str,
+) -> list[PlanEpisode]:
+    skills = tuple(
+        (step.number, read_skill(skill, offer)) for step in steps for skill in step.skills
     )
-    readings = {}
-    episodes: list[PlanEpisode] = []
-    for text, (goal, index) in texts.items():
-        offer = skill_offer(config.variant, goal.difficulty)
-        for candidate, plan in enumerate(plans[text]):
-            steps = read_plan(parse_plan(plan)[0], offer)
-            readings[(text, candidate)] = steps
-            skills = tuple(
-                (step.number, read_skill(skill, offer)) for step in steps for skill in step.skills
-            )
-            episodes += [
-                PlanEpisode(_episode_key(text, candidate, world), goal, index, world, skills)
-                for world in range(config.worlds)
-            ]
-    make_output_dir(config.out)
-    journal = _Journal(config.out / JOURNAL, settings, config.restart)
-    todo = [ep for ep in episodes if ep.key not in journal.done]
-    bar = progress(len(episodes), len(episodes) - len(todo)) if progress else None
+    return [
+        PlanEpisode(
+            _episode_key(key_text, candidate, world, stream), goal, index, world, skills, stream
+        )
+        for world in range(worlds)
+    ]
+
+
+def _play(
+    todo: list[PlanEpisode],
+    journal: _Journal,
+    config: ScoreConfig,
+    progress: Callable[[int, int], Any] | None,
+    total: int,
+) -> None:
+    from env import EnvConfig, shared_env
+
+    bar = progress(total, total - len(todo)) if progress else None
 
     def done(outcomes: list[EpisodeOutcome]) -> None:
         journal.add(outcomes)
@@ -263,10 +292,9 @@ def score_plans(
 
     try:
         if todo:
-            env = shared_env(EnvConfig(variant=config.variant))
             play_plan_episodes(
                 todo,
-                env,
+                shared_env(EnvConfig(variant=config.variant)),
                 variant=config.variant,
                 seed=config.seed,
                 batch_size=config.batch_size,
@@ -276,23 +304,97 @@ def score_plans(
     finally:
         if bar is not None:
             bar.close()
-    scores = [
-        _plan_score(text, candidate, plans[text][candidate], readings[(text, candidate)],
-                    texts[text][0], [journal.done[_episode_key(text, candidate, w)]
-                                     for w in range(config.worlds)])
-        for text in texts
-        for candidate in range(len(plans[text]))
-    ]  # fmt: skip
+
+
+def _met_without_acting(goals: Sequence[AnyGoal], config: ScoreConfig) -> set[str]:
+    """The goals (`goal_key`) a do-nothing agent meets in at least one of `worlds` worlds."""
+    from env import EnvConfig
+    from env.goal_status import do_nothing_successes, goal_key
+
+    met = do_nothing_successes(
+        goals, EnvConfig(variant=config.variant), worlds=config.worlds, seed=config.seed
+    )
+    return {goal_key(goal) for goal in goals if met.get(goal_key(goal), 0) > 0}
+
+
+def score_plans(
+    config: ScoreConfig,
+    *,
+    progress: Callable[[int, int], Any] | None = None,
+) -> ScoreSummary:
+    """Score every plan (see the module); `progress(total, initial)` makes a progress bar (one
+    for the selection worlds, one for the held-out worlds)."""
+    from env.dataset import load_dataset as _load
+    from env.goal_status import goal_key
+
+    started = time.perf_counter()
+    plans = load_candidates(config.plans)
+    texts = _texts(config, plans)
+    _check_exports(config, plans, list(texts))
+    dataset = _load(config.dataset)
+    settings = _Settings(
+        plans_sha256=hashlib.sha256(config.plans.read_bytes()).hexdigest(),
+        worlds=config.worlds,
+        held_out_worlds=config.held_out_worlds,
+        eval_worlds=config.eval_worlds,
+        seed=config.seed,
+        variant=config.variant,
+        dataset=dataset.source.model_dump(mode="json"),
+        skill_steps=config.skill_steps,
+    )
+    selection = "" if config.eval_worlds else SELECTION_WORLDS
+    readings: dict[tuple[str, int], list[StepReading]] = {}
+    episodes: list[PlanEpisode] = []
+    for text, (goal, index) in texts.items():
+        offer = skill_offer(config.variant, goal.difficulty)
+        for candidate, plan in enumerate(plans[text]):
+            steps = read_plan(parse_plan(plan)[0], offer)
+            readings[(text, candidate)] = steps
+            episodes += _plan_episodes(
+                text, goal, index, candidate, steps, offer, config.worlds, selection
+            )
+    make_output_dir(config.out)
+    journal = _Journal(config.out / JOURNAL, settings, config.restart)
+    todo = [ep for ep in episodes if ep.key not in journal.done]
+    resumed = len(episodes) - len(todo)
+    _play(todo, journal, config, progress, len(episodes))
+    met = _met_without_acting([goal for goal, _ in texts.values()], config)
+    scores: list[PlanScore] = []
+    for text, (goal, _) in texts.items():
+        offer = skill_offer(config.variant, goal.difficulty)
+        for candidate in range(len(plans[text])):
+            outcomes = [
+                journal.done[_episode_key(text, candidate, w, selection)]
+                for w in range(config.worlds)
+            ]
+            steps = readings[(text, candidate)]
+            score = _plan_score(text, candidate, plans[text][candidate], steps, goal, outcomes)
+            scores.append(
+                score.model_copy(
+                    update={
+                        "breaks": breaking_steps(steps, getattr(goal, "forbidden", ()), offer),
+                        "met_without_acting": goal_key(goal) in met,
+                    }
+                )
+            )
     by_text: dict[str, list[PlanScore]] = defaultdict(list)
     for score in scores:
         by_text[score.instruction].append(score)
     best = {text: min(group, key=rank_key) for text, group in by_text.items()}
+    held_out_episodes = _held_out(config, texts, readings, best)
+    todo = [ep for ep in held_out_episodes if ep.key not in journal.done]
+    resumed += len(held_out_episodes) - len(todo)
+    _play(todo, journal, config, progress, len(held_out_episodes))
+    if config.held_out_worlds:
+        scores = [_with_held_out(score, journal, config) for score in scores]
+        best = {text: _with_held_out(score, journal, config) for text, score in best.items()}
     atomic_write_json(
         config.out / SCORES,
         {
             "settings": settings.model_dump(mode="json") | {"plans": str(config.plans)},
             "splits": split_summary(scores, best),
-            "plans": [s.model_dump(mode="json") for s in scores],
+            "kept_out": kept_out(scores),
+            "plans": [s.model_dump(mode="json") | {"excluded": s.excluded} for s in scores],
         },
     )
     atomic_write_json(config.out / BEST, {text: score.plan for text, score in best.items()})
@@ -300,26 +402,74 @@ def score_plans(
     return ScoreSummary(
         texts=len(texts),
         plans=len(scores),
-        episodes=len(episodes),
-        resumed=len(episodes) - len(todo),
+        episodes=len(episodes) + len(held_out_episodes),
+        resumed=resumed,
         wall_s=round(time.perf_counter() - started, 3),
         scores=config.out / SCORES,
         best=config.out / BEST,
         exports=exports,
+        kept_out=kept_out(scores),
     )
+
+
+def _held_out(
+    config: ScoreConfig,
+    texts: dict[str, tuple[AnyGoal, int]],
+    readings: dict[tuple[str, int], list[StepReading]],
+    best: dict[str, PlanScore],
+) -> list[PlanEpisode]:
+    """Each text's first and best candidates in the held-out worlds."""
+    if not config.held_out_worlds:
+        return []
+    episodes: list[PlanEpisode] = []
+    for text, (goal, index) in texts.items():
+        offer = skill_offer(config.variant, goal.difficulty)
+        for candidate in sorted({0, best[text].candidate}):
+            episodes += _plan_episodes(
+                text,
+                goal,
+                index,
+                candidate,
+                readings[(text, candidate)],
+                offer,
+                config.held_out_worlds,
+                HELD_OUT_WORLDS,
+            )
+    return episodes
+
+
+def _with_held_out(score: PlanScore, journal: _Journal, config: ScoreConfig) -> PlanScore:
+    keys = [
+        _episode_key(score.instruction, score.candidate, w, HELD_OUT_WORLDS)
+        for w in range(config.held_out_worlds)
+    ]
+    if keys[0] not in journal.done:
+        return score
+    outcomes = [journal.done[key] for key in keys]
+    rate = SuccessRate.of(sum(o.success for o in outcomes), len(outcomes))
+    return score.model_copy(update={"held_out": rate})
+
+
+def kept_out(scores: Sequence[PlanScore]) -> dict[str, int]:
+    """Why plans are kept out of the exports -> how many, and the texts met without acting."""
+    counts = Counter(s.excluded for s in scores if s.excluded is not None)
+    texts = {s.instruction for s in scores if s.met_without_acting}
+    return dict(sorted(counts.items())) | {"texts_met_without_acting": len(texts)}
 
 
 def _plan_score(
     text: str,
     candidate: int,
     plan: str,
-    steps: list[Any],
+    steps: list[StepReading],
     goal: AnyGoal,
     outcomes: list[EpisodeOutcome],
 ) -> PlanScore:
     failures = Counter(
         (o.failed_step, o.failed_skill, o.reason or "") for o in outcomes if not o.success
     )
+    required = getattr(goal, "required", ())
+    skills = sum(len(step.skills) for step in steps)
     return PlanScore(
         instruction=text,
         candidate=candidate,
@@ -333,15 +483,23 @@ def _plan_score(
             FirstFailure(step=step, skill=skill, reason=reason, episodes=count)
             for (step, skill, reason), count in failures.most_common()
         ],
+        goal_reached=_mean(goal_part_reached(required, o.reached, o.success) for o in outcomes),
+        played=_mean(o.played / skills if skills else 0.0 for o in outcomes),
     )
+
+
+def _mean(values: Any) -> float:
+    values = list(values)
+    return round(sum(values) / len(values), 4) if values else 0.0
 
 
 def split_summary(
     scores: Sequence[PlanScore], best: dict[str, PlanScore]
 ) -> dict[str, dict[str, Any]]:
-    """Per split: texts, plans, steps read and unread, and the success of each text's first
-    candidate and of its best one, clustered by goal. The best is chosen on the worlds it is
-    scored on, so its rate is optimistic as an estimate for new worlds."""
+    """Per split: texts, plans, steps read and unread, the success of each text's first
+    candidate and of its best one (chosen in the selection worlds), clustered by goal, in the
+    selection worlds and, where played, the held-out ones (where the choice cannot flatter the
+    best), and the plans kept out of the exports."""
     groups: dict[str, list[PlanScore]] = defaultdict(list)
     for score in scores:
         groups[score.split].append(score)
@@ -349,7 +507,7 @@ def split_summary(
     for split, group in sorted(groups.items()):
         first = [s for s in group if s.candidate == 0]
         chosen = [best[t] for t in dict.fromkeys(s.instruction for s in group)]
-        summary[split] = {
+        row: dict[str, Any] = {
             "texts": len(chosen),
             "plans": len(group),
             "steps_read": sum(s.read for s in group),
@@ -357,30 +515,43 @@ def split_summary(
             "first": _clustered(first).model_dump(mode="json"),
             "best": _clustered(chosen).model_dump(mode="json"),
         }
+        if all(s.held_out is not None for s in (*first, *chosen)):
+            row["first_held_out"] = _clustered(first, held_out=True).model_dump(mode="json")
+            row["best_held_out"] = _clustered(chosen, held_out=True).model_dump(mode="json")
+        row["kept_out"] = kept_out(group)
+        summary[split] = row
     return summary
 
 
-def _clustered(scores: Sequence[PlanScore]) -> SuccessRate:
-    return clustered_rate((s.goal_id, s.success.successes, s.success.episodes) for s in scores)
+def _clustered(scores: Sequence[PlanScore], held_out: bool = False) -> SuccessRate:
+    def rate(score: PlanScore) -> SuccessRate:
+        return score.held_out if held_out and score.held_out is not None else score.success
+
+    return clustered_rate((s.goal_id, rate(s).successes, rate(s).episodes) for s in scores)
 
 
 def _write_exports(config: ScoreConfig, scores: list[PlanScore]) -> dict[str, int]:
     if not config.export:
         return {}
     limits, variant, templates = _planner_settings(config.plans, config.variant)
-    cache: dict[str, str] = {}
+    cache: dict[str, list[dict[str, str]]] = {}
 
-    def prompt(text: str) -> str:
+    def prompt(text: str) -> list[dict[str, str]]:
         if text not in cache:
-            cache[text] = planner_prompt_text(text, limits, variant, templates)
+            cache[text] = [
+                {"role": m.role, "content": m.content}
+                for m in planner_messages(text, limits, variant, templates)
+            ]
         return cache[text]
 
+    asked: Prompter = prompt
+    usable = [score for score in scores if score.excluded is None]
     written: dict[str, int] = {}
     for kind in config.export:
         rows = (
-            sft_rows(scores, config.threshold, prompt)
+            sft_rows(usable, config.threshold, asked)
             if kind == "sft"
-            else dpo_rows(scores, config.margin, prompt)
+            else dpo_rows(usable, config.margin, asked, config.pairs_per_text)
         )
         atomic_write_text(
             config.out / EXPORT_FILES[kind],
@@ -403,3 +574,107 @@ def _planner_settings(plans: Path, variant: Variant) -> tuple[PlanLimits, Varian
         )
     except (OSError, ValueError, KeyError, TypeError, ValidationError):
         return PlanLimits(), variant, None
+
+
+class PlanReward(BaseModel):
+    """One plan's verdict for a trainer (`PlanJudge.score`): its success first, and the shaped
+    parts that still tell plans apart when none succeeds."""
+
+    model_config = ConfigDict(frozen=True)
+
+    instruction: str
+    plan: str
+    success: float
+    """The share of the worlds in which the goal was met."""
+    goal_reached: float
+    """The share of the goal's required achievements reached, on average over the worlds (a
+    placing goal: its success)."""
+    played: float
+    """The share of the plan's skills that finished, on average over the worlds."""
+    breaks: tuple[str, ...] = ()
+    """Steps that earn an achievement the instruction forbids, played or not."""
+    empty: bool = False
+    """No step of the plan was read as a skill (nothing was played)."""
+
+
+class PlanJudge:
+    """Plan texts for dataset instructions, played as `plan-score` plays them, for a trainer's
+    reward: build once (it loads the dataset), then `score([(instruction, plan), ...])` plays
+    every pair in `worlds` worlds of `stream` on one batched env and returns one `PlanReward`
+    per pair, in order.
+
+    `stream` defaults to plan-score's selection worlds: rewards never come from the held-out
+    worlds (`HELD_OUT_WORLDS`) or eval's (stream `""`) a tuned planner is reported in. An
+    instruction the dataset lacks raises `UserError`; the env compiles once per batch size and
+    variant for the whole process (`env.shared_env`)."""
+
+    def __init__(
+        self,
+        *,
+        dataset: str | None = None,
+        variant: Variant = DEFAULT_VARIANT,
+        worlds: int = 4,
+        seed: int = 0,
+        stream: str = SELECTION_WORLDS,
+        batch_size: int = 32,
+        skill_steps: int = SKILL_STEPS,
+    ) -> None:
+        if worlds < 1:
+            raise UserError(f"worlds must be at least 1, got {worlds}")
+        self.variant, self.worlds, self.seed, self.stream = variant, worlds, seed, stream
+        self.batch_size, self.skill_steps = batch_size, skill_steps
+        self._goals: dict[str, tuple[AnyGoal, int]] = {}
+        for goal in load_dataset(dataset).goals:
+            for index, text in enumerate(goal.texts):
+                self._goals.setdefault(text, (goal, index))
+
+    def score(self, pairs: Sequence[tuple[str, str]]) -> list[PlanReward]:
+        """One reward per (instruction, plan) pair, in order."""
+        from env import EnvConfig, shared_env
+
+        unknown = [text for text, _ in pairs if text not in self._goals]
+        if unknown:
+            raise UserError(
+                f"{len(unknown)} instructions are not in the dataset: {_listed(unknown)}"
+            )
+        episodes: list[PlanEpisode] = []
+        readings = []
+        for number, (text, plan) in enumerate(pairs):
+            goal, index = self._goals[text]
+            offer = skill_offer(self.variant, goal.difficulty)
+            steps = read_plan(parse_plan(plan)[0], offer)
+            readings.append((goal, offer, steps))
+            # The pair's position keys its episodes: two pairs may repeat one plan.
+            episodes += _plan_episodes(
+                str(number), goal, index, 0, steps, offer, self.worlds, self.stream
+            )
+        outcomes: dict[str, EpisodeOutcome] = {}
+        play_plan_episodes(
+            episodes,
+            shared_env(EnvConfig(variant=self.variant)),
+            variant=self.variant,
+            seed=self.seed,
+            batch_size=self.batch_size,
+            on_done=lambda done: outcomes.update((o.key, o) for o in done),
+            skill_steps=self.skill_steps,
+        )
+        rewards = []
+        for number, ((text, plan), (goal, offer, steps)) in enumerate(
+            zip(pairs, readings, strict=True)
+        ):
+            played = [
+                outcomes[_episode_key(str(number), 0, w, self.stream)] for w in range(self.worlds)
+            ]
+            score = _plan_score(text, 0, plan, steps, goal, played)
+            rewards.append(
+                PlanReward(
+                    instruction=text,
+                    plan=plan,
+                    success=score.success.rate,
+                    goal_reached=score.goal_reached,
+                    played=score.played,
+                    breaks=tuple(breaking_steps(steps, getattr(goal, "forbidden", ()), offer)),
+                    empty=score.empty,
+                )
+            )
+        return rewards

@@ -9,6 +9,13 @@ on ground" `place stone`, "Craft two furnaces" `place furnace` twice (a table an
 made by placing them), "Gather coal and iron" `collect coal` then `collect iron`. A step that
 names no verb or no thing the catalogue knows ("Move left", "Smelt iron in furnace", "Craft a
 pickaxe": which one?) is unread, with the reason: nothing is guessed.
+
+Counts are read as a player would mean them (`read_plan`): a collect that names no count ("Collect
+wood", "Gather some stone") or a plural one ("Collect trees") gathers what the plan's later steps
+spend of the material before it is collected again (a table two wood, a stone pickaxe one wood
+and one stone), a plural at least two; and a table or furnace crafted and then placed ("Craft a
+table. Place the table.") is one placement, made where the plan places it. Each such reading is
+noted on its step.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from llm_agents.agents.expert.plan import FURNACE_STONE, INVENTORY_CAP, RECIPES, TABLE_WOOD
 from llm_agents.agents.skills.catalogue import SkillOffer, read_skill
 from llm_agents.planning.records import StepReading
 
@@ -104,15 +112,35 @@ _MATERIAL_OF = {"tree": "wood", "plant": "sapling", "grass": "sapling"}
 _BLOCK_OF = {"wood": "tree", "sapling": "grass"}
 _PLACED_AS = {"sapling": "plant"}
 _CREATURES = frozenset({"cow", "zombie", "skeleton"})
-_MAX_COLLECT = 9
+_MAX_COLLECT = INVENTORY_CAP
 _TOKEN = re.compile(r"[a-z0-9_]+|[,;]")
+#: Put before a word that was plural ("trees"): the reader cannot see it once singular.
+_PLURAL = "+plural"
+#: A collect whose count the plan's later steps decide: `collect wood ?2` gathers what they
+#: need, at least 2.
+_OPEN = "?"
+#: Put after a table or furnace placement read from a craft verb ("Craft a table").
+_CRAFTED = " !crafted"
+#: What one placement spends, by block.
+_PLACE_COST: dict[str, tuple[str, int]] = {
+    "crafting_table": ("wood", TABLE_WOOD),
+    "furnace": ("stone", FURNACE_STONE),
+    "stone": ("stone", 1),
+    "plant": ("sapling", 1),
+}
 
 
 def _normalise(text: str) -> list[str]:
     words = " ".join(_TOKEN.findall(text.lower().replace("-", " ").replace("'s", "")))
     for phrase in sorted(_PHRASES, key=len, reverse=True):
         words = re.sub(rf"\b{phrase}\b", _PHRASES[phrase], words)
-    return [_singular(word) for word in words.split()]
+    normal: list[str] = []
+    for word in words.split():
+        single = _singular(word)
+        if single != word:
+            normal.append(_PLURAL)
+        normal.append(single)
+    return normal
 
 
 def _singular(word: str) -> str:
@@ -130,24 +158,32 @@ class _Thing:
     count: int
     after_means: bool
     """Named after a word such as "at" or "with" (the means or place, not the object)."""
+    counted: bool = True
+    """The step gave its count ("two trees", "a tree", "wood 3")."""
+    plural: bool = False
 
 
 def _things(words: list[str]) -> list[_Thing]:
     found: list[_Thing] = []
-    count, means, previous = 1, False, ""
+    count, counted, plural, means, previous = 1, False, False, False, ""
     for word in words:
-        if word.isdigit() and previous in _THINGS and found and found[-1].count == 1:
+        if word.isdigit() and previous in _THINGS and found and not found[-1].counted:
             # The catalogue's own form puts the count after the material: "collect wood 3".
-            found[-1] = _Thing(found[-1].name, int(word), found[-1].after_means)
+            last = found[-1]
+            found[-1] = _Thing(last.name, int(word), last.after_means, True, last.plural)
+        elif word == _PLURAL:
+            plural = True
+            continue
         elif word in _MEANS:
             means = True
         elif word.isdigit():
-            count = int(word)
+            count, counted = int(word), True
         elif word in _COUNTS:
-            count = _COUNTS[word]
+            count, counted = _COUNTS[word], True
         elif word in _THINGS:
-            found.append(_Thing(_THINGS[word], count, means))
-            count = 1
+            found.append(_Thing(_THINGS[word], count, means, counted, plural))
+            count, counted = 1, False
+        plural = False
         previous = word
     return found
 
@@ -173,7 +209,14 @@ def _clauses(words: list[str]) -> list[list[str]]:
 def read_step(text: str, offer: SkillOffer) -> tuple[tuple[str, ...], str | None]:
     """The skills (in the catalogue's form) a plan step names, in order, and why a part of it
     reads as none (None when every part was read); raises ValueError with the reason when the
-    whole step names none."""
+    whole step names none. Read alone, a collect without a count gathers its least (one, two
+    for a plural): `read_plan` reads it against the steps after it."""
+    skills, unread = _read_marked(text, offer)
+    return tuple(_plain(skill, 0) for skill in skills), unread
+
+
+def _read_marked(text: str, offer: SkillOffer) -> tuple[tuple[str, ...], str | None]:
+    """`read_step` with the plan-level marks left on (open counts, crafted placements)."""
     skills: list[str] = []
     unread: list[str] = []
     for clause in _clauses(_normalise(text)):
@@ -198,10 +241,21 @@ def _read_clause(words: list[str], offer: SkillOffer) -> list[str]:
         raise ValueError(f"{words[verb_at]}: {unread}") from None
     for skill in skills:
         try:
-            read_skill(skill, offer)
+            read_skill(_plain(skill, 0), offer)
         except ValueError as err:
-            raise ValueError(f"{skill}: {err}") from None
+            raise ValueError(f"{_plain(skill, 0)}: {err}") from None
     return skills
+
+
+def _plain(skill: str, needed: int) -> str:
+    """A marked skill in the catalogue's form: an open collect gathers `needed`, at least its
+    least and at most the inventory's cap."""
+    skill = skill.removesuffix(_CRAFTED)
+    if _OPEN not in skill:
+        return skill
+    head, least = skill.split(f" {_OPEN}")
+    count = min(max(int(least), needed), _MAX_COLLECT)
+    return head + (f" {count}" if count > 1 else "")
 
 
 def _objects(things: list[_Thing]) -> list[_Thing]:
@@ -215,15 +269,28 @@ def _collect(things: list[_Thing], rest: list[str], offer: SkillOffer) -> list[s
     if any(t.name == "water" for t in named):
         return ["drink"]
     materials: dict[str, int] = {}
+    open_least: dict[str, int] = {}
     for thing in named:
         material = _MATERIAL_OF.get(thing.name, thing.name)
         if material in offer.materials:
             materials[material] = max(materials.get(material, 0), thing.count)
+            if not thing.counted:
+                least = max(open_least.get(material, 1), 2 if thing.plural else 1)
+                open_least[material] = least
+    for material in [
+        m
+        for m in open_least
+        if any(t.counted and _MATERIAL_OF.get(t.name, t.name) == m for t in named)
+    ]:
+        del open_least[material]  # "two trees and more wood": the count given wins
     if not materials:
         what = ", ".join(t.name for t in named) or "nothing"
         raise _Unread(f"names no material ({what}); collect takes {', '.join(offer.materials)}")
     skills = []
     for material, count in materials.items():
+        if material in open_least:
+            skills.append(f"collect {material} {_OPEN}{open_least[material]}")
+            continue
         while count > 0:
             part = min(count, _MAX_COLLECT)
             skills.append(f"collect {material}" + (f" {part}" if part > 1 else ""))
@@ -267,7 +334,7 @@ def _craft(things: list[_Thing], rest: list[str], offer: SkillOffer) -> list[str
         if thing.name in offer.items:
             skills.append(f"craft {thing.name}")
         elif thing.name in ("crafting_table", "furnace"):
-            skills += [f"place {thing.name}"] * min(thing.count, _MAX_COLLECT)
+            skills += [f"place {thing.name}{_CRAFTED}"] * min(thing.count, _MAX_COLLECT)
         elif thing.name in ("pickaxe", "sword"):
             raise _Unread(f"which {thing.name}? (wood, stone or iron)")
     if not skills:
@@ -327,12 +394,93 @@ _SKILLS: dict[str, _Reader] = {
 
 
 def read_plan(steps: list[str], offer: SkillOffer) -> list[StepReading]:
-    """Every step of a plan read (`read_step`), unread ones with their reason."""
-    readings = []
-    for number, text in enumerate(steps, 1):
+    """Every step of a plan read (`read_step`), unread ones with their reason, its counts read
+    against the steps after it and a crafted-then-placed table placed once (see the module),
+    each such reading noted on its step."""
+    marked: list[tuple[str, list[str], str | None]] = []
+    for text in steps:
         try:
-            skills, partly = read_step(text, offer)
-            readings.append(StepReading(number=number, text=text, skills=skills, unread=partly))
+            skills, partly = _read_marked(text, offer)
+            marked.append((text, list(skills), partly))
         except ValueError as err:
-            readings.append(StepReading(number=number, text=text, unread=str(err)))
+            marked.append((text, [], str(err)))
+    notes: list[list[str]] = [[] for _ in marked]
+    _one_placement(marked, notes)
+    flat = [
+        (i, j, skill) for i, (_, skills, _) in enumerate(marked) for j, skill in enumerate(skills)
+    ]
+    for position, (i, j, skill) in enumerate(flat):
+        if _OPEN not in skill:
+            continue
+        material = skill.split()[1]
+        needed, users = 0, []
+        for later_i, _, later in flat[position + 1 :]:
+            if later.startswith(f"collect {material}"):
+                break
+            spent = _spends(_plain(later, 0), material)
+            if spent:
+                needed += spent
+                users.append(later_i + 1)
+        plain = _plain(skill, needed)
+        marked[i][1][j] = plain
+        least = int(skill.split(_OPEN)[1])
+        why = "no count given" if least == 1 else "a plural"
+        if users:
+            steps_named = ", ".join(str(n) for n in dict.fromkeys(users))
+            notes[i].append(
+                f"{plain}: {why}; gathers the {needed} {material} step(s) {steps_named} spend"
+                + (f" (at least {least})" if least > needed else "")
+            )
+        elif least > 1:
+            notes[i].append(f"{plain}: {why}; no later step spends {material}")
+    readings = []
+    for number, ((text, read, unread), note) in enumerate(zip(marked, notes, strict=True), 1):
+        readings.append(
+            StepReading(
+                number=number,
+                text=text,
+                skills=tuple(_plain(skill, 0) for skill in read),
+                unread=unread,
+                notes=tuple(note),
+            )
+        )
     return readings
+
+
+def _one_placement(marked: list[tuple[str, list[str], str | None]], notes: list[list[str]]) -> None:
+    """A table or furnace crafted ("Craft a table") and placed by the next step that reads
+    ("Place the table") is one placement: the crafting step's is dropped."""
+    for i, (_, skills, _) in enumerate(marked):
+        crafted = [j for j, skill in enumerate(skills) if skill.endswith(_CRAFTED)]
+        if not crafted or crafted[-1] != len(skills) - 1:
+            continue
+        following = next((k for k in range(i + 1, len(marked)) if marked[k][1]), None)
+        if following is None:
+            continue
+        block_place = skills[-1].removesuffix(_CRAFTED)
+        later = marked[following][1]
+        placed = 0
+        while placed < len(later) and later[placed] == block_place:
+            placed += 1
+        # Drop as many trailing crafted placements as the next step places of the block.
+        dropped = 0
+        while dropped < placed and skills and skills[-1] == block_place + _CRAFTED:
+            skills.pop()
+            dropped += 1
+        if dropped:
+            block = block_place.removeprefix("place ")
+            notes[i].append(
+                f"crafting a {block} is placing it: step {following + 1} places it, so it is "
+                "placed once"
+            )
+
+
+def _spends(skill: str, material: str) -> int:
+    """How much of `material` one catalogue skill spends."""
+    words = skill.split()
+    if words[0] == "craft":
+        return int(getattr(RECIPES.get(f"MAKE_{words[1].upper()}"), material, 0))
+    if words[0] == "place" and len(words) >= 2:
+        cost = _PLACE_COST.get(words[1])
+        return cost[1] if cost is not None and cost[0] == material else 0
+    return 0

@@ -2,7 +2,12 @@
 succeeds, fails (with the reason the model is shown next), or exhausts its step budget.
 
 Prerequisites are not solved for the model: a skill whose materials, tools or station are
-missing fails before its first step and says what is missing (`why_not`). While it runs, the
+missing fails before its first step and says what is missing (`why_not`). They are craftax's own
+(`craftax_classic/game_logic.py`, `craftax/game_logic.py`; `tests/test_skill_rules.py` steps the
+env to hold them to it): a craft needs its materials and a table (an iron tool a furnace too)
+among the 8 cells around the player, which the skill walks to; in full Craftax a tool is also
+refused while one of its kind at that tier or better is held; a table needs 2 wood, a furnace 1
+stone and nothing else, a stone 1 stone, a plant a sapling, each on a free cell. While it runs, the
 controllers (`expert_controllers.Controller`, the scripted expert's own) choose each action; the
 goal's forbidden achievements are not theirs to know, so nothing is held back for them.
 """
@@ -14,6 +19,7 @@ from types import SimpleNamespace
 from typing import Literal
 
 from env.goals import CROSS_TYPES, SIDES
+from env.variant import Variant
 from llm_agents.agents.expert.controllers import Controller
 from llm_agents.agents.expert.navigation import ExpertEpisode, neighbours
 from llm_agents.agents.expert.plan import (
@@ -23,6 +29,7 @@ from llm_agents.agents.expert.plan import (
     PLACE_ACTION,
     RECIPES,
     TABLE_WOOD,
+    TIER_OF_TOOL,
     Cell,
     ExpertTask,
     PlanContext,
@@ -81,6 +88,18 @@ def _materials(obs: Observation) -> dict[str, int]:
 def _tier(obs: Observation, tool: str) -> int:
     ctx = PlanContext((), (), obs, ExpertEpisode((), ()).world)
     return ctx.tier(tool)
+
+
+def _held_better(obs: Observation, item: str) -> str | None:
+    """Why full Craftax refuses to craft `item` (its inventory keeps one tier per tool kind,
+    and a tool is made only above the tier held), or None (Classic counts each tool apart)."""
+    if obs.variant is not Variant.FULL:
+        return None
+    tier_name, kind = item.split("_", 1)
+    held = _tier(obs, kind)
+    if held >= TIER_OF_TOOL[tier_name]:
+        return f"craft {item}: a {kind} as good or better is already held"
+    return None
 
 
 def _station_near(episode: ExpertEpisode, obs: Observation, furnace: bool) -> str | None:
@@ -142,6 +161,9 @@ class SkillRun:
             ]
             if missing:
                 return f"craft {skill.item} needs " + ", ".join(missing)
+            held = _held_better(obs, skill.item)
+            if held is not None:
+                return held
             return _station_near(self.episode, obs, recipe.furnace)
         if isinstance(skill, Place | Build):
             reference = skill.reference if isinstance(skill, Place) else None
@@ -155,8 +177,6 @@ class SkillRun:
                         f"{skill.text} needs {each * count} {material} "
                         f"(have {have.get(material, 0)})"
                     )
-            if "furnace" in pieces:
-                return _station_near(self.episode, obs, False)
             return None
         if skill.name == "sleep" and obs.vitals.energy >= obs.vitals.max_food:
             return "energy is full: sleep is refused until it drops"
