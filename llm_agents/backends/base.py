@@ -155,7 +155,7 @@ class OutputSchema(BaseModel):
         """The spec of a schema given as data."""
         return cls(name=name, json_schema=json.dumps(schema, separators=(",", ":")))
 
-    def schema(self) -> dict[str, Any]:
+    def as_data(self) -> dict[str, Any]:
         """The schema as data."""
         loaded: dict[str, Any] = json.loads(self.json_schema)
         return loaded

@@ -105,7 +105,7 @@ class MockModel(ModelAPI):
     ) -> list[ModelOutput]:
         import jsonschema
 
-        validator = jsonschema.Draft202012Validator(schema.schema())
+        validator = jsonschema.Draft202012Validator(schema.as_data())
         outputs = self._generate(conversations, None)
         for index, output in enumerate(outputs):
             if output.finish_reason == "error":
@@ -126,9 +126,11 @@ class MockModel(ModelAPI):
         import jsonschema
 
         try:
-            jsonschema.Draft202012Validator.check_schema(schema.schema())
+            jsonschema.Draft202012Validator.check_schema(schema.as_data())
         except jsonschema.SchemaError as err:
-            raise UserError(f"the mock backend cannot take the {schema.name} schema: {err.message}")
+            raise UserError(
+                f"the mock backend cannot take the {schema.name} schema: {err.message}"
+            ) from None
 
     def _answer(self, conversation: Conversation, choices: Sequence[str] | None) -> ModelOutput:
         index = self._count

@@ -397,7 +397,7 @@ class OpenAIModel(ModelAPI):
         if schema is not None:
             body["response_format"] = {
                 "type": "json_schema",
-                "json_schema": {"name": schema.name, "schema": schema.schema(), "strict": True},
+                "json_schema": {"name": schema.name, "schema": schema.as_data(), "strict": True},
             }
         return body
 

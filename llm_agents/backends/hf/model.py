@@ -75,7 +75,6 @@ from llm_agents.backends.embedded import NAMED_MODELS
 from llm_agents.backends.hf import vision
 from llm_agents.backends.hf.decode import decode, generation_processors, merge, prefill
 from llm_agents.backends.hf.guided import MAX_KEPT_TRIES, OptionTrie, TrieLogitsProcessor
-from llm_agents.backends.hf.structured import Grammars, SchemaLogitsProcessor
 from llm_agents.backends.hf.prefix import (
     PrefixStore,
     keep_prompts,
@@ -86,6 +85,7 @@ from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     supports_split_attention,
 )
+from llm_agents.backends.hf.structured import Grammars, SchemaLogitsProcessor
 from llm_agents.backends.hf.thinking import ThinkingBudgetLogitsProcessor
 from llm_agents.backends.hub import HubRevision
 from llm_agents.backends.reasoning import (

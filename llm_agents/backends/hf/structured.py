@@ -54,22 +54,22 @@ class Grammars:
 
     def grammar(self, schema: OutputSchema) -> str:
         """The schema's grammar; a `UserError` naming the backend where llguidance refuses it."""
-        grammar = self._grammars.get(schema.json_schema)
-        if grammar is None:
-            llg = self._llg
-            try:
-                grammar = llg.LLMatcher.grammar_from_json_schema(
-                    schema.json_schema, defaults=LAYOUT
-                )
-                error = llg.LLMatcher.validate_grammar(grammar, self.tokenizer)
-            except (ValueError, RuntimeError) as err:
-                error = str(err)
-            if error:
-                raise UserError(
-                    f"the hf backend cannot take the {schema.name} JSON schema: "
-                    f"{' '.join(str(error).split())}"
-                )
-            self._grammars[schema.json_schema] = grammar
+        kept = self._grammars.get(schema.json_schema)
+        if kept is not None:
+            return kept
+        llg = self._llg
+        grammar: str = ""
+        try:
+            grammar = llg.LLMatcher.grammar_from_json_schema(schema.json_schema, defaults=LAYOUT)
+            error = llg.LLMatcher.validate_grammar(grammar, self.tokenizer)
+        except (ValueError, RuntimeError) as err:
+            error = str(err)
+        if error:
+            raise UserError(
+                f"the hf backend cannot take the {schema.name} JSON schema: "
+                f"{' '.join(str(error).split())}"
+            )
+        self._grammars[schema.json_schema] = grammar
         return grammar
 
     def processor(self, schema: OutputSchema, end_ids: Iterable[int]) -> SchemaLogitsProcessor:
