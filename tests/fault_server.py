@@ -235,7 +235,9 @@ class FaultServer:
                 if fault is not None and fault.kind == "malformed":
                     self._send_raw(200, b'{"choices": [{"message": ')
                     return
-                if state.reject_structured_outputs and "structured_outputs" in body:
+                if state.reject_structured_outputs and (
+                    "structured_outputs" in body or "response_format" in body
+                ):
                     self._send(400, self._error("unknown field structured_outputs"))
                     return
                 if state.latency_s:

@@ -13,6 +13,7 @@ import difflib
 import hashlib
 import inspect
 import io
+import json
 import logging
 from collections.abc import Callable, Sequence, Sized
 from pathlib import Path
@@ -134,6 +135,35 @@ class ChoiceSet(BaseModel):
     """`loglik`: the option with the highest log-likelihood; `guided`: constrained greedy decoding."""
     scoring: ChoiceScoring = "sum"
     """`loglik` only: how an option's log-probabilities make its score (`choice_score`)."""
+
+
+class OutputSchema(BaseModel):
+    """A JSON schema every answer to a request must follow: the one structured-output spec each
+    backend hands its engine in its own form (vLLM's structured outputs, an OpenAI-compatible
+    server's `response_format`, hf's grammar-constrained decoding, the mock's check)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    """What the answers are (`goal_reading`, `action`): the name `response_format` carries."""
+    json_schema: str
+    """The schema as compact JSON text: hashable, so requests group by it. Keys keep the order
+    they were built in, since an object's properties are decoded in the order listed."""
+
+    @classmethod
+    def of(cls, name: str, schema: dict[str, Any]) -> OutputSchema:
+        """The spec of a schema given as data."""
+        return cls(name=name, json_schema=json.dumps(schema, separators=(",", ":")))
+
+    def as_data(self) -> dict[str, Any]:
+        """The schema as data."""
+        loaded: dict[str, Any] = json.loads(self.json_schema)
+        return loaded
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the canonical schema: what a run records of the spec it asked under."""
+        return hashlib.sha256(self.json_schema.encode()).hexdigest()
 
 
 class OptionLoglik(NamedTuple):
@@ -544,12 +574,18 @@ class ModelAPI(abc.ABC):
         self,
         conversations: Sequence[Conversation],
         choices: ChoiceSet | None = None,
+        schema: OutputSchema | None = None,
     ) -> list[ModelOutput]:
         """Answer every conversation; with `choices`, each answer is exactly one of its options,
         picked by its rule (a rule the backend lacks raises `UserError`, checked here for every
-        backend before it answers)."""
+        backend before it answers); with `schema`, each answer is JSON that follows it, decoded
+        under the backend's structured outputs (a backend without them raises `UserError`)."""
+        if choices is not None and schema is not None:
+            raise ValueError("a request holds its answer to options or to a schema, not both")
         if choices is not None:
             self.check_choice_rule(choices.rule)
+        if schema is not None:
+            return self._generate_structured(conversations, schema)
         return self._generate(conversations, choices)
 
     @abc.abstractmethod
@@ -557,6 +593,26 @@ class ModelAPI(abc.ABC):
         self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
         """`generate` for this backend, `choices`' rule already checked."""
+
+    def _generate_structured(
+        self, conversations: Sequence[Conversation], schema: OutputSchema
+    ) -> list[ModelOutput]:
+        """`generate` under `schema`; a backend with structured outputs overrides this."""
+        raise UserError(self.no_structured_outputs())
+
+    def no_structured_outputs(self) -> str:
+        """The one line that refuses a schema to this backend."""
+        return (
+            f"the {self.backend_name} backend cannot hold answers to a JSON schema "
+            "(--structured-output needs the hf, vllm, openai or mock backend)"
+        )
+
+    def check_schema(self, schema: OutputSchema) -> None:
+        """Raise `UserError` (one line naming the backend and what to install or change) unless
+        answers can be held to `schema`; called before a run writes anything. The default
+        refuses: only a backend that overrides `_generate_structured` takes schemas."""
+        if type(self)._generate_structured is ModelAPI._generate_structured:
+            raise UserError(self.no_structured_outputs())
 
     def check_choice_rule(self, rule: ChoiceRule) -> None:
         """Raise `UserError` unless this backend can pick answers by `rule`."""

@@ -34,6 +34,7 @@ from llm_agents.backends.base import (
     Conversation,
     ModelAPI,
     ModelOutput,
+    OutputSchema,
 )
 from llm_agents.backends.endpoints import EndpointStats
 
@@ -82,12 +83,32 @@ class CachedModel(ModelAPI):
     def _generate(
         self, conversations: Sequence[Conversation], choices: ChoiceSet | None
     ) -> list[ModelOutput]:
+        return self._served(conversations, choices, None)
+
+    def _generate_structured(
+        self, conversations: Sequence[Conversation], schema: OutputSchema
+    ) -> list[ModelOutput]:
+        return self._served(conversations, None, schema)
+
+    def check_schema(self, schema: OutputSchema) -> None:
+        self.model.check_schema(schema)
+
+    def _served(
+        self,
+        conversations: Sequence[Conversation],
+        choices: ChoiceSet | None,
+        schema: OutputSchema | None,
+    ) -> list[ModelOutput]:
         if not self.caching:
-            return self.model.generate(conversations, choices)
-        keys = [self.request_key(conversation, choices) for conversation in conversations]
+            return self.model.generate(conversations, choices, schema)
+        keys = [self.request_key(conversation, choices, schema) for conversation in conversations]
         found = self._lookup(keys)
         missing = [i for i, key in enumerate(keys) if key not in found]
-        fresh = self.model.generate([conversations[i] for i in missing], choices) if missing else []
+        fresh = (
+            self.model.generate([conversations[i] for i in missing], choices, schema)
+            if missing
+            else []
+        )
         self._store(
             [
                 (keys[i], output)
@@ -111,7 +132,12 @@ class CachedModel(ModelAPI):
     def check_choice_rule(self, rule: ChoiceRule) -> None:
         self.model.check_choice_rule(rule)
 
-    def request_key(self, conversation: Conversation, choices: ChoiceSet | None) -> str:
+    def request_key(
+        self,
+        conversation: Conversation,
+        choices: ChoiceSet | None,
+        schema: OutputSchema | None = None,
+    ) -> str:
         """The digest that identifies one request (stable across processes and runs)."""
         payload: dict[str, Any] = {
             "model": self.model.info(),
@@ -119,6 +145,9 @@ class CachedModel(ModelAPI):
             "messages": [message.key_data() for message in conversation],
             "choices": choices.model_dump(mode="json") if choices else None,
         }
+        if schema is not None:
+            # Only with a schema: the keys of requests without one stay as they were.
+            payload["schema"] = schema.json_schema
         encoded = json.dumps(payload, sort_keys=True, ensure_ascii=False).encode()
         return hashlib.sha256(encoded).hexdigest()
 

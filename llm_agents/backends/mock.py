@@ -13,6 +13,9 @@ From Python, `MockModel(outputs=callable)` answers `callable(conversation)`.
 Every request is recorded in `requests`. Both choice rules are accepted and answered alike: the
 scripted answer when it is one of the options, else the first option (under
 `--choice-scoring letters` the options are letters, so a script names letters: `cycle:A|C`).
+Under a JSON schema (`--structured-output`) the scripted answer is returned when it is JSON that
+follows the schema (checked by `jsonschema`), else as an error output saying so: a script stands
+for a backend whose structured outputs hold, so one that breaks them is a broken script.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from llm_agents.backends.base import (
     GenerateConfig,
     ModelAPI,
     ModelOutput,
+    OutputSchema,
 )
 
 Responder = Callable[[Sequence[ChatMessage]], str]
@@ -95,6 +99,38 @@ class MockModel(ModelAPI):
             self.requests.append((list(conversation), choices))
             results.append(self._answer(conversation, choices.options if choices else None))
         return results
+
+    def _generate_structured(
+        self, conversations: Sequence[Conversation], schema: OutputSchema
+    ) -> list[ModelOutput]:
+        import jsonschema
+
+        validator = jsonschema.Draft202012Validator(schema.as_data())
+        outputs = self._generate(conversations, None)
+        for index, output in enumerate(outputs):
+            if output.finish_reason == "error":
+                continue
+            try:
+                validator.validate(json.loads(output.text))
+            except (json.JSONDecodeError, jsonschema.ValidationError) as err:
+                why = err.msg if isinstance(err, json.JSONDecodeError) else err.message
+                outputs[index] = output.model_copy(
+                    update={
+                        "finish_reason": "error",
+                        "error": f"scripted answer does not follow the {schema.name} schema: {why}",
+                    }
+                )
+        return outputs
+
+    def check_schema(self, schema: OutputSchema) -> None:
+        import jsonschema
+
+        try:
+            jsonschema.Draft202012Validator.check_schema(schema.as_data())
+        except jsonschema.SchemaError as err:
+            raise UserError(
+                f"the mock backend cannot take the {schema.name} schema: {err.message}"
+            ) from None
 
     def _answer(self, conversation: Conversation, choices: Sequence[str] | None) -> ModelOutput:
         index = self._count

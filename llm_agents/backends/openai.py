@@ -47,6 +47,7 @@ from llm_agents.backends.base import (
     ImagePart,
     ModelAPI,
     ModelOutput,
+    OutputSchema,
     bad_options,
     openai_message,
 )
@@ -231,6 +232,44 @@ class OpenAIModel(ModelAPI):
         options = list(choices.options) if choices is not None else None
         return generate_with_followup(conversations, options, self._run)
 
+    def _generate_structured(
+        self, conversations: Sequence[Conversation], schema: OutputSchema
+    ) -> list[ModelOutput]:
+        # No free-text fallback: an answer the server did not hold to the schema is not the
+        # answer the run asked for, so a rejected request is that conversation's error.
+        return self._portal.run(self._generate_all, conversations, None, schema)
+
+    def check_schema(self, schema: OutputSchema) -> None:
+        """One one-token request under `schema` to every endpoint: a server that rejects
+        `response_format` stops the run before it writes anything."""
+        self._portal.run(self._check_schema, schema)
+
+    async def _check_schema(self, schema: OutputSchema) -> None:
+        timeout_s = min(self.config.timeout_s, PROBE_TIMEOUT_S)
+        body = {
+            **self._body([ChatMessage(role="user", content="Say OK.")], None, False, schema),
+            "max_tokens": 1,
+        }
+        for base_url in self._auth:
+            async with httpx.AsyncClient(
+                base_url=base_url,
+                timeout=httpx.Timeout(timeout_s),
+                headers=self._headers(),
+                auth=self._auth[base_url],
+                params=self._params[base_url],
+                verify=self._ssl_context,
+            ) as client:
+                reply = await self._probe_request(
+                    client, base_url, "POST", "/chat/completions", body, timeout_s
+                )
+            if reply.status_code != 200:
+                raise UserError(
+                    f"the openai backend's server {base_url} rejects response_format with the "
+                    f"{schema.name} JSON schema (HTTP {reply.status_code}: "
+                    f"{self._excerpt(reply.text, 160)}): serve the model with structured outputs "
+                    "(e.g. vllm serve), or leave --structured-output off"
+                )
+
     def probe(self) -> None:
         """List the server's models and check ours is one; a one-token chat where none are listed.
 
@@ -280,14 +319,17 @@ class OpenAIModel(ModelAPI):
         return self._client
 
     async def _generate_all(
-        self, conversations: Sequence[Conversation], choices: list[str] | None
+        self,
+        conversations: Sequence[Conversation],
+        choices: list[str] | None,
+        schema: OutputSchema | None = None,
     ) -> list[ModelOutput]:
         client = self._shared_client()
         semaphore = asyncio.Semaphore(self.config.max_concurrency)
 
         async def one(conversation: Conversation) -> ModelOutput:
             async with semaphore:
-                return await self._generate_one(client, conversation, choices)
+                return await self._generate_one(client, conversation, choices, schema)
 
         return list(await asyncio.gather(*(one(c) for c in conversations)))
 
@@ -297,14 +339,18 @@ class OpenAIModel(ModelAPI):
         return {"Authorization": f"Bearer {self._api_key.get_secret_value()}"}
 
     async def _generate_one(
-        self, client: httpx.AsyncClient, conversation: Conversation, choices: list[str] | None
+        self,
+        client: httpx.AsyncClient,
+        conversation: Conversation,
+        choices: list[str] | None,
+        schema: OutputSchema | None = None,
     ) -> ModelOutput:
         start = time.perf_counter()
         constrained = bool(choices) and self.structured_choice
         try:
             try:
                 reply = await self._post_with_retries(
-                    client, self._body(conversation, choices, constrained)
+                    client, self._body(conversation, choices, constrained, schema)
                 )
             except _Rejected:
                 if not constrained:
@@ -332,7 +378,11 @@ class OpenAIModel(ModelAPI):
         )
 
     def _body(
-        self, conversation: Conversation, choices: list[str] | None, constrained: bool
+        self,
+        conversation: Conversation,
+        choices: list[str] | None,
+        constrained: bool,
+        schema: OutputSchema | None = None,
     ) -> dict[str, Any]:
         config = self.config
         body: dict[str, Any] = {
@@ -349,6 +399,11 @@ class OpenAIModel(ModelAPI):
         body.update(self.settings.extra_body)
         if choices and constrained:
             body["structured_outputs"] = {"choice": choices}
+        if schema is not None:
+            body["response_format"] = {
+                "type": "json_schema",
+                "json_schema": {"name": schema.name, "schema": schema.as_data(), "strict": True},
+            }
         return body
 
     async def _post_with_retries(

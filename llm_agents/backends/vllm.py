@@ -37,6 +37,7 @@ from vllm.sampling_params import SamplingParams, StructuredOutputsParams
 
 from env.errors import UserError
 from llm_agents.backends.base import (
+    ChatMessage,
     ChoiceRule,
     ChoiceSet,
     ContentFreeScores,
@@ -46,6 +47,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
     OptionLoglik,
+    OutputSchema,
     bad_options,
     content_free_conversation,
     end_of_turn_id,
@@ -143,6 +145,25 @@ class VLLMModel(ModelAPI):
             return generate_with_followup(conversations, list(choices.options), self._chat)
         return self._choose(conversations, choices)
 
+    def _generate_structured(
+        self, conversations: Sequence[Conversation], schema: OutputSchema
+    ) -> list[ModelOutput]:
+        return self._chat(conversations, None, schema)
+
+    def check_schema(self, schema: OutputSchema) -> None:
+        """vLLM compiles the schema per request and fails only that request: one request of
+        a single token under it tells, before a run writes anything."""
+        [output] = self._chat(
+            [[ChatMessage(role="user", content="Say OK.")]],
+            None,
+            schema,
+            max_tokens=1,
+        )
+        if output.finish_reason == "error":
+            raise UserError(
+                f"the vllm backend cannot take the {schema.name} JSON schema: {output.error}"
+            )
+
     def choice_scores(
         self, conversations: Sequence[Conversation], choices: ChoiceSet
     ) -> list[list[float]]:
@@ -160,22 +181,39 @@ class VLLMModel(ModelAPI):
             # Stops the engine's child processes now rather than whenever garbage collection runs.
             llm.llm_engine.engine_core.shutdown()
 
-    def _sampling(self, choices: list[str] | None) -> SamplingParams:
+    def _sampling(
+        self,
+        choices: list[str] | None,
+        schema: OutputSchema | None = None,
+        max_tokens: int | None = None,
+    ) -> SamplingParams:
         config = self.config
+        structured = (
+            StructuredOutputsParams(choice=choices)
+            if choices
+            # JSON laid out as the prompts show it, not whitespace wherever the grammar allows.
+            else StructuredOutputsParams(json=schema.json_schema, disable_any_whitespace=True)
+            if schema is not None
+            else None
+        )
         return SamplingParams(
-            max_tokens=config.max_tokens,
+            max_tokens=max_tokens or config.max_tokens,
             temperature=config.temperature,
             top_p=config.top_p,
             seed=config.sampling_seed,
             stop=list(config.stop) or None,
-            structured_outputs=StructuredOutputsParams(choice=choices) if choices else None,
+            structured_outputs=structured,
         )
 
     def _chat(
-        self, conversations: Sequence[Conversation], choices: list[str] | None
+        self,
+        conversations: Sequence[Conversation],
+        choices: list[str] | None,
+        schema: OutputSchema | None = None,
+        max_tokens: int | None = None,
     ) -> list[ModelOutput]:
         messages = [[openai_message(m) for m in conversation] for conversation in conversations]
-        sampling = self._sampling(choices)
+        sampling = self._sampling(choices, schema, max_tokens)
         start = time.perf_counter()
         try:
             results = self._run(messages, sampling)

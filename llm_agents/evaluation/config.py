@@ -265,6 +265,23 @@ class ChoiceSettings(ModelSettings):
     a-z in an order drawn per step from the seed, episode and step, and the model's next-token
     probability of each letter; the order is recorded per step). See docs/agents/choice-scoring.md."""
 
+    structured_output: Annotated[bool, CHANGES_RESULTS] = False
+    """Hold every answer to a JSON schema with the backend's structured outputs (hf through
+    llguidance, vllm, openai-compatible servers' response_format, mock): guided and ground read a
+    goal into its typed fields over the variant's names, so every reading parses; zero-shot
+    answers {"action": NAME} over the variant's actions, cot {"reasoning": ..., "action": NAME}.
+    Off: free text, as the paper's protocol asks (there, on is a declared departure). See
+    docs/agents/structured-output.md."""
+
+    @model_validator(mode="after")
+    def _options_or_schema(self) -> ChoiceSettings:
+        if self.structured_output and self.choice is not None:
+            raise ValueError(
+                f"--structured-output holds answers to a JSON schema, --choice {self.choice} to "
+                "options: a run asks under one of them"
+            )
+        return self
+
     @model_validator(mode="after")
     def _scoring_with_loglik(self) -> ChoiceSettings:
         if (

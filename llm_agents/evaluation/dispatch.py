@@ -8,7 +8,7 @@ import queue
 import threading
 
 from llm_agents.agents.types import StepPrompt
-from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput
+from llm_agents.backends.base import ChoiceSet, ModelAPI, ModelOutput, OutputSchema
 
 Answer = tuple[StepPrompt, ModelOutput]
 
@@ -25,9 +25,12 @@ class Dispatcher:
     answer. An engine's call is waited for when the dispatcher closes (see `close`).
     """
 
-    def __init__(self, model: ModelAPI, choices: ChoiceSet | None):
+    def __init__(
+        self, model: ModelAPI, choices: ChoiceSet | None, schema: OutputSchema | None = None
+    ):
         self.model = model
         self.choices = choices
+        self.schema = schema
         self._requests: queue.SimpleQueue[list[StepPrompt] | None] = queue.SimpleQueue()
         self._answers: queue.SimpleQueue[list[Answer] | BaseException] = queue.SimpleQueue()
         self.in_flight = 0
@@ -120,7 +123,11 @@ class Dispatcher:
         answers: list[Answer] = []
         try:
             for choices, group in groups.items():
-                outputs = self.model.generate([p.messages for p in group], choices=choices)
+                outputs = self.model.generate(
+                    [p.messages for p in group],
+                    choices=choices,
+                    schema=self.schema if choices is None else None,
+                )
                 if len(outputs) != len(group):
                     raise RuntimeError(
                         f"backend {self.model.backend_name} returned {len(outputs)} outputs "

@@ -32,6 +32,7 @@ from env.dataset import Instruction, load_dataset
 from env.errors import UserError
 from env.goals import DIFFICULTY_KINDS, run_category
 from env.scenario_tasks import encode_goals
+from llm_agents.agents.answer_schemas import reading_schema
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
     GroundingExample,
@@ -380,7 +381,11 @@ def execute_grounding(
         for start in range(0, len(pending), config.requests_per_call):
             group = pending[start : start + config.requests_per_call]
             outputs = model.generate(
-                [prepared.messages(i) for i in group], choices=prepared.choices
+                [prepared.messages(i) for i in group],
+                choices=prepared.choices,
+                schema=reading_schema(config.variant, difficulty)
+                if config.structured_output
+                else None,
             )
             fresh = []
             for instruction, output in zip(group, outputs, strict=True):

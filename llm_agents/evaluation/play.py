@@ -60,7 +60,7 @@ def play_episodes(config: EvalConfig, env: Any, model: ModelAPI, sink: EpisodeSi
     if not first:
         return
     slots = _Slots(config, env, agent, first)
-    dispatcher = Dispatcher(model, agent.choices)
+    dispatcher = Dispatcher(model, agent.choices, getattr(agent, "output_schema", None))
     try:
         dispatcher.submit(slots.prompts(list(range(slots.size))))
         while not sink.stopped and dispatcher.in_flight:

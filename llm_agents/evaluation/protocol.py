@@ -167,6 +167,11 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
             ProtocolChoice(
                 setting="history_length", value=4, source=f"{_LOOP}: the last 4 actions shown"
             ),
+            ProtocolChoice(
+                setting="structured_output",
+                value=False,
+                source=f"{_LOOP}: the answer is read from free text",
+            ),
         ),
     ),
 }

@@ -34,17 +34,19 @@ from typing import Any
 
 from env.dataset import load_dataset
 from env.errors import UserError
-from env.goals import run_category
+from env.goals import DEFAULT_DIFFICULTY, run_category
 from env.open_ended import open_ended_dataset
 from env.scenario_tasks import encode_goals
+from env.variant import DEFAULT_VARIANT, as_variant
 from llm_agents.agents import Agent, build_agent
+from llm_agents.agents.answer_schemas import agent_schema, reading_schema
 from llm_agents.agents.grounding import examples_digest, training_examples
 from llm_agents.agents.loading import agent_identity
 from llm_agents.agents.skills.catalogue import grammar_digest, skill_offer
 from llm_agents.agents.skills.demos import check_demo_count, demos_digest, skill_demos
 from llm_agents.agents.strategies.zero_shot import FRAMES_TEMPLATE
 from llm_agents.backends import model_revision
-from llm_agents.backends.base import HUB_REVISION_KEY, ModelAPI
+from llm_agents.backends.base import HUB_REVISION_KEY, ModelAPI, OutputSchema
 from llm_agents.backends.endpoints import EndpointStats
 from llm_agents.backends.reasoning import ANSWER_ONLY_TEMPLATE
 from llm_agents.evaluation.config import EvalConfig, ModelSettings
@@ -256,6 +258,19 @@ def hub_commit(settings: ModelSettings) -> str | None:
     return model_revision(settings.backend_spec, settings.backend_option_values)
 
 
+def output_schema_of(settings: ModelSettings) -> OutputSchema | None:
+    """The JSON schema a run's answers are held to (`--structured-output`): its agent's
+    (`eval`), a goal reading's (`ground`); None in free text."""
+    if not getattr(settings, "structured_output", False):
+        return None
+    variant = as_variant(getattr(settings, "variant", DEFAULT_VARIANT))
+    difficulty = getattr(settings, "difficulty", DEFAULT_DIFFICULTY)
+    agent = getattr(settings, "agent", None)
+    if agent is None:
+        return reading_schema(variant, difficulty)
+    return agent_schema(agent, variant, difficulty)
+
+
 def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
     """Load the model the settings name and check it answers (unless `probe` is off). A hub-id
     model is loaded at `commit` where given (the one the run's identity recorded, `hub_commit`),
@@ -267,6 +282,13 @@ def open_model(settings: ModelSettings, commit: str | None = None) -> ModelAPI:
     choice = getattr(settings, "choice", None)
     if choice is not None:
         model.check_choice_rule(choice)
+    schema = output_schema_of(settings)
+    if schema is not None:
+        try:
+            model.check_schema(schema)
+        except BaseException:
+            model.close()
+            raise
     if getattr(settings, "observation", "text") != "text":
         try:
             model.check_images()

@@ -85,8 +85,8 @@ def published_for(difficulty: Difficulty) -> tuple[PublishedResult, ...]:
 
 def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
     """How a run departs from the paper's protocol of its difficulty where that changes the
-    numbers: variant, dataset splits, step cap, and the success rule it is scored under
-    (`rule`)."""
+    numbers: variant, dataset splits, step cap, answers held to a schema, and the success rule
+    it is scored under (`rule`)."""
     config = results.config
     difficulty = difficulty_of_run(results)
     paper = protocol_for("paper", difficulty)
@@ -112,6 +112,10 @@ def paper_differences(results: RunResults, rule: SuccessRule) -> list[str]:
     max_steps = config.get("max_steps")
     if max_steps != paper_max_steps:
         differences.append(f"step cap: {max_steps} steps (paper: {paper_max_steps})")
+    if config.get("structured_output"):
+        differences.append(
+            "structured output: every answer held to a JSON schema (paper: free text)"
+        )
     if rule != paper_rule:
         differences.append(
             f"success rule: {rule}, a goal completed on the step the game ends counts "

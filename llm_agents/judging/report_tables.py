@@ -224,12 +224,29 @@ def understanding_lines(summary: Summary) -> list[str]:
     def rate(value: SuccessRate | None) -> str:
         return "no episodes" if value is None else our_cell(value)
 
-    return [
+    lines = [
         f"Understanding: goal read exactly right in {our_cell(read.grounded)} "
         f"{'texts' if read.grounded.clusters is not None else 'episodes'} "
         f"(could not start: {read.not_started} episodes). Success when read right: "
         f"{rate(read.success_when_right)}; read wrong: {rate(read.success_when_wrong)}.",
     ]
+    if read.by_category:
+        lines += [
+            "Reading accuracy (texts read exactly right) beside success:",
+            *render_rows(
+                [
+                    ["Goal set", "Read right", "Success"],
+                    *(
+                        [CATEGORY_LABELS.get(key, key), our_cell(value), rate(successes.get(key))]
+                        for key, value, successes in (
+                            *((c, v, summary.by_category) for c, v in read.by_category.items()),
+                            *((s, v, read.scenario_success) for s, v in read.by_scenario.items()),
+                        )
+                    ),
+                ]
+            ),
+        ]
+    return lines
 
 
 @dataclass(frozen=True)

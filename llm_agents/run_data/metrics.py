@@ -236,6 +236,15 @@ class Understanding(BaseModel):
     success_when_wrong: SuccessRate | None
     """Success of the episodes played on a wrong (but well-formed) goal, clustered by goal;
     None without any."""
+    by_category: dict[str, SuccessRate] = {}
+    """`grounded` per goal category present (`one`, `combo`, ...; Medium's and Hard's splits),
+    to set beside `Summary.by_category`. Summaries written before: empty."""
+    by_scenario: dict[str, SuccessRate] = {}
+    """`grounded` per scenario class present (`Achievements`, `Conditional`, ...), to set beside
+    success per scenario class (`scenario_success`). Summaries written before: empty."""
+    scenario_success: dict[str, SuccessRate] = {}
+    """Success of the grounded episodes per scenario class, over every goal set, clustered by
+    goal. Summaries written before: empty."""
 
 
 def understanding(episodes: Sequence[EpisodeRecord]) -> Understanding | None:
@@ -245,11 +254,31 @@ def understanding(episodes: Sequence[EpisodeRecord]) -> Understanding | None:
         return None
     # One reading per text: guided grounds each text once and plays it in every world.
     texts: dict[tuple[tuple[str, str], str], bool] = {}
+    groups: dict[tuple[tuple[str, str], str], tuple[str, str]] = {}
     for e in grounded:
-        texts.setdefault((goal_cluster(e), e.instruction), bool(e.grounding_correct))
+        key = (goal_cluster(e), e.instruction)
+        texts.setdefault(key, bool(e.grounding_correct))
+        groups.setdefault(key, (e.category, e.scenario_class))
+
+    def read_in(part: int, value: str) -> SuccessRate:
+        """`grounded` over the texts whose (category, scenario class)[part] is `value`."""
+        return clustered_rate(
+            (goal, int(ok), 1)
+            for (goal, text), ok in texts.items()
+            if groups[goal, text][part] == value
+        )
+
     right = [e for e in grounded if e.grounding_correct]
     wrong = [e for e in grounded if not e.grounding_correct and e.termination != NOT_STARTED]
+    categories = dict.fromkeys(category for category, _ in groups.values())
+    scenarios = dict.fromkeys(scenario for _, scenario in groups.values())
     return Understanding(
+        by_category={category: read_in(0, category) for category in categories},
+        by_scenario={scenario: read_in(1, scenario) for scenario in scenarios},
+        scenario_success={
+            scenario: _clustered_success(e for e in grounded if e.scenario_class == scenario)
+            for scenario in scenarios
+        },
         grounded=clustered_rate((goal, int(ok), 1) for (goal, _), ok in texts.items()),
         not_started=sum(e.termination == NOT_STARTED for e in grounded),
         success_when_right=_clustered_success(right) if right else None,

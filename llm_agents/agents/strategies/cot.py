@@ -34,6 +34,7 @@ class ChainOfThoughtAgent(ZeroShotAgent):
     """Zero-shot with step-by-step reasoning that stays in the conversation for k steps."""
 
     step_template: ClassVar[str] = "step_cot"
+    agent_name: ClassVar[str] = "cot"
     templates: ClassVar[tuple[str, ...]] = (SYSTEM_TEMPLATE, step_template, TURN_TEMPLATE)
 
     def __init__(self, *args: Any, steps: int = 3, max_tokens: int = 384, **kwargs: Any):

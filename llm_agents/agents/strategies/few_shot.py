@@ -134,6 +134,8 @@ class FewShotAgent(ZeroShotAgent):
     """Zero-shot with k expert demonstration steps (other training goals) before each step."""
 
     templates: ClassVar[tuple[str, ...]] = (*ZeroShotAgent.templates, TEMPLATE)
+    # Its demonstrations answer in plain action names: no schema of its own.
+    agent_name: ClassVar[str] = "few-shot"
 
     def __init__(
         self,

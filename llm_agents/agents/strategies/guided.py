@@ -24,6 +24,7 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import DEFAULT_DIFFICULTY
 from env.variant import Variant, as_variant
+from llm_agents.agents.answer_schemas import reading_schema
 from llm_agents.agents.answers.parser import ParseResult
 from llm_agents.agents.grounding import (
     GROUND_TEMPLATE,
@@ -61,12 +62,16 @@ class GuidedAgent:
         difficulty: Difficulty = DEFAULT_DIFFICULTY,
         examples: Sequence[GroundingExample] = (),
         shots: int = 0,
+        structured: bool = False,
     ):
         self.variant = as_variant(variant)
         self.templates_dir = templates_dir
         self.difficulty = difficulty
         self.examples = tuple(examples)
         self.shots = shots
+        #: `--structured-output`: each reading is held to the schema of a goal of the
+        #: difficulty over the variant's names (`answer_schemas.reading_schema`).
+        self.output_schema = reading_schema(self.variant, difficulty) if structured else None
         self.expert = ExpertAgent(self.variant, renderer=renderer, fallback_action=fallback_action)
         self.fallback_id = self.expert.fallback_id
         self._groundings: dict[str, Grounding] = {}
@@ -96,6 +101,7 @@ class GuidedAgent:
             if shots
             else (),
             shots=shots,
+            structured=config.structured_output,
         )
 
     @property

@@ -18,8 +18,10 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self
 from pydantic import BaseModel, ConfigDict
 
 from env.errors import UserError
+from env.goals import DEFAULT_DIFFICULTY
 from env.trusted import trusted
 from env.variant import Variant, as_variant
+from llm_agents.agents.answer_schemas import agent_schema, answered_action
 from llm_agents.agents.answers.actions import (
     MOVE_HEADINGS,
     action_catalogue,
@@ -31,7 +33,14 @@ from llm_agents.agents.answers.parser import parse_action
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.registry import ObservationMode
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
-from llm_agents.backends.base import ChatMessage, ChoiceRule, ChoiceScoring, ChoiceSet, ModelOutput
+from llm_agents.backends.base import (
+    ChatMessage,
+    ChoiceRule,
+    ChoiceScoring,
+    ChoiceSet,
+    ModelOutput,
+    OutputSchema,
+)
 from prompts import render_template, template_renderer
 
 if TYPE_CHECKING:
@@ -162,6 +171,8 @@ class ZeroShotAgent:
     step_template: ClassVar[str] = STEP_TEMPLATE
     """The template of the per-step user message (strategies built on this one swap it)."""
     templates: ClassVar[tuple[str, ...]] = (SYSTEM_TEMPLATE, STEP_TEMPLATE)
+    agent_name: ClassVar[str] = "zero-shot"
+    """The registry's name of the strategy: the one `--structured-output` asks its schema of."""
 
     def __init__(
         self,
@@ -176,6 +187,7 @@ class ZeroShotAgent:
         observation: ObservationMode = "text",
         frame_history: int = 0,
         seed: int = 0,
+        structured: bool = False,
     ):
         """`renderer`: a textualizer style name or a function observation -> text.
 
@@ -190,6 +202,9 @@ class ZeroShotAgent:
         fallback action alone). `observation`: `image` or `both` say, in the observation's
         place, what the frames the play loop attaches to the step message show (`frames.j2`;
         `both` after the text); `frame_history`: how many past frames come before the current.
+        `structured`: every answer is held to the agent's JSON schema of an action
+        (`answer_schemas.agent_schema`: `{"action": NAME}`, cot's with its reasoning first),
+        the action read from its `action` field.
         """
         self.report_invalid = report_invalid
         self.observation_mode: ObservationMode = observation
@@ -216,6 +231,10 @@ class ZeroShotAgent:
             if choice_rule is not None
             else None
         )
+        #: The schema every answer is held to (`--structured-output`); None: free text.
+        self.output_schema: OutputSchema | None = (
+            agent_schema(self.agent_name, self.variant, DEFAULT_DIFFICULTY) if structured else None
+        )
         self.system_message = ChatMessage(
             role="system",
             content=render_template(SYSTEM_TEMPLATE, self.system_context(), templates_dir),
@@ -238,6 +257,7 @@ class ZeroShotAgent:
             observation=config.observation,
             frame_history=config.frame_history,
             seed=config.seed,
+            structured=config.structured_output,
             **cls.strategy_settings(config),
         )
 
@@ -386,6 +406,8 @@ class ZeroShotAgent:
             prompt.text,
         )
         answer = output.text
+        if self.output_schema is not None:
+            answer = answered_action(answer)
         if prompt.options_shown is not None:
             # A label stands for the action listed under it; anything else parses as nothing.
             answer = LetteredOptions(order=prompt.options_shown).option_of(output.text) or ""

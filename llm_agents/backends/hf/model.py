@@ -61,6 +61,7 @@ from llm_agents.backends.base import (
     ModelAPI,
     ModelOutput,
     OptionLoglik,
+    OutputSchema,
     bad_options,
     content_free_conversation,
     end_of_turn_id,
@@ -84,6 +85,7 @@ from llm_agents.backends.hf.scoring import (
     LoglikScorer,
     supports_split_attention,
 )
+from llm_agents.backends.hf.structured import Grammars, SchemaLogitsProcessor
 from llm_agents.backends.hf.thinking import ThinkingBudgetLogitsProcessor
 from llm_agents.backends.hub import HubRevision
 from llm_agents.backends.reasoning import (
@@ -255,6 +257,7 @@ class HFModel(ModelAPI):
         self._end_of_turn = end_of_turn_id(self.tokenizer)
         self._content_free = ContentFreeScores()
         self._tries: dict[tuple[str, ...], OptionTrie] = {}
+        self._grammars: Grammars | None = None
         # A longer prompt is a backend failure (`ContextLengthError`), read before the weights.
         positions = getattr(model_config, "max_position_embeddings", None)
         self.context_length: int | None = positions if isinstance(positions, int) else None
@@ -345,6 +348,36 @@ class HFModel(ModelAPI):
             lambda batch: self._in_batches(batch, self._generate_split, self.rows_per_forward),
         )
 
+    def _generate_structured(
+        self, conversations: Sequence[Conversation], schema: OutputSchema
+    ) -> list[ModelOutput]:
+        """Each answer decoded under `SchemaLogitsProcessor`: JSON that follows `schema`, or one
+        cut short by `max_tokens`."""
+        self.check_schema(schema)
+        grammars = self._schema_grammars()
+
+        def batch(rows: Sequence[Conversation]) -> list[ModelOutput]:
+            guide = grammars.processor(schema, self._eos_ids())
+            return self._generate_raw(self._prompt_ids(rows), [False] * len(rows), guide)
+
+        return self._in_batches(conversations, batch, self.rows_per_forward)
+
+    def check_schema(self, schema: OutputSchema) -> None:
+        """llguidance installed, a text-only model, and a schema it compiles (`structured.py`)."""
+        if self.processor is not None:
+            raise UserError(
+                f"hf model {self.model_name!r} is an image-text model, whose decoding the hf "
+                "backend cannot constrain: --structured-output needs a text-only model here"
+            )
+        self._schema_grammars().grammar(schema)
+
+    def _schema_grammars(self) -> Grammars:
+        if self._grammars is None:
+            self._grammars = Grammars(
+                self.tokenizer, int(self.model.config.vocab_size), sorted(self._eos_ids())
+            )
+        return self._grammars
+
     def choice_scores(
         self, conversations: Sequence[Conversation], choices: ChoiceSet
     ) -> list[list[float]]:
@@ -396,7 +429,7 @@ class HFModel(ModelAPI):
         self,
         prompts: list[np.ndarray],
         opened: list[bool],
-        guide: TrieLogitsProcessor | None = None,
+        guide: TrieLogitsProcessor | SchemaLogitsProcessor | None = None,
     ) -> list[ModelOutput]:
         config = self.config
         start = time.perf_counter()
