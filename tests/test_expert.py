@@ -224,6 +224,43 @@ def test_the_expert_never_does_what_is_forbidden() -> None:
         agent.start_episode(2, EpisodeStart("collect wood"))
 
 
+def _walled_in(blocks: dict[str, list[tuple[int, int]]]) -> dict[str, list[tuple[int, int]]]:
+    """`blocks`, with water on every cell of the view two or more steps from the player: a
+    pocket of ground whose every reachable cell is in sight."""
+    taken = {offset for offsets in blocks.values() for offset in offsets}
+    water = [
+        (dx, dy)
+        for dx in range(-4, 5)
+        for dy in range(-3, 4)
+        if max(abs(dx), abs(dy)) >= 2 and (dx, dy) not in taken
+    ]
+    return {**blocks, "water": water}
+
+
+def test_a_walled_in_expert_makes_a_pickaxe_to_break_out() -> None:
+    # No zombie can reach a pocket bounded by water and stone, and none is seen: exploring
+    # has nowhere to go, so it fetches wood for a pickaxe that makes the stone passable.
+    agent = ExpertAgent(Variant.CLASSIC)
+    agent.start_episode(0, EpisodeStart("text", goal=expert_goal(("DEFEAT_ZOMBIE",))))
+    pocket = _walled_in({"tree": [(0, 1)], "stone": [(2, 0), (2, 1)]})
+    action, task = agent.choose(0, observation(pocket, facing="up"))
+    assert task is not None and (task.kind, task.target) == ("gather", "tree")
+    assert action == "DO"
+    # With wood for a table and a pickaxe it places the table, then crafts.
+    action, task = agent.choose(0, observation(pocket, materials={"wood": 3}, facing="left"))
+    assert task is not None and (task.kind, task.target) == ("place", "PLACE_TABLE")
+    assert action == "PLACE_TABLE"
+
+
+def test_a_walled_in_expert_never_breaks_out_through_a_forbidden_achievement() -> None:
+    agent = ExpertAgent(Variant.CLASSIC)
+    goal = expert_goal(("DEFEAT_ZOMBIE",), ("MAKE_WOOD_PICKAXE",))
+    agent.start_episode(0, EpisodeStart("text", goal=goal))
+    pocket = _walled_in({"tree": [(0, 1)], "stone": [(2, 0), (2, 1)]})
+    action, task = agent.choose(0, observation(pocket, facing="up"))
+    assert task is not None and task.kind == "hunt" and action != "DO"
+
+
 def test_spending_picks_an_action_that_takes_the_item_out_of_the_inventory() -> None:
     stone = spend_task(context((), materials={"stone": 3}), "stone")
     assert (stone.kind, stone.target) == ("place", "PLACE_STONE")

@@ -388,6 +388,18 @@ def _furnace(ctx: PlanContext, achievement: str | None) -> ExpertTask | None:
     return stone or _table(ctx, achievement, 0) or ExpertTask("place", "PLACE_FURNACE", achievement)
 
 
+def way_out_task(ctx: PlanContext) -> ExpertTask | None:
+    """For a player walled in by water, stone and trees (every reachable cell seen): the next
+    task towards a wood pickaxe, which makes stone passable; None when one is in hand, or when
+    it or a step on its way is forbidden."""
+    if ctx.tier("pickaxe") >= 1:
+        return None
+    action = "MAKE_WOOD_PICKAXE"
+    if (closure([action]) - ctx.achieved) & set(ctx.forbidden):
+        return None
+    return _craft(ctx, action, None, sword_first=False)
+
+
 def task_for(ctx: PlanContext, achievement: str) -> ExpertTask:
     """The next task towards one achievement, given the inventory and the map."""
     a = achievement

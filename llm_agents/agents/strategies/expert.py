@@ -11,7 +11,8 @@ the item to collect: the instruction text is never read. Each step it:
    eats when low, never walks into lava;
 2. asks the planner for the current task and walks to it by the shortest path over known cells
    (Dijkstra; stone costs an extra step to mine through once it has a pickaxe), exploring towards
-   unseen cells when what it needs has not been seen;
+   unseen cells when what it needs has not been seen, and, walled in with every reachable cell
+   seen, making a wood pickaxe first (stone then opens a way out);
 3. never takes an action that could unlock a forbidden achievement;
 4. for a placing goal, once the materials are in hand, chooses the cells to fill (the shape on
    free ground, or beside the reference block, placing that too when none stands) and fills
@@ -48,6 +49,7 @@ from llm_agents.agents.expert.plan import (
     next_task,
     spend_task,
     supply_task,
+    way_out_task,
 )
 from llm_agents.agents.protocol import AGENT_PROTOCOL_VERSION
 from llm_agents.agents.types import Decision, EpisodeStart, StepPrompt, messages_hash
@@ -188,6 +190,12 @@ class _Step(Controller):
             return urgent
         task = self._keep_gathering() or self._goal_task()
         action = self.perform(task)
+        if action is None and not self._frontier():
+            # Nothing left to see from here: the reachable ground is walled in. A goal's
+            # creatures may spawn only beyond the walls, so breaking out comes first.
+            way_out = way_out_task(self.context())
+            if way_out is not None:
+                task, action = way_out, self.perform(way_out)
         if action is None:
             action = self.explore(task.target if task.kind in ("explore", "hunt") else None)
             if action is None:
