@@ -320,7 +320,7 @@ def _figures(run: RunView, worlds: int | None, check: ReplayCheck | None) -> Car
     # that kept no step log (whose card says it was not replayed).
     episodes = run.episodes if check is None else check.replayed
     scored = rescore(episodes, rule)
-    # From the records alone, never the summary results.json stored: that is what is checked.
+    # Never the summary results.json stored: that is what is checked.
     summary = summarize(scored)
     scores = run_scores(results, episodes).overall
     n = len(episodes)

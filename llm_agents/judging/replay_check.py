@@ -440,8 +440,7 @@ def unshown_settings(run: RunView, replayed: list[EpisodeRecord]) -> list[str]:
                 )
         else:
             unshown.append(
-                f"{setting} = {played!r}: how an action was chosen is not in what a replay "
-                "checks (`card --reask` asks the model again)"
+                f"{setting} = {played!r}: how an action was chosen, which a replay does not see"
             )
     return unshown
 
