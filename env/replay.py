@@ -79,6 +79,12 @@ class Replay:
     end_map: np.ndarray
     """The block map the checker read when the episode ended (after its last action when it
     never did): the map a line, square or placement was found in."""
+    goal_at_game_over: str | None = None
+    """`death` or `timeout` (how the game ended) when the goal was met on the step the game
+    ended, as the play loop records it; None otherwise."""
+    goal_in_new_world: str | None = None
+    """`death` or `timeout` when, on the step the game ended, the goal was met in the new
+    world Craftax's automatic reset starts (the official rule's success); None otherwise."""
 
 
 class Replayer:
@@ -135,6 +141,9 @@ class Replayer:
                 info.termination,
                 info.new_achievements,
                 trace(state),
+                info.goal_at_game_over,
+                info.goal_in_new_world,
+                state.game.player_health <= 0,
             )
 
         def advance(carry: Carry, actions: jax.Array, lengths: jax.Array) -> tuple[Carry, Any]:
@@ -227,8 +236,8 @@ class Replayer:
         (first, first_trace, end_maps), chunks = jax.device_get(launched)
         # Chunk outputs are time-major: (chunk, batch, ...). Frames, the bulk, are copied once,
         # straight from the chunks into each episode's array.
-        reward, done, termination, unlocked, traces = (
-            np.concatenate([chunk[field] for chunk in chunks]) for field in range(1, 6)
+        reward, done, termination, unlocked, traces, at_game_over, in_new_world, dead = (
+            np.concatenate([chunk[field] for chunk in chunks]) for field in range(1, 9)
         )
         replays = []
         for row, episode in enumerate(batch):
@@ -251,6 +260,7 @@ class Replayer:
                     unlocked[:length, row],
                     np.concatenate([first_trace[row : row + 1], traces[:length, row]]),
                     np.asarray(end_maps[row]),
+                    (at_game_over[:length, row], in_new_world[:length, row], dead[:length, row]),
                 )
             )
         return replays
@@ -264,11 +274,15 @@ def _summarize(
     unlocked: np.ndarray,
     trace: np.ndarray,
     end_map: np.ndarray,
+    game_over: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> Replay:
     ended = np.flatnonzero(dones)
     last = int(ended[0]) + 1 if ended.size else len(dones)
     achievements = [ACHIEVEMENTS[i] for step in unlocked[:last] for i in np.flatnonzero(step)]
     termination = Termination(int(terminations[last - 1])).label if ended.size else "running"
+    at_game_over, in_new_world, dead = game_over
+    # Set only on the step that ends the game, named as the play loop names it.
+    ending = "death" if ended.size and dead[last - 1] else "timeout"
     return Replay(
         frames=frames,
         achievements=achievements,
@@ -277,6 +291,8 @@ def _summarize(
         episode_return=float(rewards[:last].sum()),
         trace=trace,
         end_map=end_map,
+        goal_at_game_over=ending if ended.size and at_game_over[last - 1] else None,
+        goal_in_new_world=ending if ended.size and in_new_world[last - 1] else None,
     )
 
 

@@ -1,7 +1,10 @@
 """Cards proved by replaying the run: a real expert run under the paper protocol (Classic),
-tampered as a forger would (a failed episode made a consistent success, a winning episode's
-actions replaced, a failed episode dropped from every record), is refused by `card` and by
-`card --verify`, naming the episode; the leaderboard ranks only replayed runs' cards."""
+tampered as a forger would (a failed episode made a consistent success, or a success through a
+game-over field the replay does not produce; a winning episode's actions replaced; a failed
+episode dropped from every record, or recorded twice; a world key removed or taken from another
+episode; a split digest or a setting edited), is refused by `card` and by `card --verify`,
+naming the episode or the field; the card's figures are the replay's and it names the settings
+its records cannot show; the leaderboard ranks only replayed runs' cards."""
 
 from __future__ import annotations
 
@@ -94,10 +97,47 @@ def _failed_dropped(run: Path) -> str:
     return str(dropped)
 
 
+def _failed_met_in_new_world(run: Path) -> str:
+    # The official rule's re-score reads this field: the failure would count as a success.
+    episodes = _lines(run / "episodes.jsonl")
+    target = next(e for e in episodes if not e["success"] and not e.get("goal_in_new_world"))
+    target["goal_in_new_world"] = target["termination"]
+    _write(run / "episodes.jsonl", episodes)
+    return str(target["episode_id"])
+
+
+def _failed_recorded_twice(run: Path) -> str:
+    episodes = _lines(run / "episodes.jsonl")
+    target = _episode(run, False)
+    _write(run / "episodes.jsonl", [*episodes, target])
+    return str(target["episode_id"])
+
+
+def _world_key_removed(run: Path) -> str:
+    episodes = _lines(run / "episodes.jsonl")
+    episodes[0]["reset_key"] = None
+    _write(run / "episodes.jsonl", episodes)
+    return str(episodes[0]["episode_id"])
+
+
+def _world_key_of_another(run: Path) -> str:
+    episodes = _lines(run / "episodes.jsonl")
+    episodes[0]["reset_key"] = episodes[1]["reset_key"]
+    _write(run / "episodes.jsonl", episodes)
+    return str(episodes[0]["episode_id"])
+
+
 TAMPERINGS = {
     "failed made a consistent success": (_failed_made_success, "termination: recorded success"),
     "winner's actions made NOOP": (_winner_made_noop, "termination: recorded success"),
     "failed episode dropped everywhere": (_failed_dropped, "missing from episodes.jsonl"),
+    "failed made a success through a game-over field": (
+        _failed_met_in_new_world,
+        "goal_in_new_world: recorded",
+    ),
+    "failed episode recorded twice": (_failed_recorded_twice, "recorded 2 times"),
+    "world key removed": (_world_key_removed, "reset_key: recorded None"),
+    "world key of another episode": (_world_key_of_another, "reset_key: recorded"),
 }
 
 
@@ -107,10 +147,21 @@ def test_the_untouched_run_replays_and_its_card_says_so(
     run = _copy(expert_run, tmp_path)
     assert main(["card", str(run), "--no-progress"]) == 0
     card = json.loads((run / "card.json").read_text())
-    assert card["schema_version"] == 2
+    assert card["schema_version"] == 3
     assert card["replay"]["episodes"] == card["figures"]["episodes"] == 8
     assert card["replay"]["answers"] == 0  # the expert's actions are not parsed answers
     assert "Replayed**: 8 episodes" in (run / "card.md").read_text()
+    # What the records cannot show is said: how the actions were chosen, and a step cap or a
+    # success rule that no episode's end tested.
+    unshown = card["protocol"]["unshown"]
+    for setting in ("generation.temperature", "generation.max_tokens", "history_length"):
+        assert any(line.startswith(f"{setting} = ") for line in unshown), unshown
+    episodes = _lines(run / "episodes.jsonl")
+    capped = any(e["termination"] == "timeout" and e["steps"] == 250 for e in episodes)
+    assert any(line.startswith("max_steps = 250: ") for line in unshown) is not capped
+    tested = any(e.get("goal_at_game_over") or e.get("goal_in_new_world") for e in episodes)
+    assert any(line.startswith("success_rule = official: ") for line in unshown) is not tested
+    assert "Not shown by the records" in (run / "card.md").read_text()
     capsys.readouterr()
     assert main(["card", "--verify", str(run / "card.json"), str(run), "--no-progress"]) == 0
     assert "its records replay" in capsys.readouterr().out
@@ -183,6 +234,36 @@ def test_an_undeclared_departure_is_refused(expert_run: Path, tmp_path: Path, ca
     (run / "results.json").write_text(json.dumps(results))
     assert main(["card", str(run), "--no-progress"]) == 2
     assert "records no such departure" in _one_error(capsys)
+    assert not (run / "card.json").exists()
+
+
+def test_a_split_digest_not_the_datasets_is_refused(
+    expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    # The comparison with the paper reads these digests: edited to the official one, a run on
+    # other data would pass for a run on the official data.
+    run = _copy(expert_run, tmp_path)
+    results = json.loads((run / "results.json").read_text())
+    results["dataset"]["split_sha256"]["easy_train"] = "0" * 64
+    (run / "results.json").write_text(json.dumps(results))
+    assert main(["card", str(run), "--no-progress"]) == 1
+    line = _one_error(capsys)
+    assert "results.json: dataset.split_sha256[easy_train]: recorded '0000" in line
+    assert not (run / "card.json").exists()
+
+
+def test_a_setting_left_out_of_the_record_counts_as_its_default(
+    expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    # The paper samples at 0.7; a record without the setting played the default, 0.
+    run = _copy(expert_run, tmp_path)
+    results = json.loads((run / "results.json").read_text())
+    del results["config"]["generation"]["temperature"]
+    (run / "results.json").write_text(json.dumps(results))
+    assert main(["card", str(run), "--no-progress"]) == 2
+    line = _one_error(capsys)
+    assert "generation.temperature = 0.0, not its protocol's 0.7" in line
+    assert "records no such departure" in line
     assert not (run / "card.json").exists()
 
 

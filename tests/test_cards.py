@@ -102,7 +102,7 @@ def test_a_card_holds_what_the_run_records_give(
     results = json.loads((run / "results.json").read_text())
     figures = card["figures"]
 
-    assert card["schema_version"] == 2 and card["agent"] == "zero-shot"
+    assert card["schema_version"] == 3 and card["agent"] == "zero-shot"
     assert card["model"]["spec"] == SCRIPT and card["model"]["pinned_digest"] is None
     assert card["protocol"]["name"] == "paper" and card["protocol"]["difficulty"] == "easy"
     # The step cap and goal sets were set against the protocol's; the limit is recorded beside.
@@ -210,6 +210,43 @@ def test_verify_accepts_the_card_and_refuses_a_changed_record_or_answer(
     assert "gives NOOP" in line
 
 
+def test_answers_are_parsed_again_whatever_the_records_say_of_the_model(
+    model_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    # Whether answers are parsed again follows from the agent: zeroing every count that says a
+    # model was asked must not switch the check off.
+    run = _copy(model_run, tmp_path)
+    steps = [json.loads(line) for line in (run / "steps.jsonl").read_text().splitlines()]
+    answered = next(s for s in steps if s["action_name"] != "NOOP" and not s["fallback_used"])
+    answered["raw_output"] = "ACTION: NOOP"
+    for step in steps:
+        step.update(prompt_tokens=0, completion_tokens=0, computed_prompt_tokens=None)
+    (run / "steps.jsonl").write_text("".join(json.dumps(s) + "\n" for s in steps))
+    episodes = _episodes(run)
+    for episode in episodes:
+        episode.update(
+            model_calls=0, prompt_tokens=0, completion_tokens=0, computed_prompt_tokens=None
+        )
+    (run / "episodes.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    assert main(["card", str(run)]) == 1
+    line = _one_error(capsys)
+    assert f"episode {answered['episode_id']}: step {answered['step']} action: recorded" in line
+    assert "gives NOOP" in line
+    assert not (run / "card.json").exists()
+
+    # Unedited answers with the counts zeroed: still parsed again, and the card names the model.
+    answered["raw_output"] = next(
+        json.loads(line)
+        for line in (model_run / "steps.jsonl").read_text().splitlines()
+        if json.loads(line)["episode_id"] == answered["episode_id"]
+        and json.loads(line)["step"] == answered["step"]
+    )["raw_output"]
+    (run / "steps.jsonl").write_text("".join(json.dumps(s) + "\n" for s in steps))
+    card = _card(run, capsys)
+    assert card["replay"]["answers"] == len(steps)
+    assert card["model"]["spec"] == SCRIPT
+
+
 def test_an_edited_card_is_refused_and_a_resealed_one_fails_verification(
     model_run: Path, tmp_path: Path, capsys: Any
 ) -> None:
@@ -234,14 +271,19 @@ def test_a_card_of_another_schema_version_is_refused(
 ) -> None:
     run = _copy(model_run, tmp_path)
     card = _card(run, capsys)
-    card["schema_version"] = 1
-    _reseal(card)
-    (run / "card.json").write_text(json.dumps(card))
-    assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 2
-    assert "schema version 1" in _one_error(capsys)
-    assert main(["leaderboard", str(run / "card.json"), "--markdown", str(tmp_path / "t.md")]) == 2
-    assert "schema version 1" in _one_error(capsys)
-    assert not (tmp_path / "t.md").exists()
+    # Version 2 cards (figures read from the records once they replayed) are refused, not read.
+    for version in (1, 2):
+        card["schema_version"] = version
+        _reseal(card)
+        (run / "card.json").write_text(json.dumps(card))
+        before = sorted(p.name for p in run.iterdir())
+        assert main(["card", "--verify", str(run / "card.json"), str(run)]) == 2
+        assert f"schema version {version}" in _one_error(capsys)
+        markdown = ["--markdown", str(tmp_path / "t.md")]
+        assert main(["leaderboard", str(run / "card.json"), *markdown]) == 2
+        assert f"schema version {version}" in _one_error(capsys)
+        assert not (tmp_path / "t.md").exists()
+        assert sorted(p.name for p in run.iterdir()) == before
 
 
 @pytest.mark.parametrize(
@@ -265,6 +307,35 @@ def test_no_card_for_an_incomplete_run_or_one_without_protocol(
     assert main(["card", str(run)]) == 2
     assert message in _one_error(capsys)
     assert sorted(p.name for p in run.iterdir()) == before
+
+
+def test_a_directory_that_is_not_a_run_is_one_line_and_nothing_written(
+    model_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    run = _copy(model_run, tmp_path)
+    _card(run, capsys)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for arguments in (
+        ["card", str(empty)],
+        ["card", "--verify", str(run / "card.json"), str(empty)],
+    ):
+        assert main(arguments) == 2
+        assert "it is not a run directory" in _one_error(capsys)
+    assert not any(empty.iterdir())
+
+
+def test_a_card_given_with_another_run_is_one_line_and_nothing_written(
+    model_run: Path, expert_run: Path, tmp_path: Path, capsys: Any
+) -> None:
+    ours = _copy(model_run, tmp_path)
+    _card(ours, capsys)
+    other = _copy(expert_run, tmp_path)
+    before = sorted(p.name for p in other.iterdir())
+    assert main(["card", "--verify", str(ours / "card.json"), str(other)]) == 2
+    line = _one_error(capsys)
+    assert f"is not the card of the run in {other}" in line
+    assert sorted(p.name for p in other.iterdir()) == before
 
 
 @pytest.mark.parametrize(

@@ -20,6 +20,7 @@ from env.dataset import Dataset
 from env.errors import UserError
 from env.goals import DIFFICULTY_CATEGORIES, Difficulty
 from env.rules import SUCCESS_RULES, SuccessRule
+from llm_agents.agents.registry import PARSED_ANSWER_AGENTS
 from llm_agents.evaluation.config import EvalConfig
 from llm_agents.evaluation.protocol import PROTOCOL_NAMES, Protocol, protocol_for
 from llm_agents.evaluation.schedule import ScheduledEpisode, build_schedule
@@ -168,9 +169,12 @@ class RunView:
 
     @property
     def asked_a_model(self) -> bool:
-        """Whether the agent asked a model, as the records say: a model call or token in an
-        episode, or a model commit pinned in the run's identity. Read from the run, never by
+        """Whether the agent asked a model: always for a built-in agent whose actions are parsed
+        answers (whatever its records count); else as the records say, a model call or token in
+        an episode, or a model commit pinned in the run's identity. Read from the run, never by
         importing the agent (whose package a reader may not have)."""
+        if self.agent in PARSED_ANSWER_AGENTS and self.results.identity.agent is None:
+            return True
         if getattr(self.results.identity, "model_revision", None):
             return True
         return any(

@@ -4,13 +4,16 @@ the run's records can check.
 A card is written only for a complete run played under a named protocol. It holds what the run
 was (model and its resolved revision or pinned digest, agent, protocol and the settings that
 departed from it, digests of the settings and the dataset, the code version, the hardware) and
-every figure the run's records give (success per goal set and overall with the intervals
-clustered by goal, the Crafter / progression / craftaxlm scores, model calls, tokens and time per
-episode, and, when asked for, the goals doing nothing meets or no agent can). Before a card
-is written the run's records are checked by replay (`replay_check`): its episodes derived from
-its protocol, each re-simulated from its world key and actions, its answers parsed again; a run
-that does not replay gets no card, and the card records the replay. `verify_card` replays the
-records again, then recomputes each figure from them and names those that differ.
+its figures (success per goal set and overall with the intervals clustered by goal,
+terminations, the Crafter / progression / craftaxlm scores, model calls, tokens and time per
+episode, and, when asked for, the goals doing nothing meets or no agent can). Before a card is
+written the run's records are checked by replay (`replay_check`): its episodes derived from its
+protocol, dataset and seed, each re-simulated from the protocol's world and its actions, its
+answers parsed again; a run that does not replay gets no card. The figures are then computed
+from the replay's own outcomes over the protocol's episodes, never from the records it checked
+(only what no replay can give, tokens and model calls, is read from them), and the card
+records the replay and the settings it could not show. `verify_card` replays the run again,
+recomputes each figure and names those that differ.
 
 A card carries a digest of its own content: one edited by hand no longer matches it and is
 refused on reading (`read_card`), as is a card of another schema version.
@@ -57,7 +60,7 @@ __all__ = [
 ]
 
 #: The version of the card's schema; a reader refuses any other (no silent migration of figures).
-CARD_SCHEMA_VERSION: Literal[2] = 2
+CARD_SCHEMA_VERSION: Literal[3] = 3
 CARD_FILE = "card.json"
 CARD_MD_FILE = "card.md"
 #: Figures equal to this relative precision are the same (JSON round trips are exact; sums of
@@ -95,6 +98,11 @@ class CardProtocol(BaseModel):
     paper_differences: list[str] = Field(default_factory=list)
     """How the run departs from the paper's protocol where that changes the numbers (then the
     published numbers do not sit beside it)."""
+    unshown: list[str] = Field(default_factory=list)
+    """The protocol's settings whose value the run's records cannot show, each with why (how an
+    action was chosen; a step cap no episode reached; a success rule no episode's end tested):
+    a departure in one of them would leave the same records (empty for a card not replayed,
+    which shows nothing)."""
 
 
 class CardCost(BaseModel):
@@ -186,7 +194,7 @@ class Card(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    schema_version: Literal[2] = CARD_SCHEMA_VERSION
+    schema_version: Literal[3] = CARD_SCHEMA_VERSION
     run: str
     """The run directory's name when the card was written (a label, not checked)."""
     agent: str
@@ -286,7 +294,7 @@ def _model(run: RunView) -> CardModel:
     )
 
 
-def _protocol(run: RunView) -> CardProtocol:
+def _protocol(run: RunView, check: ReplayCheck | None) -> CardProtocol:
     results, rule, config, difficulty = run.results, run.rule, run.config, run.difficulty
     protocol = protocol_for(str(config["protocol"]), difficulty)
     departures = {}
@@ -303,13 +311,17 @@ def _protocol(run: RunView) -> CardProtocol:
         paper_differences=[]
         if config.get("task") == "open_ended"
         else paper_differences(results, rule),
+        unshown=[] if check is None else check.unshown,
     )
 
 
 def _figures(run: RunView, worlds: int | None, check: ReplayCheck | None) -> CardFigures:
-    results, episodes, rule = run.results, run.episodes, run.rule
+    results, rule = run.results, run.rule
+    # The replay's outcomes over the protocol's episodes; the records themselves only for a run
+    # that kept no step log (whose card says it was not replayed).
+    episodes = run.episodes if check is None else check.replayed
     scored = rescore(episodes, rule)
-    # From the records alone, never the summary results.json stored: that is what is checked.
+    # Never the summary results.json stored: that is what is checked.
     summary = summarize(scored)
     scores = run_scores(results, episodes).overall
     n = len(episodes)
@@ -370,15 +382,17 @@ def build_card(
     records were checked by replay (`RunDoesNotReplay` when they do not replay); with
     `goal_flags_worlds`, the goals doing nothing meets (in that many seeded worlds each, played
     once and cached) or no agent can."""
-    run_dir = Path(run_dir)
-    run = _load_run(run_dir)
+    return _card_of(_load_run(Path(run_dir)), goal_flags_worlds, progress)
+
+
+def _card_of(run: RunView, goal_flags_worlds: int | None, progress: bool) -> Card:
     check = _replayed(run, progress) if run.has_steps else None
     codes = sorted({e.code or "not recorded" for e in run.episodes})
     card = Card(
-        run=run_dir.resolve().name,
+        run=run.path.resolve().name,
         agent=run.agent,
         model=_model(run),
-        protocol=_protocol(run),
+        protocol=_protocol(run, check),
         success_rule=run.rule,
         variant=str(run.config.get("variant")),
         settings_digest=_digest(run.results.identity.settings),
@@ -465,6 +479,18 @@ def flatten_card(card: Card) -> dict[str, Any]:
     return flat
 
 
+def _check_own(card: Card, run: RunView) -> None:
+    """A `UserError` when `card` was written for another run than `run` (told apart by when each
+    run started: a card checked against another run would only list every figure as differing)."""
+    started = run.results.started_at
+    if card.started_at != started:
+        raise UserError(
+            f"the card of run {card.run!r} (started {card.started_at:%Y-%m-%d %H:%M:%S}) is not "
+            f"the card of the run in {run.path} (started {started:%Y-%m-%d %H:%M:%S}): give "
+            "each card with its own run"
+        )
+
+
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float | int) and isinstance(b, float | int) and not isinstance(a, bool):
         return math.isclose(a, b, rel_tol=_TOLERANCE, abs_tol=_TOLERANCE)
@@ -475,8 +501,10 @@ def verify_card(card: Card, run_dir: str | Path, *, progress: bool = False) -> l
     """The figures of `card` that the records in `run_dir` do not give, each as `name: card X,
     run Y`; empty when every one agrees. The records are first checked by replay
     (`RunDoesNotReplay` naming each episode and field that differ)."""
+    run = _load_run(Path(run_dir))
+    _check_own(card, run)
     worlds = card.figures.goal_flags.worlds if card.figures.goal_flags else None
-    fresh = build_card(run_dir, goal_flags_worlds=worlds, progress=progress)
+    fresh = _card_of(run, worlds, progress)
     ours, theirs = flatten_card(card), flatten_card(fresh)
     differences = []
     for name in sorted(ours.keys() | theirs.keys()):
@@ -561,6 +589,12 @@ def card_markdown(card: Card) -> str:
             "",
             "Departs from the paper's protocol: "
             + "; ".join(text(d) for d in protocol.paper_differences),
+        ]
+    if protocol.unshown:
+        lines += [
+            "",
+            "Not shown by the records (a departure here would leave the same records): "
+            + "; ".join(text(u) for u in protocol.unshown),
         ]
     if figures.goal_flags is not None:
         flags = figures.goal_flags

@@ -2,15 +2,24 @@
 
 Three checks, each naming the episode and the field that differ:
 
-- **The episodes.** The set of episodes a run must hold is derived from its protocol, the
-  departures it recorded from it (`protocol_overrides`, `--limit`, the paraphrases), the
-  dataset (whose digest must be the run's) and the seed: never from the list `results.json`
-  keeps. Each must be recorded once, with its goal, instruction, seed and world key; none other.
-- **The outcomes.** Each episode is re-simulated from its world key and its recorded action ids
-  through the environment and its goal's checker (`env.replay`); its steps, termination,
-  success, achievements and return must be the recorded ones.
-- **The answers.** For an agent whose actions are parsed answers, each recorded raw answer is
+- **The episodes.** The set of episodes a run must hold is derived from its protocol, every
+  setting it played (each compared with the protocol's value, a setting the record leaves out
+  counting as its default, and any difference a recorded departure), the dataset (whose digest
+  and split digests must be the run's) and the seed: never from the list `results.json` keeps.
+  Each must be recorded once (every line of `episodes.jsonl` is read: none is dropped as a
+  repeat), with its goal, wording, goal set, scenario class, instruction, seed and world key (a
+  missing key is refused, never filled in); none other.
+- **The outcomes.** Each episode is re-simulated from the world key the protocol gives and its
+  recorded action ids through the environment and its goal's checker (`env.replay`); its steps,
+  termination, success, achievements, return and game-over fields must be the recorded ones.
+  The replayed outcomes, not the records, are what a card's figures are computed from
+  (`ReplayCheck.replayed`).
+- **The answers.** For a built-in agent whose actions are parsed answers (decided by the agent
+  the run names, never by what its records say of model calls), each recorded raw answer is
   parsed again and must give the recorded action.
+
+Some protocol settings leave no trace a replay can see (how an action was chosen; a step cap no
+episode reached): `ReplayCheck.unshown` names them.
 
 None of them can tell where the actions came from: a run fabricated whole, with actions taken
 from elsewhere, replays fine (`llm_agents.judging.reask` asks the model again for that).
@@ -32,10 +41,11 @@ from llm_agents.agents.answers.actions import action_id
 from llm_agents.agents.answers.lettered import LetteredOptions
 from llm_agents.agents.answers.parser import parse_action
 from llm_agents.agents.registry import PARSED_ANSWER_AGENTS
-from llm_agents.evaluation.protocol import normalised_setting, protocol_for
+from llm_agents.backends.base import GenerateConfig
+from llm_agents.evaluation.protocol import Protocol, normalised_setting
 from llm_agents.evaluation.run_view import RunView, ScheduledEpisode
 from llm_agents.run_data.records import NOT_STARTED, EpisodeRecord, StepRecord
-from llm_agents.run_data.store import EPISODES_FILE, read_episodes
+from llm_agents.run_data.store import EPISODES_FILE
 
 __all__ = ["ReplayCheck", "RunDoesNotReplay", "check_run", "expected_schedule"]
 
@@ -72,37 +82,76 @@ class ReplayCheck:
     seconds: float
     model_seconds: float = 0.0
     """The logged steps' summed model latency (read in the same pass as their actions)."""
+    replayed: list[EpisodeRecord] = field(default_factory=list)
+    """The run's episodes as the protocol and the replay give them, in schedule order: goal,
+    wording, goal set and world from the protocol's schedule; steps, termination, success,
+    achievements, return and game-over fields from the replay; invalid actions from the step
+    log; only what no replay can give (tokens, model calls, grounding) from the records."""
+    unshown: list[str] = field(default_factory=list)
+    """The protocol's settings whose value the records cannot show, each with why (see
+    `unshown_settings`)."""
 
 
 def expected_schedule(run: RunView) -> list[ScheduledEpisode]:
     """The episodes the run must hold: its protocol's schedule under the departures it
-    recorded, over the dataset here (a `UserError` when its digest is not the run's)."""
+    recorded, over the dataset here (a `UserError` when its digest is not the run's, or when
+    it played a protocol setting otherwise than its protocol without recording the departure)."""
     if run.named_protocol is not None:
-        _check_departures(run)
+        _check_departures(run, run.named_protocol)
     return run.schedule()
 
 
-def _check_departures(run: RunView) -> None:
-    """Every protocol setting the run played with another value than its protocol's must be
-    a recorded departure (else the schedule derived would not be the protocol's)."""
+def played_value(run: RunView, setting: str) -> Any:
+    """The value the run played `setting` (`NAME` or `generation.NAME`) with: as recorded, or,
+    for a setting its record leaves out, the value it then had (the setting's default, or the
+    value runs that predate it played)."""
+    head, _, leaf = setting.rpartition(".")
+    if head == "generation":
+        return getattr(GenerateConfig.model_validate(run.config.get("generation") or {}), leaf)
+    return getattr(run.settings, leaf)
 
-    protocol = protocol_for(str(run.protocol), run.difficulty)
+
+def _check_departures(run: RunView, protocol: Protocol) -> None:
+    """Every protocol setting the run played with another value than its protocol's, a setting
+    its record leaves out included (as the value it then had), must be a recorded departure
+    (else the schedule derived would not be the protocol's, nor its card's departures true)."""
     departures = set(run.config.get("protocol_overrides") or ())
     for choice in protocol.choices:
         if choice.setting in departures:
             continue
-        head, _, leaf = choice.setting.rpartition(".")
-        table = run.config.get(head, {}) if head else run.config
-        if leaf not in table:
-            continue
-        if normalised_setting(choice.setting, table[leaf]) != normalised_setting(
+        played = played_value(run, choice.setting)
+        if normalised_setting(choice.setting, played) != normalised_setting(
             choice.setting, choice.value
         ):
             raise UserError(
-                f"the run in {run.path} played {choice.setting} = {table[leaf]!r}, not its "
+                f"the run in {run.path} played {choice.setting} = {_plain(played)!r}, not its "
                 f"protocol's {choice.value!r}, and records no such departure: its results.json "
                 "was changed"
             )
+
+
+def _plain(value: Any) -> Any:
+    return getattr(value, "value", value)
+
+
+def _dataset_differences(run: RunView) -> list[str]:
+    """The split digests `results.json` records (in the run's identity and its dataset entry,
+    which the comparison with the paper reads) that are not those of the dataset the episodes
+    were derived from."""
+    here = run.dataset_here().split_sha256()
+    differences = []
+    recorded_dataset = run.results.dataset.get("split_sha256")
+    for where, recorded in (
+        ("identity.goals", run.results.identity.goals),
+        ("dataset.split_sha256", recorded_dataset if isinstance(recorded_dataset, dict) else {}),
+    ):
+        for split, digest in sorted(recorded.items()):
+            if here.get(split) != digest:
+                differences.append(
+                    f"results.json: {where}[{split}]: recorded {_shown(digest)}, the dataset "
+                    f"the episodes were derived from {_shown(here.get(split))}"
+                )
+    return differences
 
 
 def _episode_differences(
@@ -114,7 +163,8 @@ def _episode_differences(
 
     differences: list[str] = []
     recorded: dict[str, list[EpisodeRecord]] = {}
-    for record in read_episodes(run.path / EPISODES_FILE):
+    # Every line as written: a repeated id is a difference, never silently one record.
+    for record in run.records:
         recorded.setdefault(record.episode_id, []).append(record)
     expected = {spec.episode_id: spec for spec in schedule}
     for extra in sorted(recorded.keys() - expected.keys()):
@@ -135,11 +185,17 @@ def _episode_differences(
             differences.append(f"episode {spec.episode_id}: recorded {len(records)} times")
         record = records[-1]
         key = episode_key(seed, spec.instruction.goal.id, spec.instruction.variant, spec.repeat)
+        goal = spec.instruction.goal
         for name, want, have in (
             ("episode_index", spec.index, record.episode_index),
+            ("goal_id", goal.id, record.goal_id),
+            ("instruction_variant", spec.instruction.variant, record.instruction_variant),
+            ("category", spec.category, record.category),
+            ("scenario_class", goal.scenario_class, record.scenario_class),
             ("instruction", spec.instruction.text, record.instruction),
             ("seed", seed, record.seed),
-            ("reset_key", key.tolist(), record.reset_key or key.tolist()),
+            # A missing key is refused, not filled in: the world is part of what is checked.
+            ("reset_key", key.tolist(), record.reset_key),
         ):
             if want != have:
                 differences.append(
@@ -246,11 +302,10 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
     config = run.settings
     env_config = EnvConfig.model_validate_json(config.env_config().model_dump_json())
     variant = env_config.variant
-    parsed_answers = (
-        run.agent in PARSED_ANSWER_AGENTS
-        and run.results.identity.agent is None
-        and run.asked_a_model
-    )
+    differences = _dataset_differences(run) + differences
+    # Decided by the agent the run names: a record saying no model was asked must not switch
+    # the check off. An outside agent's parser is its own, and not here.
+    parsed_answers = run.agent in PARSED_ANSWER_AGENTS and run.results.identity.agent is None
     answer_check = (
         _AnswerCheck(variant, action_id(config.fallback_action, variant))
         if parsed_answers
@@ -259,6 +314,7 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
     logs = _read_log(run, {record.episode_id: record for _, record in pairs}, answer_check)
     answers = 0
     playable = []
+    replayed: dict[str, EpisodeRecord] = {}
     for spec, record in pairs:
         log = logs[record.episode_id]
         numbers, actions = log.in_order()
@@ -268,6 +324,7 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
             problems += [text for _, text in sorted(log.wrong_answers, key=lambda w: w[0])]
         differences += problems
         if record.termination == NOT_STARTED:
+            replayed[spec.episode_id] = _as_scheduled(run, spec, record)
             continue
         if not problems or all(": step " in problem for problem in problems):
             playable.append((spec, record, actions))
@@ -277,7 +334,8 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
     goals = encode_goals([spec.instruction.goal for spec, _, _ in playable], variant)
     inputs = [
         ReplayInput(
-            reset_key=np.asarray(record.reset_key or _key(run, spec), np.uint32),
+            # The protocol's world, never the recorded key (compared above).
+            reset_key=np.asarray(_key(run, spec), np.uint32),
             required=goals.required[row],
             forbidden=goals.forbidden[row],
             actions=actions,
@@ -287,17 +345,104 @@ def check_run(run: RunView, *, progress: bool = False) -> ReplayCheck:
         for row, (spec, record, actions) in enumerate(playable)
     ]
     bar = _bar(len(inputs), progress)
-    for (_, record, _), replay in zip(playable, replayer.replay(inputs), strict=True):
+    for (spec, record, _), replay in zip(playable, replayer.replay(inputs), strict=True):
         differences += _outcome_differences(record, replay)
+        replayed[spec.episode_id] = _as_replayed(run, spec, record, replay, logs)
         bar.update(1)
     bar.close()
+    in_order = [replayed[spec.episode_id] for spec in schedule if spec.episode_id in replayed]
     return ReplayCheck(
         episodes=len(playable),
         answers=answers,
         differences=differences,
         seconds=time.perf_counter() - started,
         model_seconds=math.fsum(log.latency_s for log in logs.values()),
+        replayed=in_order,
+        unshown=unshown_settings(run, in_order),
     )
+
+
+def _as_scheduled(run: RunView, spec: ScheduledEpisode, record: EpisodeRecord) -> EpisodeRecord:
+    """`record` with what the protocol's schedule says of its episode in place of what it says."""
+    goal = spec.instruction.goal
+    return record.model_copy(
+        update={
+            "episode_id": spec.episode_id,
+            "goal_id": goal.id,
+            "instruction": spec.instruction.text,
+            "instruction_variant": spec.instruction.variant,
+            "category": spec.category,
+            "scenario_class": goal.scenario_class,
+            "seed": int(run.config.get("seed", 0)),
+            "episode_index": spec.index,
+            "reset_key": _key(run, spec),
+        }
+    )
+
+
+def _as_replayed(
+    run: RunView,
+    spec: ScheduledEpisode,
+    record: EpisodeRecord,
+    replay: Any,
+    logs: dict[str, _LoggedEpisode],
+) -> EpisodeRecord:
+    """The episode as the schedule and its replay give it (see `ReplayCheck.replayed`)."""
+    scheduled = _as_scheduled(run, spec, record)
+    return scheduled.model_copy(
+        update={
+            "success": replay.termination == "success",
+            "steps": len(logs[record.episode_id].actions)
+            if replay.ended_at is None
+            else replay.ended_at,
+            "termination": replay.termination,
+            "episode_return": replay.episode_return,
+            "achievements": list(replay.achievements),
+            "invalid_actions": logs[record.episode_id].fallbacks,
+            "goal_at_game_over": replay.goal_at_game_over,
+            "goal_in_new_world": replay.goal_in_new_world,
+        }
+    )
+
+
+#: Protocol settings a replay checks by the episode set it derives and the worlds it plays.
+_SHOWN_BY_THE_EPISODES = frozenset(
+    {"task", "variant", "categories", "episodes_per_instruction", "world_seeding"}
+)
+
+
+def unshown_settings(run: RunView, replayed: list[EpisodeRecord]) -> list[str]:
+    """The protocol's settings whose value the run's records cannot show, each with why:
+    how an action was chosen (sampling, history, answer length) leaves no trace a replay can
+    see; a step cap no episode reached could have been higher; a success rule is seen only
+    in an episode whose goal was met as the game ended."""
+    protocol = run.named_protocol
+    if protocol is None:
+        return []
+    cap = run.settings.max_steps
+    unshown = []
+    for choice in protocol.choices:
+        setting = choice.setting
+        played = _plain(played_value(run, setting))
+        if setting in _SHOWN_BY_THE_EPISODES:
+            continue
+        if setting == "max_steps":
+            if not any(e.termination == "timeout" and e.steps == cap for e in replayed):
+                unshown.append(
+                    f"max_steps = {played}: no episode reached the cap, so a higher one gives "
+                    "the same records"
+                )
+        elif setting == "success_rule":
+            if not any(e.goal_at_game_over or e.goal_in_new_world for e in replayed):
+                unshown.append(
+                    f"success_rule = {played}: no episode met its goal as the game ended, so "
+                    "either rule gives the same records"
+                )
+        else:
+            unshown.append(
+                f"{setting} = {played!r}: how an action was chosen, which a replay does not see"
+            )
+    return unshown
 
 
 def _key(run: RunView, spec: ScheduledEpisode) -> list[int]:
@@ -335,6 +480,14 @@ def _outcome_differences(record: EpisodeRecord, replay: Any) -> list[str]:
             f"{where}: episode_return: recorded {record.episode_return:.4f}, replay "
             f"{replay.episode_return:.4f}"
         )
+    # Read by a re-score under the other success rule: a field the replay does not produce
+    # would turn a failure into a success there.
+    for name in ("goal_at_game_over", "goal_in_new_world"):
+        recorded, replayed = getattr(record, name), getattr(replay, name)
+        if recorded != replayed:
+            differences.append(
+                f"{where}: {name}: recorded {_shown(recorded)}, replay {_shown(replayed)}"
+            )
     return differences
 
 
