@@ -300,6 +300,9 @@ def test_a_password_holding_a_comma_stays_in_its_url() -> None:
         f"http://u:{OPTION_PASSWORD}@h/v1",
         "http://h2/v1",
     ]
+    # A comma outside user info still separates URLs: the second, without its scheme, is
+    # refused by the backend.
+    assert split_urls("http://a:1/v1,b:2/v1") == ["http://a:1/v1", "b:2/v1"]
 
 
 def test_a_run_recorded_with_a_secret_in_plain_text_resumes_and_is_not_quoted() -> None:
