@@ -156,11 +156,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="write a static leaderboard site from results cards (and a Markdown table)",
         description="Set cards beside each other and beside the published numbers (the "
         "CrafText paper's, BALROG's): one offline HTML page, a sortable table per difficulty "
-        "and protocol. Give a card as CARD=RUN_DIR to check it against its run and link the "
-        "run's `view` report.",
+        "and protocol, and Markdown tables. Give each card as CARD=RUN_DIR: its run is "
+        "replayed and every figure of the card recomputed, and only cards so checked are "
+        "ranked. A card given alone proves nothing, whatever replay it records: it needs "
+        "--unverified and goes in a table headed as not replayed here.",
     )
     leaderboard.add_argument(
-        "cards", nargs="+", metavar="CARD[=RUN_DIR]", help="card.json files (each once)"
+        "cards",
+        nargs="+",
+        metavar="CARD[=RUN_DIR]",
+        help="card.json files (each once), each with the run directory it was written from",
     )
     leaderboard.add_argument(
         "--out",
@@ -173,8 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
     leaderboard.add_argument(
         "--unverified",
         action="store_true",
-        help="also show cards whose runs were never replayed (not at `card` time, not given as "
-        "CARD=RUN_DIR), in tables of their own marked as such, never ranked",
+        help="also show cards given without a run to replay (whatever replay a card records), "
+        "in tables of their own headed as not replayed here, never ranked",
     )
 
     view = commands.add_parser(

@@ -288,15 +288,15 @@ def test_the_leaderboard_ranks_only_replayed_cards(
     (other / "card.json").write_text(json.dumps(card))
     capsys.readouterr()
     table = tmp_path / "results.md"
-    arguments = [str(run / "card.json"), str(other / "card.json"), "--markdown", str(table)]
+    arguments = [f"{run / 'card.json'}={run}", str(other / "card.json"), "--markdown", str(table)]
     assert main(["leaderboard", *arguments]) == 2
-    assert "records no replay" in _one_error(capsys)
+    assert "cannot be replayed here (it is given without its run)" in _one_error(capsys)
     assert not table.exists()
 
     assert main(["leaderboard", *arguments, "--unverified"]) == 0
     text = table.read_text()
-    ranked, unranked = text.split("**Not replayed**")
+    ranked, unranked = text.split("NOT replayed here**")
     assert f"[{run.name}](" in ranked and "card.md)" in ranked and "unreplayed" not in ranked
-    assert "| unreplayed |" in unranked
+    assert "| unreplayed |" in unranked and "| none recorded |" in unranked
     # Departures are stated with their values.
     assert "first 8 episodes of the schedule" in ranked

@@ -420,6 +420,16 @@ def test_leaderboard_refuses_a_card_its_run_does_not_give(
     assert not out.exists()
 
 
+def test_a_card_given_with_a_run_not_its_own_is_one_line(
+    carded: dict[str, Path], tmp_path: Path, capsys: Any
+) -> None:
+    card, other = carded["model"] / "card.json", carded["expert"]
+    out = tmp_path / "site"
+    assert main(["leaderboard", f"{card}={other}", "--out", str(out)]) == 2
+    assert f"card {card} is not the card of the run in {other}" in _one_error(capsys)
+    assert not out.exists()
+
+
 def test_the_markdown_tables_rank_only_cards_replayed_here(
     carded: dict[str, Path], tmp_path: Path, capsys: Any
 ) -> None:

@@ -145,7 +145,9 @@ def test_markup_in_a_card_runs_nowhere_in_chromium(
     assert main(["leaderboard", str(hostile_card), "--unverified", "--out", str(site)]) == 0
     page, problems = open_page(browser, site / "index.html")
     _nothing_ran(page)
-    assert page.locator("#table-easy-paper-unverified .name").inner_text() == HOSTILE + "easy-expert"
+    assert (
+        page.locator("#table-easy-paper-unverified .name").inner_text() == HOSTILE + "easy-expert"
+    )
     assert problems == []
 
     # The docs site, its results page generated from the card, the card's card.md beside it.

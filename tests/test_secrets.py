@@ -19,6 +19,7 @@ from llm_agents.backends import parse_model_spec, redact_secrets, redact_setting
 from llm_agents.backends.redaction import is_secret_name, split_urls
 from llm_agents.cli import main
 from llm_agents.evaluation.config import build_config
+from llm_agents.run_data.store import RunIdentity
 
 USER = "canary-user"
 PASSWORD = "pw:CANARY@pass/word-7f3a"
@@ -228,7 +229,7 @@ def test_no_secret_of_a_backend_option_or_the_environment_reaches_any_file_or_ou
         "Basic " + base64.b64encode(f"{USER}:{password}".encode()).decode()
         for password in (OPTION_PASSWORD, ENV_PASSWORD)
     }
-    assert all(r.body.get("api_key") == BODY_KEY for r in chats)
+    assert {r.body.get("api_key") for r in chats} == {BODY_KEY, None}
 
     written = [path for path in tmp_path.rglob("*") if path.is_file()]
     assert {"results.json", "episodes.jsonl", "steps.jsonl", "card.json", "card.md"} <= {
@@ -299,3 +300,17 @@ def test_a_password_holding_a_comma_stays_in_its_url() -> None:
         f"http://u:{OPTION_PASSWORD}@h/v1",
         "http://h2/v1",
     ]
+    # A comma outside user info still separates URLs: the second, without its scheme, is
+    # refused by the backend.
+    assert split_urls("http://a:1/v1,b:2/v1") == ["http://a:1/v1", "b:2/v1"]
+
+
+def test_a_run_recorded_with_a_secret_in_plain_text_resumes_and_is_not_quoted() -> None:
+    written = {"backend_options": {"base_url": f"http://u:{OPTION_PASSWORD}@h/v1", "threads": 2}}
+    before = RunIdentity.model_validate({"settings": written, "templates": {}})
+    now = RunIdentity.model_validate({"settings": redact_settings(written), "templates": {}})
+    assert now.differences(before) == []
+    changed = redact_settings(written)
+    changed["backend_options"]["threads"] = 4
+    found = RunIdentity.model_validate({"settings": changed, "templates": {}}).differences(before)
+    assert len(found) == 1 and "backend_options" in found[0] and not _leaks(found[0])

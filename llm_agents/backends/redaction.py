@@ -21,8 +21,6 @@ REDACTED = "***"
 #: A URL inside a spec or a message: up to the next blank, or the comma before the next URL of
 #: a list (a comma inside a URL, a password's included, stays in it).
 _URL = re.compile(r"https?://\S+?(?=,\s*https?://|\s|$)")
-#: Where a comma-separated list of URLs splits: only before the next URL's scheme.
-_URL_LIST_COMMA = re.compile(r",\s*(?=https?://)")
 #: The words of a setting's name that say its value is a secret (`api_key`, `hf_token`,
 #: `X-Api-Key`, `Authorization`, `client_secret`, `password`...).
 _SECRET_WORDS = frozenset(
@@ -74,9 +72,20 @@ def redact_secrets(text: str) -> str:
 
 
 def split_urls(text: str) -> list[str]:
-    """A comma-separated list of URLs, split before each next URL's scheme only, so that a
-    comma inside a URL (a password's) does not cut it."""
-    return [part.strip() for part in _URL_LIST_COMMA.split(text)]
+    """A comma-separated list of URLs, a comma inside a URL's user info (a password's) kept in
+    it: a comma still in a URL's authority (no `/` after its scheme yet), followed by a part
+    that is no URL and holds an `@`, joins that part (`http://u:pa,ss@host/v1` is one URL;
+    `http://a/v1,b/v1` two, the second to be refused for its missing scheme)."""
+    urls: list[str] = []
+    for part in text.split(","):
+        stripped = part.strip()
+        if urls and not stripped.startswith(("http://", "https://")) and "@" in part:
+            authority = urls[-1].partition("://")[2]
+            if urls[-1].startswith(("http://", "https://")) and "/" not in authority:
+                urls[-1] += "," + part
+                continue
+        urls.append(stripped)
+    return urls
 
 
 def is_secret_name(name: str) -> bool:

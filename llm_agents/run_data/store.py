@@ -39,6 +39,7 @@ from pydantic import (
 from env.errors import UserError
 from env.goals import Dataset, Difficulty, category_split
 from llm_agents.backends.endpoints import EndpointStats
+from llm_agents.backends.redaction import redact_settings
 from llm_agents.run_data.metrics import ActionHistogram, Summary
 from llm_agents.run_data.provenance import note_other_code
 from llm_agents.run_data.readings import Grounding
@@ -284,8 +285,12 @@ class RunIdentity(BaseModel):
         found = []
         predated = added or {}
         for key in sorted(self.settings.keys() | other.settings.keys()):
-            ours = self.settings.get(key)
-            theirs = other.settings[key] if key in other.settings else predated.get(key)
+            # Compared and shown without secrets: a run recorded before its options were
+            # redacted holds them in plain text, and is still the same run.
+            ours = redact_settings(self.settings.get(key))
+            theirs = redact_settings(
+                other.settings[key] if key in other.settings else predated.get(key)
+            )
             if ours != theirs:
                 found.append(f"{key} ({_short(theirs)} before, {_short(ours)} now)")
         # Only the templates this run renders: runs once hashed every packaged template, and

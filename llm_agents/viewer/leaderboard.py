@@ -418,10 +418,9 @@ class _Table(BaseModel):
     def note(self) -> str | None:
         if not self.replayed:
             return (
-                "Not replayed here: these cards were given without their runs, so nothing "
-                "here checked them. A card alone proves nothing (anyone can write one, digest "
-                "included), whatever replay it says it passed: its figures are only what it "
-                "says. Not ranked."
+                "These cards were given without their runs, so nothing here checked them. A "
+                "card alone proves nothing (anyone can write one, digest included), whatever "
+                "replay it says it passed: its figures are only what it says. Not ranked."
             )
         if not self.comparable:
             return (
@@ -483,7 +482,7 @@ def cards_markdown(
         rows = [(card, href) for card, href, was in rows_of if table.holds(card, was)]
         if not rows:
             continue
-        heading = f"**{table.title}**" + (f" ({table.note})" if table.note else "")
+        heading = f"**{table.title}**" + (f". {table.note}" if table.note else "")
         parts.append(heading + "\n\n" + _markdown_table(rows, replayed=table.replayed))
     return "\n".join(parts)
 
