@@ -312,18 +312,17 @@ def compare(
     actions: Sequence[np.ndarray],
     starts: Sequence[Any] | None = None,
     kills: Sequence[int | None] | None = None,
+    episodes: Sequence[Episode] | None = None,
 ) -> tuple[dict[str, Tally], list[str]]:
     """Every (world, text) pair of `splits` scored by both; the tallies per split and kind, and
-    a line per disagreeing (world, goal)."""
+    a line per disagreeing (world, goal). `episodes`: the worlds already played (`play`)."""
     dataset = load_dataset(root)
     tallies: dict[str, Tally] = {}
     differences: list[str] = []
     target_state = official("craftext.environment.scenarious.checkers.target_state").TargetState
     kills = kills if kills is not None else [None] * len(worlds)
-    episodes = [
-        harness.episode(key, acts, None if starts is None else starts[w], kills[w])
-        for w, (key, acts) in enumerate(zip(worlds, actions, strict=True))
-    ]
+    if episodes is None:
+        episodes = play(harness, worlds, actions, starts, kills)
     for split in splits:
         module, variable = SPLIT_MODULES[split]
         entries = getattr(official(f"craftext.dataset.scenarious.SMALL.{module}"), variable)
@@ -352,6 +351,21 @@ def compare(
                         f"{mine}, official {official_outcome}, game over at {episode.game_over}"
                     )
     return tallies, differences
+
+
+def play(
+    harness: Harness,
+    worlds: Sequence[np.ndarray],
+    actions: Sequence[np.ndarray],
+    starts: Sequence[Any] | None = None,
+    kills: Sequence[int | None] | None = None,
+) -> list[Episode]:
+    """Each world's episode, as the official wrapper sees it (`Harness.episode`)."""
+    kills = kills if kills is not None else [None] * len(worlds)
+    return [
+        harness.episode(key, acts, None if starts is None else starts[w], kills[w])
+        for w, (key, acts) in enumerate(zip(worlds, actions, strict=True))
+    ]
 
 
 def _padded_achievements(targets: Any, official: Callable[[str], Any], count: int) -> Any:
@@ -581,13 +595,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     keys = world_keys(args.seed, args.worlds)
     actions = [rng.integers(variant.num_actions, size=args.steps) for _ in keys]
+    episodes = play(harness, keys, actions)
     tallies, differences = compare(
-        harness, official, root, DIFFICULTY_SPLITS[args.difficulty], keys, actions
+        harness,
+        official,
+        root,
+        DIFFICULTY_SPLITS[args.difficulty],
+        keys,
+        actions,
+        episodes=episodes,
     )
+    ended = [e.game_over for e in episodes if e.game_over is not None]
     print(
         f"{args.difficulty}, {variant.value}, {args.worlds} worlds x {args.steps} steps, seed "
-        f"{args.seed}: (world, text) pairs, agreeing, official successes (on the game-over step)"
+        f"{args.seed}: {len(ended)} worlds end in game over (at steps {sorted(ended)})"
     )
+    print("  (world, text) pairs, agreeing, official successes (on the game-over step)")
     for name, t in sorted(tallies.items()):
         print(f"  {name}: {t.pairs}, {t.agree}, {t.successes} ({t.game_over_successes})")
     total = Tally(*(sum(getattr(t, f) for t in tallies.values()) for f in Tally.__annotations__))
