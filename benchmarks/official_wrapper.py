@@ -35,7 +35,7 @@ import types
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NoReturn
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
@@ -312,18 +312,17 @@ def compare(
     actions: Sequence[np.ndarray],
     starts: Sequence[Any] | None = None,
     kills: Sequence[int | None] | None = None,
+    episodes: Sequence[Episode] | None = None,
 ) -> tuple[dict[str, Tally], list[str]]:
     """Every (world, text) pair of `splits` scored by both; the tallies per split and kind, and
-    a line per disagreeing (world, goal)."""
+    a line per disagreeing (world, goal). `episodes`: the worlds already played (`play`)."""
     dataset = load_dataset(root)
     tallies: dict[str, Tally] = {}
     differences: list[str] = []
     target_state = official("craftext.environment.scenarious.checkers.target_state").TargetState
     kills = kills if kills is not None else [None] * len(worlds)
-    episodes = [
-        harness.episode(key, acts, None if starts is None else starts[w], kills[w])
-        for w, (key, acts) in enumerate(zip(worlds, actions, strict=True))
-    ]
+    if episodes is None:
+        episodes = play(harness, worlds, actions, starts, kills)
     for split in splits:
         module, variable = SPLIT_MODULES[split]
         entries = getattr(official(f"craftext.dataset.scenarious.SMALL.{module}"), variable)
@@ -352,6 +351,21 @@ def compare(
                         f"{mine}, official {official_outcome}, game over at {episode.game_over}"
                     )
     return tallies, differences
+
+
+def play(
+    harness: Harness,
+    worlds: Sequence[np.ndarray],
+    actions: Sequence[np.ndarray],
+    starts: Sequence[Any] | None = None,
+    kills: Sequence[int | None] | None = None,
+) -> list[Episode]:
+    """Each world's episode, as the official wrapper sees it (`Harness.episode`)."""
+    kills = kills if kills is not None else [None] * len(worlds)
+    return [
+        harness.episode(key, acts, None if starts is None else starts[w], kills[w])
+        for w, (key, acts) in enumerate(zip(worlds, actions, strict=True))
+    ]
 
 
 def _padded_achievements(targets: Any, official: Callable[[str], Any], count: int) -> Any:
@@ -415,6 +429,12 @@ class CaseStep:
         )
 
 
+def refuse(message: str) -> NoReturn:
+    """A mistake in the script's arguments: one line on stderr, exit 2, nothing run."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def same_game(one: Any, other: Any) -> bool:
     """Whether two Craftax states are the same game: every leaf equal, floats to within a
     millionth. A new world made inside a compiled step and the same world made alone differ in
@@ -433,13 +453,13 @@ def same_game(one: Any, other: Any) -> bool:
 
 
 def read_case(path: Path) -> GameOverCase:
-    """The first line of a case file (a one-line `SystemExit` naming the file when it is not
+    """The first line of a case file (refused in one line naming the file when it is not
     one)."""
     try:
         return GameOverCase.model_validate_json(path.read_text().splitlines()[0])
     except (OSError, IndexError, ValidationError) as error:
         reason = str(error).splitlines()[0]
-        raise SystemExit(f"error: {path} is not a game-over case: {reason}") from None
+        refuse(f"{path} is not a game-over case: {reason}")
 
 
 def case_step_key(world_key: jax.Array, step: int) -> jax.Array:
@@ -463,7 +483,7 @@ def replay_case(
     module, variable = SPLIT_MODULES[split]
     entries = getattr(official(f"craftext.dataset.scenarious.SMALL.{module}"), variable)
     if goal_id not in entries:
-        raise SystemExit(f"error: no goal {goal_id!r} in {split}")
+        refuse(f"no goal {goal_id!r} in {split}")
     wrapper = official("craftext.environment.craftext_wrapper")
     target_state = official("craftext.environment.scenarious.checkers.target_state").TargetState
     game_data = official("craftext.environment.states.state_classic").GameDataClassic
@@ -540,15 +560,15 @@ def add_repository_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("/tmp/official_wrapper"))
 
 
-def repository_root(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Path:
+def repository_root(args: argparse.Namespace) -> Path:
     """The official repository `--dataset` names, else the reference archive unpacked."""
     from benchmarks.official_clone import official_clone
 
     root = args.dataset or official_clone(args.out)
     if root is None:
-        raise SystemExit("error: no official repository (no reference archive): pass --dataset")
+        refuse("no official repository (no reference archive beside the checkout): pass --dataset")
     if not (Path(root) / "craftext" / "environment" / "craftext_wrapper.py").is_file():
-        raise SystemExit(f"error: {root} is not the official CrafText repository")
+        refuse(f"{root} is not the official CrafText repository (no craftext/environment)")
     return Path(root)
 
 
@@ -566,7 +586,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     add_repository_arguments(parser)
     args = parser.parse_args(argv)
-    root = repository_root(parser, args)
+    root = repository_root(args)
     official = official_modules(root)
     if args.case is not None:
         return print_case(official, root, read_case(args.case), args.case_goal)
@@ -575,13 +595,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     keys = world_keys(args.seed, args.worlds)
     actions = [rng.integers(variant.num_actions, size=args.steps) for _ in keys]
+    episodes = play(harness, keys, actions)
     tallies, differences = compare(
-        harness, official, root, DIFFICULTY_SPLITS[args.difficulty], keys, actions
+        harness,
+        official,
+        root,
+        DIFFICULTY_SPLITS[args.difficulty],
+        keys,
+        actions,
+        episodes=episodes,
     )
+    ended = [e.game_over for e in episodes if e.game_over is not None]
     print(
         f"{args.difficulty}, {variant.value}, {args.worlds} worlds x {args.steps} steps, seed "
-        f"{args.seed}: (world, text) pairs, agreeing, official successes (on the game-over step)"
+        f"{args.seed}: {len(ended)} worlds end in game over (at steps {sorted(ended)})"
     )
+    print("  (world, text) pairs, agreeing, official successes (on the game-over step)")
     for name, t in sorted(tallies.items()):
         print(f"  {name}: {t.pairs}, {t.agree}, {t.successes} ({t.game_over_successes})")
     total = Tally(*(sum(getattr(t, f) for t in tallies.values()) for f in Tally.__annotations__))
@@ -595,7 +624,7 @@ def print_case(official: Callable[[str], Any], root: Path, case: GameOverCase, g
     """Replay `case` scored on `goal` (SPLIT/GOAL_ID); print where both sides differ."""
     split, _, goal_id = goal.partition("/")
     if split not in SPLIT_MODULES or split.startswith("hard"):
-        raise SystemExit(f"error: --case-goal {goal!r}: not SPLIT/GOAL_ID of a Medium split")
+        refuse(f"--case-goal {goal!r} is not SPLIT/GOAL_ID of a Medium split")
     steps = replay_case(official, root, case, split, goal_id)
     last = steps[-1]
     print(

@@ -42,7 +42,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=7)
     add_repository_arguments(parser)
     args = parser.parse_args(argv)
-    root = repository_root(parser, args)
+    root = repository_root(args)
     env = CrafTextEnv(EnvConfig(variant=Variant.CLASSIC, success_rule="official"))
     goals = [
         goal

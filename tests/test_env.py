@@ -669,3 +669,33 @@ def test_a_game_over_step_is_checked_in_the_world_its_key_makes_whatever_its_row
     assert any(alone)
     # The case is exercised: vmapped worlds would have given other verdicts here.
     assert in_lanes != alone
+
+
+def test_a_step_spends_its_key_as_craftaxs_auto_reset_env(classic_env: Any) -> None:
+    # The official wrapper's inner env is Craftax's auto-reset env: for the same key, the game
+    # must be the one it returns, and a game over's new world the one it starts (the world the
+    # official rule checks).
+    from craftax.craftax_env import make_craftax_env_from_name
+
+    from env.scenario_checker import overworld
+
+    auto_reset = make_craftax_env_from_name(Variant.CLASSIC.craftax_name, auto_reset=True)
+    params = classic_env.env.params
+    craftax_step = jax.jit(lambda k, s, a: auto_reset.step(k, s, a, params)[1:4:2])
+    state = classic_env.reset(key(), make_task(*masks(["COLLECT_WOOD"])))
+    game = state.game
+    actions = np.random.default_rng(0).integers(Variant.CLASSIC.num_actions, size=12)
+    for t, action in enumerate(actions):
+        step_key = jax.random.fold_in(state.episode_key, state.steps)
+        game, _ = craftax_step(step_key, game, jnp.int32(action))
+        state, _ = classic_env.step(state, jnp.int32(action))
+        assert int(state.steps) == t + 1
+        for ours, theirs in zip(jax.tree.leaves(state.game), jax.tree.leaves(game), strict=True):
+            np.testing.assert_array_equal(np.asarray(ours), np.asarray(theirs))
+    dead = state.game.replace(player_health=state.game.player_health * 0, player_recover=0.0)
+    step_key = jax.random.fold_in(state.episode_key, state.steps)
+    world, done = craftax_step(step_key, dead, jnp.int32(NOOP))
+    assert bool(done)
+    checked = classic_env.env.new_world(step_key)
+    np.testing.assert_array_equal(overworld(checked, Variant.CLASSIC), world.map)
+    np.testing.assert_array_equal(checked.player_position, world.player_position)

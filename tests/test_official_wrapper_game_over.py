@@ -34,8 +34,6 @@ from env.goals import GOAL_KINDS
 from env.termination import Termination
 from env.variant import Variant
 
-pytestmark = pytest.mark.slow
-
 STEPS = 24
 #: The step (0-based) before which each world's player is killed.
 KILLS = (0, 9, 20)
@@ -53,6 +51,7 @@ def _stocked(game: Any) -> Any:
 # unlocked in a new world) nor squares (a fresh world holds no square of placed blocks;
 # tests/test_scenario_differential stamps them into new worlds for the checkers); Hard's few
 # localization goals find no fresh full-Craftax spawn that meets them here.
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("split", "variant", "kinds", "met_at_game_over"),
     [
@@ -96,6 +95,7 @@ def test_game_over_steps_score_like_the_official_wrapper(
 CASE_GOAL = ("medium_train", "INSTRUCTION_PLACE_STONE_IRON_2_2")
 
 
+@pytest.mark.slow
 def test_the_recorded_game_over_case_agrees_at_every_step(
     official_repository: Path, shared_data: Path
 ) -> None:
@@ -111,6 +111,7 @@ def test_the_recorded_game_over_case_agrees_at_every_step(
     assert (last.official_ended, last.official_met, last.ours) == (True, False, Termination.DEATH)
 
 
+@pytest.mark.slow
 def test_stepping_the_game_with_the_whole_key_checks_another_new_world(
     official_repository: Path, shared_data: Path
 ) -> None:
@@ -126,3 +127,26 @@ def test_stepping_the_game_with_the_whole_key_checks_another_new_world(
     assert last.step == case.game_over_step and last.game_over
     assert not last.games_equal
     assert (last.official_met, last.ours) == (False, Termination.SUCCESS)
+
+
+@pytest.mark.parametrize("mistake", ["not the official tree", "not a case file"])
+def test_a_mistake_in_the_arguments_is_one_line_and_exit_2(
+    official_repository: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    mistake: str,
+) -> None:
+    from benchmarks.official_wrapper import main
+
+    case = tmp_path / "case.jsonl"
+    case.write_text('{"world_key": [1, 2]}\n')
+    arguments = {
+        "not the official tree": ["--dataset", str(tmp_path)],
+        "not a case file": ["--dataset", str(official_repository), "--case", str(case)],
+    }[mistake]
+    with pytest.raises(SystemExit) as exited:
+        main(arguments)
+    assert exited.value.code == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert len(captured.err.splitlines()) == 1 and captured.err.startswith("error: ")

@@ -309,6 +309,20 @@ def test_every_setting_has_another_value_to_try() -> None:
     assert set(OTHER_GENERATION) == set(GenerateConfig.model_fields)
 
 
+def test_a_run_recorded_before_step_keys_replays_in_the_env_it_played_in() -> None:
+    from llm_agents.evaluation.config import EvalConfig
+
+    # Such runs stepped the game with the whole step key: replayed (view, card) or resumed, they
+    # must get that env, while a new run steps as Craftax's auto-reset env.
+    recorded = EvalConfig().model_dump(mode="json")
+    del recorded["step_keys"]
+    assert EvalConfig.recorded(recorded).env_config().step_keys == "whole"
+    assert EvalConfig.recorded(recorded | {"step_keys": "auto_reset"}).env_config().step_keys == (
+        "auto_reset"
+    )
+    assert EvalConfig().env_config().step_keys == "auto_reset"
+
+
 @pytest.mark.parametrize("name", sorted(OTHER_VALUES))
 def test_a_runs_identity_changes_iff_a_setting_marked_as_changing_results_changes(
     name: str,
