@@ -230,7 +230,8 @@ def test_plans_are_scored_by_playing_them_and_the_best_exported(
     }
     # The first and the best candidate of each text, once more in a held-out world.
     assert scores["splits"]["easy_train"]["best_held_out"]["episodes"] == 2
-    assert complete["held_out"]["episodes"] == 1 and no_wood["held_out"]["episodes"] == 1
+    assert complete["held_out"]["episodes"] == 1 and no_pickaxe["held_out"]["episodes"] == 1
+    assert no_wood["held_out"] is None
     prompt = [
         {"role": m.role, "content": m.content}
         for m in planner_messages(TABLE, None, Variant.CLASSIC)
