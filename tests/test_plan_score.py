@@ -43,6 +43,9 @@ NO_PICKAXE = "1. Collect some stone.\n2. Place crafting table."
         ("Plant a sapling", ("place plant",)),
         ("Kill the zombie", ("attack zombie",)),
         ("Drink water", ("drink",)),
+        ("Eat the beef", ("eat",)),
+        ("Collect trees", ("collect wood 2",)),
+        ("Craft a table", ("place crafting_table",)),
         ("collect wood_pickaxe", None),
     ],
 )
@@ -64,6 +67,7 @@ def test_a_step_in_the_datasets_words_reads_as_catalogue_skills(
         ("Smelt iron in furnace", "no action"),
         ("Place coal in furnace", "names no block to place"),
         ("Eat the plant", "eat hunts a cow"),
+        ("Eat flora.", "eat hunts a cow"),
     ],
 )
 def test_a_step_naming_nothing_the_catalogue_knows_is_unread_with_its_reason(
