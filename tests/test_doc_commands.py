@@ -34,7 +34,11 @@ def commands(page: str) -> list[list[str]]:
     found = []
     for block in _BLOCK.findall((ROOT / page).read_text(encoding="utf-8")):
         values = dict(_LOOP.findall(block))
-        block = _VARIABLE.sub(lambda m: values.get(m.group(1), m.group(1).lower()), block)
+
+        def value(match: re.Match[str], values: dict[str, str] = values) -> str:
+            return values.get(match.group(1), match.group(1).lower())
+
+        block = _VARIABLE.sub(value, block)
         for line in block.replace("\\\n", " ").splitlines():
             words = shlex.split(line, comments=True)
             if words[:1] == ["craftext-llm"] or words[:3] == [
