@@ -753,9 +753,28 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_plan_score(args: argparse.Namespace) -> int:
+    from llm_agents.planning.scoring import score_plans
+
+    config = score_config(args)
+    summary = score_plans(config, progress=_progress_bar(not args.no_progress))
+    exports = "".join(f"\n{kind}: {lines} lines" for kind, lines in summary.exports.items())
+    if summary.exports:
+        exports += "\nkept out of the exports: " + ", ".join(
+            f"{why} {count}" for why, count in summary.kept_out.items()
+        )
+    print(
+        f"{summary.texts} texts, {summary.plans} plans, {summary.episodes} episodes "
+        f"({summary.resumed} resumed) in {summary.wall_s:.1f} s\n"
+        f"scores: {summary.scores}\nbest: {summary.best}{exports}"
+    )
+    return 0
+
+
+def score_config(args: argparse.Namespace) -> Any:
+    """`plan-score`'s settings from its parsed flags (a bad value: one `UserError` line)."""
     from pydantic import ValidationError
 
-    from llm_agents.planning.scoring import ScoreConfig, score_plans
+    from llm_agents.planning.scoring import ScoreConfig
 
     given = {
         "plans": Path(args.plans),
@@ -787,18 +806,7 @@ def cmd_plan_score(args: argparse.Namespace) -> int:
         first = err.errors()[0]
         where = "--" + "-".join(str(part) for part in first["loc"]).replace("_", "-")
         raise UserError(f"{where}: {first['msg']}") from None
-    summary = score_plans(config, progress=_progress_bar(not args.no_progress))
-    exports = "".join(f"\n{kind}: {lines} lines" for kind, lines in summary.exports.items())
-    if summary.exports:
-        exports += "\nkept out of the exports: " + ", ".join(
-            f"{why} {count}" for why, count in summary.kept_out.items()
-        )
-    print(
-        f"{summary.texts} texts, {summary.plans} plans, {summary.episodes} episodes "
-        f"({summary.resumed} resumed) in {summary.wall_s:.1f} s\n"
-        f"scores: {summary.scores}\nbest: {summary.best}{exports}"
-    )
-    return 0
+    return config
 
 
 COMMANDS = {

@@ -87,6 +87,16 @@ class PlannerConfig(TextSelection):
         ]
         return data | {"difficulty": difficulties.pop(), "categories": categories}
 
+    @model_validator(mode="after")
+    def _sampled(self) -> PlannerConfig:
+        """Candidates are samples: greedy decoding would give one plan per text."""
+        if (self.candidates or 0) > 1 and self.generation.temperature == 0:
+            raise UserError(
+                "--candidates samples plans: greedy decoding (temperature 0) gives one plan per "
+                "instruction; set --temperature above 0 (e.g. 0.8)"
+            )
+        return self
+
     @field_validator("output")
     @classmethod
     def _plans_file(cls, value: Path) -> Path:
@@ -363,11 +373,6 @@ def check_sampling(model: ModelAPI, config: PlannerConfig) -> None:
     reason = model.cannot_sample()
     if reason is not None:
         raise UserError(f"--candidates samples plans, and {reason}")
-    if config.candidates > 1 and model.config.temperature == 0:
-        raise UserError(
-            "--candidates samples plans: greedy decoding (temperature 0) gives one plan per "
-            "instruction; set --temperature above 0 (e.g. 0.8)"
-        )
 
 
 @contextmanager

@@ -182,8 +182,15 @@ def _texts(config: ScoreConfig, plans: dict[str, list[str]]) -> dict[str, tuple[
     return chosen
 
 
-def _episode_key(text: str, candidate: int, world: int, stream: str) -> str:
-    return json.dumps([text, candidate, world, stream], ensure_ascii=False)
+def _episode_key(text: str, candidate: int, world: int, stream: str, reading: str) -> str:
+    return json.dumps([text, candidate, world, stream, reading], ensure_ascii=False)
+
+
+def _reading(steps: Sequence[StepReading]) -> str:
+    """A digest of the skills a plan was read as: a journal's episode of a plan the reader now
+    reads otherwise is played again, not reused."""
+    skills = [list(step.skills) for step in steps]
+    return hashlib.sha256(json.dumps(skills).encode()).hexdigest()[:16]
 
 
 class _Journal:
@@ -268,7 +275,12 @@ def _plan_episodes(
     )
     return [
         PlanEpisode(
-            _episode_key(key_text, candidate, world, stream), goal, index, world, skills, stream
+            _episode_key(key_text, candidate, world, stream, _reading(steps)),
+            goal,
+            index,
+            world,
+            skills,
+            stream,
         )
         for world in range(worlds)
     ]
@@ -364,7 +376,11 @@ def score_plans(
         offer = skill_offer(config.variant, goal.difficulty)
         for candidate in range(len(plans[text])):
             outcomes = [
-                journal.done[_episode_key(text, candidate, w, selection)]
+                journal.done[
+                    _episode_key(
+                        text, candidate, w, selection, _reading(readings[(text, candidate)])
+                    )
+                ]
                 for w in range(config.worlds)
             ]
             steps = readings[(text, candidate)]
@@ -440,7 +456,7 @@ def _held_out(
 
 def _with_held_out(score: PlanScore, journal: _Journal, config: ScoreConfig) -> PlanScore:
     keys = [
-        _episode_key(score.instruction, score.candidate, w, HELD_OUT_WORLDS)
+        _episode_key(score.instruction, score.candidate, w, HELD_OUT_WORLDS, _reading(score.steps))
         for w in range(config.held_out_worlds)
     ]
     if keys[0] not in journal.done:
@@ -663,7 +679,8 @@ class PlanJudge:
             zip(pairs, readings, strict=True)
         ):
             played = [
-                outcomes[_episode_key(str(number), 0, w, self.stream)] for w in range(self.worlds)
+                outcomes[_episode_key(str(number), 0, w, self.stream, _reading(steps))]
+                for w in range(self.worlds)
             ]
             score = _plan_score(text, 0, plan, steps, goal, played)
             rewards.append(

@@ -363,7 +363,11 @@ def _attack(things: list[_Thing], rest: list[str], offer: SkillOffer) -> list[st
 
 
 def _eat(things: list[_Thing], rest: list[str], offer: SkillOffer) -> list[str]:
-    if any(t.name != "cow" for t in _objects(things)):
+    objects = _objects(things)
+    named = [w for w in rest if w not in _COUNTS and w not in _MEANS and w != _PLURAL]
+    # "Eat flora" names no cow: read as a cow hunt, it would be another plan (and one that
+    # breaks "do not eat a cow").
+    if any(t.name != "cow" for t in objects) or (named and not objects):
         raise _Unread("eat hunts a cow; the skills eat nothing else")
     return ["eat"]
 
