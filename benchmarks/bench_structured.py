@@ -10,9 +10,11 @@
 
 Each measurement runs `--repeats` times, the two sides taking turns, after one warm-up call of
 each (the model load and the grammar's compile are not timed); the figure is the median.
+`--threads` sets torch's CPU threads (on a machine other jobs load, fewer threads than cores
+wait less on each other).
 
     python benchmarks/bench_structured.py [--model hf:smollm2-135m] [--texts 8]
-        [--max-tokens 64] [--repeats 3] [--out runs/bench-structured]
+        [--max-tokens 64] [--repeats 3] [--threads N] [--out runs/bench-structured]
 """
 
 from __future__ import annotations
@@ -41,16 +43,15 @@ from llm_agents.backends.hf.structured import SchemaLogitsProcessor  # noqa: E40
 VARIANT = Variant.CLASSIC
 
 
-def timed(call: Callable[[], list[Any]], repeats: int, rivals: list[Callable[[], Any]]) -> float:
-    """Median seconds of `call`, each repeat after one call of each rival (taking turns)."""
-    seconds = []
+def timed(sides: list[Callable[[], Any]], repeats: int) -> list[float]:
+    """Median seconds of each side's call, the sides taking turns `repeats` times."""
+    seconds: list[list[float]] = [[] for _ in sides]
     for _ in range(repeats):
-        for rival in rivals:
-            rival()
-        start = time.perf_counter()
-        call()
-        seconds.append(time.perf_counter() - start)
-    return statistics.median(seconds)
+        for side, kept in zip(sides, seconds, strict=True):
+            start = time.perf_counter()
+            side()
+            kept.append(time.perf_counter() - start)
+    return [statistics.median(kept) for kept in seconds]
 
 
 def texts(out: Path, count: int) -> list[str]:
@@ -65,8 +66,13 @@ def main() -> None:
     parser.add_argument("--texts", type=int, default=8)
     parser.add_argument("--max-tokens", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-structured")
     args = parser.parse_args()
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
 
     model: Any = get_model(args.model, GenerateConfig(max_tokens=args.max_tokens))
@@ -86,8 +92,7 @@ def main() -> None:
         return outputs["structured"]
 
     free(), structured()  # warm-up: weights, grammar
-    free_s = timed(free, args.repeats, [structured])
-    structured_s = timed(structured, args.repeats, [free])
+    free_s, structured_s = timed([free, structured], args.repeats)
     for name, seconds in (("free text", free_s), ("structured", structured_s)):
         answers = outputs["free" if name == "free text" else "structured"]
         tokens = sum(o.completion_tokens for o in answers)
@@ -126,8 +131,7 @@ def main() -> None:
         return outputs["llguidance"]
 
     trie(), llguidance()
-    trie_s = timed(trie, args.repeats, [llguidance])
-    llg_s = timed(llguidance, args.repeats, [trie])
+    trie_s, llg_s = timed([trie, llguidance], args.repeats)
     for name, seconds in (("trie", trie_s), ("llguidance", llg_s)):
         exact = sum(o.text in names for o in outputs[name])
         print(
