@@ -26,7 +26,7 @@ from llm_agents.agents.answer_schemas import (
     reading_schema,
 )
 from llm_agents.agents.answers.actions import action_names
-from llm_agents.agents.grounding import parse_grounding, reading_json
+from llm_agents.agents.grounding import grounding_messages, parse_grounding, reading_json
 from llm_agents.backends.base import ChatMessage, ChoiceSet, GenerateConfig, OutputSchema
 from llm_agents.backends.cache import CachedModel
 from llm_agents.backends.mock import MockModel
@@ -289,6 +289,26 @@ def test_the_paper_protocol_records_structured_output_as_a_departure(tmp_path: P
     assert not plain.structured_output and "structured_output" not in plain.protocol_overrides
 
 
+def test_ground_reads_every_text_under_the_schema(tmp_path: Path, dataset_file: Path) -> None:
+    from test_grounding import ground_config
+
+    from llm_agents.evaluation.grounding_run import (
+        execute_grounding,
+        prepare_grounding,
+        read_groundings,
+    )
+
+    cfg = ground_config(tmp_path / "run", dataset_file, structured_output=True)
+    assert output_schema_of(cfg) == reading_schema(CLASSIC, "easy")
+    model = MockModel(outputs=structured_answer)
+    results = execute_grounding(prepare_grounding(cfg), model)
+    assert results.status == "complete"
+    assert {schema for _, schema in model.schemas} == {reading_schema(CLASSIC, "easy")}
+    rows = read_groundings(tmp_path / "run")
+    assert len(rows) == 6 and all(row.grounding.outcome == "valid" for row in rows)
+    assert results.identity.settings["structured_output"] is True
+
+
 # ----------------------------------------------------------------------------- bad input
 
 
@@ -326,3 +346,31 @@ def test_a_paper_run_under_a_schema_lists_the_departure() -> None:
     recorded.config["structured_output"] = False
     lines = paper_differences(recorded, "official")  # type: ignore[arg-type]
     assert not any(line.startswith("structured output:") for line in lines)
+
+
+# ----------------------------------------------------------------------------- hf, for real
+
+
+@pytest.mark.slow
+def test_the_embedded_model_under_the_reading_schema_always_reads_a_goal() -> None:
+    """SmolLM2-135M cannot read these goals, and in free text it rarely answers JSON at all;
+    held to the schema, every answer it gives is a goal."""
+    pytest.importorskip("llguidance")
+    from llm_agents.backends import get_model
+
+    texts = ("Collect wood.", "Make a table but do not collect saplings.")
+    requests = [grounding_messages(text, CLASSIC) for text in texts]
+    model = get_model("hf:smollm2-135m", GenerateConfig(max_tokens=64))
+    model.check_schema(reading_schema(CLASSIC, "easy"))
+    outputs = model.generate(requests, schema=reading_schema(CLASSIC, "easy"))
+    for output in outputs:
+        assert output.finish_reason == "stop", output
+        grounding = parse_grounding(output.text, CLASSIC)
+        assert grounding.outcome == "valid" and grounding.stage == "json", output.text
+        assert output.text == json.dumps(json.loads(output.text))  # no stray whitespace
+    [action] = model.generate(
+        [[ChatMessage(role="user", content="Which action now?")]], schema=action_schema(CLASSIC)
+    )
+    assert action.finish_reason == "stop" and answered_action(action.text) in action_names(CLASSIC)
+    with pytest.raises(UserError, match="hf backend cannot take the bad JSON schema"):
+        model.check_schema(OutputSchema.of("bad", {"type": "array", "uniqueItems": True}))

@@ -64,6 +64,8 @@ class MockModel(ModelAPI):
         super().__init__(model_name or "noop", config, **options)
         self.latency_s = latency_s
         self.requests: list[tuple[list[ChatMessage], ChoiceSet | None]] = []
+        #: (conversation, schema) of every request made under a JSON schema.
+        self.schemas: list[tuple[list[ChatMessage], OutputSchema]] = []
         self._count = 0
         self._responder: Responder | None = None
         self._outputs: list[str] = []
@@ -106,6 +108,7 @@ class MockModel(ModelAPI):
         import jsonschema
 
         validator = jsonschema.Draft202012Validator(schema.as_data())
+        self.schemas += [(list(conversation), schema) for conversation in conversations]
         outputs = self._generate(conversations, None)
         for index, output in enumerate(outputs):
             if output.finish_reason == "error":

@@ -20,6 +20,9 @@ run's `--choice-scoring` rule (`ranked_choices`, as hf). Each conversation's
 prompt is computed once: the option requests read it from vLLM's prefix cache (an option whose
 first tokens the cache would cover is asked again without it), so `loglik` costs about one
 prompt pass plus one short pass per option (see benchmarks/bench_backends.py).
+
+A JSON schema (`--structured-output`) goes to the same structured outputs
+(`StructuredOutputsParams(json=...)`), the JSON laid out without free whitespace.
 """
 
 from __future__ import annotations

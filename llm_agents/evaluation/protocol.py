@@ -127,6 +127,12 @@ PROTOCOLS: dict[ProtocolName, Protocol] = {
                 value=5,
                 source="ours: the last 5 actions, with their outcomes",
             ),
+            ProtocolChoice(
+                setting="structured_output",
+                value=False,
+                source="ours: free text, so a model's answers are its own; "
+                "--structured-output holds them to a JSON schema",
+            ),
         ),
     ),
     "paper": Protocol(

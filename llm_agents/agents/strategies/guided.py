@@ -50,7 +50,8 @@ class GuidedAgent:
     protocol_version: ClassVar[int] = AGENT_PROTOCOL_VERSION
     needs_model: ClassVar[bool] = True
     templates: ClassVar[tuple[str, ...]] = (GROUND_TEMPLATE,)
-    # Grounding answers are free JSON: action-name choices do not apply to them.
+    # Grounding answers are JSON, free or held to the reading schema (`output_schema`):
+    # action-name choices do not apply to them.
     choices: ClassVar[None] = None
 
     def __init__(
