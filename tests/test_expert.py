@@ -261,6 +261,22 @@ def test_a_walled_in_expert_never_breaks_out_through_a_forbidden_achievement() -
     assert task is not None and task.kind == "hunt" and action != "DO"
 
 
+def test_a_skeleton_hunter_walks_into_the_unseen_part_of_a_tunnel() -> None:
+    # A tunnel runs off the view's west edge; open grass lies ahead to the east, where an
+    # explorer's heading points. Skeletons appear only on tunnel floor: it goes west.
+    agent = ExpertAgent(Variant.CLASSIC)
+    agent.start_episode(0, EpisodeStart("text", goal=expert_goal(("DEFEAT_SKELETON",))))
+    tunnel = {"path": [(-4, 0), (-4, 1)], "stone": [(-4, 2), (-4, -1), (-3, 1), (-3, 2)]}
+    seen = observation(
+        tunnel,
+        tools=("wood_pickaxe",),
+        achievements=("COLLECT_WOOD", "PLACE_TABLE", "MAKE_WOOD_PICKAXE"),
+    )
+    action, task = agent.choose(0, seen)
+    assert task is not None and (task.kind, task.target) == ("hunt", "skeleton")
+    assert action == "LEFT"
+
+
 def test_spending_picks_an_action_that_takes_the_item_out_of_the_inventory() -> None:
     stone = spend_task(context((), materials={"stone": 3}), "stone")
     assert (stone.kind, stone.target) == ("place", "PLACE_STONE")

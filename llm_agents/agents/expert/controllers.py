@@ -80,9 +80,11 @@ class Controller(Navigator):
         ]
         if not tunnels:
             return None
-        frontier = [c for c in self._frontier() if self.world.get(c) == "path"]
+        frontier = [c for c in self._frontier() if c in tunnels]
         if frontier:
-            return self.explore("skeleton")
+            # Into the tunnels' unseen part: a general exploring step keeps to its heading,
+            # which may lead away from them.
+            return self.step_towards(set(frontier))
         goal = self.episode.patrol_target
         if goal is None or goal == self.pos or goal not in self.dist:
             far = [c for c in tunnels if 6 <= self._steps_to(c) <= 16] or tunnels
