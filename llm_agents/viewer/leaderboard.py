@@ -33,6 +33,7 @@ from pydantic import BaseModel
 
 from env.errors import UserError
 from env.goals import ALL_CATEGORIES, DIFFICULTY_CATEGORIES, Difficulty
+from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.judging.card import (
     CARD_FILE,
     CARD_MD_FILE,
@@ -42,7 +43,6 @@ from llm_agents.judging.card import (
     read_card,
     verify_card,
 )
-from llm_agents.evaluation.protocol import protocol_for
 from llm_agents.judging.published import (
     BALROG_PUBLISHED,
     OFFICIAL_COMMIT,
