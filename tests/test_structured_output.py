@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import jsonschema
 import pytest
 from fault_server import FaultServer
-from llm_agents.evaluation.published import paper_differences
+from llm_agents.judging.published import paper_differences
 from test_grounding import GOALS, dataset_file, instruction_of, right_answer, short_env
 
 from env import CrafTextEnv, Variant
