@@ -251,6 +251,7 @@ OTHER_VALUES: dict[str, object] = {
     "probe": False,
     "choice": "guided",
     "choice_scoring": "bytes",
+    "structured_output": True,
     "categories": ("combo",),
     "difficulty": "hard",
     "paraphrases": False,

@@ -374,3 +374,20 @@ def test_the_embedded_model_under_the_reading_schema_always_reads_a_goal() -> No
     assert action.finish_reason == "stop" and answered_action(action.text) in action_names(CLASSIC)
     with pytest.raises(UserError, match="hf backend cannot take the bad JSON schema"):
         model.check_schema(OutputSchema.of("bad", {"type": "array", "uniqueItems": True}))
+
+
+def test_cli_a_server_rejecting_response_format_stops_the_run_before_anything_is_written(
+    tmp_path: Path,
+    dataset_file: Path,
+    server: FaultServer,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    server.reject_structured_outputs = True
+    out = tmp_path / "run"
+    args = ["eval", "--agent", "guided", "--model", f"openai:test-model@{server.url}",
+            "--dataset", str(dataset_file), "--variant", "classic", "--structured-output",
+            "--output-dir", str(out), "--no-progress"]  # fmt: skip
+    assert main(args) == EXIT_USER_ERROR
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "rejects response_format" in error
+    assert not out.exists()

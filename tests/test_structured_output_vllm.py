@@ -117,10 +117,6 @@ def test_the_vllm_engine_holds_readings_and_actions_to_their_schemas(tmp_path: P
     readings = result["readings"]
     assert len(readings) == len(TEXTS) and all(o["finish_reason"] == "stop" for o in readings)
     assert_every_reading_parses([o["text"] for o in readings])
-    # No free whitespace: vLLM writes the JSON compact.
-    assert all(
-        o["text"] == json.dumps(json.loads(o["text"]), separators=(",", ":")) for o in readings
-    )
     [chosen] = result["actions"]
     assert answered_action(chosen["text"]) in action_names(CLASSIC)
     assert result["refused"] and "vllm backend cannot take the broken" in result["refused"]

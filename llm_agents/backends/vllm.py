@@ -22,7 +22,7 @@ first tokens the cache would cover is asked again without it), so `loglik` costs
 prompt pass plus one short pass per option (see benchmarks/bench_backends.py).
 
 A JSON schema (`--structured-output`) goes to the same structured outputs
-(`StructuredOutputsParams(json=...)`), the JSON laid out without free whitespace.
+(`StructuredOutputsParams(json=...)`).
 """
 
 from __future__ import annotations
@@ -194,8 +194,7 @@ class VLLMModel(ModelAPI):
         structured = (
             StructuredOutputsParams(choice=choices)
             if choices
-            # JSON laid out as the prompts show it, not whitespace wherever the grammar allows.
-            else StructuredOutputsParams(json=schema.json_schema, disable_any_whitespace=True)
+            else StructuredOutputsParams(json=schema.json_schema)
             if schema is not None
             else None
         )
