@@ -613,6 +613,9 @@ def _card(args: argparse.Namespace) -> int:
         if args.reask is not None:
             _print_reask(args)
         return 0
+    if args.out and not Path(args.out).is_dir():
+        # Checked before the replay, which can take minutes: a mistyped --out must not cost them.
+        raise UserError(f"{args.out} is not a directory to write the card into")
     card = build_card(
         args.run_dir,
         goal_flags_worlds=args.do_nothing_worlds if args.goal_flags else None,

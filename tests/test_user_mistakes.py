@@ -288,6 +288,12 @@ MISTAKES: dict[str, Mistake] = {
         "not a results card",
         files={"card.json": "[1, 2]", "run/": ""},
     ),
+    # Refused before the replay: a run with no records at all would fail it otherwise.
+    "card into a directory that does not exist": Mistake(
+        ["card", "{tmp}/run", "--out", "{tmp}/nowhere"],
+        "not a directory to write the card into",
+        files={"run/": ""},
+    ),
     "card with zero do-nothing worlds": Mistake(
         ["card", "{tmp}/run", "--goal-flags", "--do-nothing-worlds", "0"], "at least 1"
     ),
