@@ -11,10 +11,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from llm_agents.judging.card import Card, read_card
-from llm_agents.judging.published import PUBLISHED, PUBLISHED_TRAINED_EASY
 
 from llm_agents.cli import main
+from llm_agents.judging.card import Card, read_card
+from llm_agents.judging.published import PUBLISHED, PUBLISHED_TRAINED_EASY
 from llm_agents.viewer.leaderboard import cards_markdown, leaderboard_data
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -13,7 +13,6 @@ from types import SimpleNamespace
 import jsonschema
 import pytest
 from fault_server import FaultServer
-from llm_agents.judging.published import paper_differences
 from test_grounding import GOALS, dataset_file, instruction_of, right_answer, short_env
 
 from env import CrafTextEnv, Variant
@@ -35,6 +34,7 @@ from llm_agents.backends.openai import OpenAIModel
 from llm_agents.cli import EXIT_USER_ERROR, main
 from llm_agents.evaluation.config import build_config
 from llm_agents.evaluation.runner import output_schema_of, run_eval
+from llm_agents.judging.published import paper_differences
 from llm_agents.run_data.readings import reading_of
 from llm_agents.run_data.store import read_episodes, read_results
 
