@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from env.achievements import ACHIEVEMENTS
 from env.goals import AnyGoal
 from env.termination import Termination
 from env.variant import Variant
@@ -63,6 +64,9 @@ class EpisodeOutcome(BaseModel):
     failed_skill: str | None = None
     reason: str | None = None
     """Why it failed; None on success."""
+    achieved: tuple[str, ...] = ()
+    """The achievements unlocked when it ended (names of the 22 shared ids, in id order): how
+    far a failed plan got towards its goal, for rewards that teach where no plan succeeds."""
 
 
 @dataclass
@@ -207,7 +211,19 @@ def play_plan_episodes(
                 ended.append((slot, outcome))
         if not ended:
             continue
-        on_done([outcome for _, outcome in ended])
+        unlocked = host.achievements
+        on_done(
+            [
+                outcome.model_copy(
+                    update={
+                        "achieved": tuple(
+                            ACHIEVEMENTS[i] for i in np.flatnonzero(unlocked[slot]).tolist()
+                        )
+                    }
+                )
+                for slot, outcome in ended
+            ]
+        )
         freed = [slot for slot, _ in ended]
         for slot in freed:
             del live[slot]
