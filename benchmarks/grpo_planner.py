@@ -47,7 +47,7 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import AnyGoal, Goal
 from env.variant import DEFAULT_VARIANT, Variant
-from llm_agents.agents.skills.catalogue import read_skill, skill_offer
+from llm_agents.agents.skills.catalogue import SkillOffer, read_skill, skill_offer
 from llm_agents.planning.checks import PlanLimits, parse_plan
 from llm_agents.planning.execution import SKILL_STEPS, EpisodeOutcome, PlanEpisode
 from llm_agents.planning.loop import planner_messages
@@ -175,7 +175,7 @@ def judge_plans(judge: PlanJudge, plans: Sequence[tuple[str, str]]) -> list[Plan
     its place here."""
     from llm_agents.planning.execution import play_plan_episodes
 
-    offer_of = {}
+    offer_of: dict[str, SkillOffer] = {}
     episodes: list[PlanEpisode] = []
     step_counts: list[int] = []
     skill_steps: list[list[tuple[int, str]]] = []
@@ -325,7 +325,7 @@ class PlanReward:
 
     def __call__(
         self, prompts: list[Any], completions: list[Any], instruction: list[str], **_: Any
-    ) -> list[float]:
+    ) -> list[float | None]:
         plans = [completion_text(c) for c in completions]
         verdicts = judge_plans(self.judge, list(zip(instruction, plans, strict=True)))
         self.steps.append(_summary(len(self.steps) + 1, verdicts, self.settings, self.started))
@@ -405,7 +405,7 @@ def _common_args(settings: OnlineSettings, scratch: Path) -> dict[str, Any]:
 def _deadline_callback(settings: OnlineSettings, started: float) -> Any:
     import transformers
 
-    class Deadline(transformers.TrainerCallback):  # type: ignore[misc]
+    class Deadline(transformers.TrainerCallback):
         stopped = False
 
         def on_step_end(self, args: Any, state: Any, control: Any, **kwargs: Any) -> Any:
@@ -456,11 +456,17 @@ def _grpo(
         callbacks=[deadline],
     )
     result = trainer.train()
-    return trainer.model, reward.steps, result.global_step, type(deadline).stopped
+    tuned: Any = trainer.model
+    return tuned, reward.steps, result.global_step, type(deadline).stopped
 
 
 def sample_plans(
-    model: Any, tokenizer: Any, chat: Chat, settings: OnlineSettings, count: int
+    model: Any,
+    tokenizer: Any,
+    chat: Chat,
+    settings: OnlineSettings,
+    count: int,
+    generation_kwargs: dict[str, Any] | None = None,
 ) -> list[str]:
     """`count` plans sampled for one prompt, as `plan --candidates` would ask."""
     import torch
@@ -476,11 +482,10 @@ def sample_plans(
             max_new_tokens=settings.max_tokens,
             num_return_sequences=count,
             pad_token_id=tokenizer.pad_token_id or tokenizer.eos_token_id,
+            **(generation_kwargs or {}),
         )
     prompt_length = ids["input_ids"].shape[1]
-    return [
-        tokenizer.decode(row[prompt_length:], skip_special_tokens=True).strip() for row in out
-    ]
+    return [tokenizer.decode(row[prompt_length:], skip_special_tokens=True).strip() for row in out]
 
 
 def _rejection_sampling(
@@ -491,6 +496,7 @@ def _rejection_sampling(
     judge: PlanJudge,
     scratch: Path,
     started: float,
+    generation_kwargs: dict[str, Any] | None,
 ) -> tuple[Any, list[StepRewards], int, bool]:
     import datasets
     import torch
@@ -505,7 +511,10 @@ def _rejection_sampling(
         model.eval()
         pairs: list[tuple[str, str]] = []
         for text in texts:
-            plans = sample_plans(model, tokenizer, prompt_chat(text, settings), settings, settings.samples)
+            chat = prompt_chat(text, settings)
+            plans = sample_plans(
+                model, tokenizer, chat, settings, settings.samples, generation_kwargs
+            )
             pairs += [(text, plan) for plan in dict.fromkeys(plans)]
         verdicts = judge_plans(judge, pairs)
         kept = {
@@ -514,8 +523,10 @@ def _rejection_sampling(
             if verdict.success >= settings.threshold
         }
         kept_all += [
-            {"prompt": prompt_chat(text, settings), "completion": [
-                {"role": "assistant", "content": plan}]}
+            {
+                "prompt": prompt_chat(text, settings),
+                "completion": [{"role": "assistant", "content": plan}],
+            }
             for text, plan in sorted(kept)
         ]
         summary = _summary(number, verdicts, settings, started)
@@ -539,7 +550,8 @@ def _rejection_sampling(
             peft_config=_lora(settings),
         )
         trainer.train()
-        model = trainer.model.merge_and_unload()
+        adapted: Any = trainer.model
+        model = adapted.merge_and_unload()
     return model, rounds, len(rounds), False
 
 
@@ -548,7 +560,7 @@ def tune_online(
 ) -> OnlineRecord:
     """Tune `settings.model` against the game's verdict, merge, save to `settings.out`.
 
-    `generation_kwargs` reach GRPO's sampling unchanged (transformers' `GenerationConfig`)."""
+    `generation_kwargs` reach the sampling unchanged (transformers' `generate` arguments)."""
     check_installed()
     if settings.out.exists():
         raise UserError(f"{settings.out} exists; choose a new folder for the tuned model")
@@ -583,7 +595,7 @@ def tune_online(
             merged = tuned.merge_and_unload()
         else:
             merged, rewards, steps, stopped = _rejection_sampling(
-                settings, texts, model, tokenizer, judge, scratch, started
+                settings, texts, model, tokenizer, judge, scratch, started, generation_kwargs
             )
         staged = scratch / "model"
         merged.save_pretrained(staged)
@@ -638,7 +650,9 @@ def _parser() -> argparse.ArgumentParser:
             "lora_rank", "seed", "max_steps", "generations", "prompts_per_step", "rounds",
             "samples", "sft_steps",
         ):  # fmt: skip
-            sub.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
+            sub.add_argument(
+                f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name)
+            )
         for name in (
             "achieved_weight", "played_weight", "temperature", "learning_rate", "beta",
             "threshold", "max_minutes",

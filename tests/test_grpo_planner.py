@@ -8,11 +8,11 @@ import json
 from pathlib import Path
 
 import pytest
+from tiny_llm import build_tiny_llm
 
 from benchmarks import grpo_planner, tune_planner
 from env.dataset import Dataset, DatasetSource, Goal
 from env.variant import Variant
-from tiny_llm import build_tiny_llm
 
 TUNE_MISSING = [n for n in tune_planner.TUNE_PACKAGES if importlib.util.find_spec(n) is None]
 needs_tune = pytest.mark.skipif(
@@ -60,7 +60,7 @@ def _settings(tmp_path: Path, **values: object) -> grpo_planner.OnlineSettings:
         out=tmp_path / "tuned",
         dataset=str(_dataset(tmp_path)),
         variant=Variant.CLASSIC,
-        **values,  # type: ignore[arg-type]
+        **values,
     )
 
 
@@ -205,9 +205,48 @@ def test_grpo_tunes_the_adapter_on_rewards_from_real_executions(tmp_path: Path) 
     from llm_agents.backends import get_model
     from llm_agents.backends.base import ChatMessage, GenerateConfig
 
-    chat = [ChatMessage(role=m["role"], content=m["content"]) for m in grpo_planner.prompt_chat(WOOD, settings)]
+    chat = [
+        ChatMessage(role=m["role"], content=m["content"])
+        for m in grpo_planner.prompt_chat(WOOD, settings)
+    ]
     answer = get_model(f"hf:{out}", GenerateConfig(max_tokens=4)).generate([chat])[0]
     assert answer.error is None
+
+
+@needs_tune
+@pytest.mark.slow
+def test_rejection_sampling_keeps_the_plans_that_worked_and_tunes_on_them(tmp_path: Path) -> None:
+    import torch
+    from safetensors.torch import load_file
+
+    from llm_agents.backends.embedded import embedded_model_dir
+
+    tokenizer_dir = embedded_model_dir()
+    base = build_tiny_llm(tmp_path / "tiny", tokenizer_dir)
+    settings = _settings(
+        tmp_path,
+        method="rs",
+        model=f"hf:{base}",
+        main_only=True,
+        rounds=1,
+        samples=6,
+        worlds=1,
+        max_tokens=12,
+        sft_steps=2,
+        learning_rate=5e-2,
+        lora_rank=4,
+    )
+    record = grpo_planner.tune_online(
+        settings, generation_kwargs=_steered_generation(tokenizer_dir)
+    )
+    (round_one,) = record.rewards
+    assert record.steps == 1 and record.episodes > 0
+    # Some samples start with `collect wood`, which meets the wood goal: those are kept.
+    assert round_one.plans_succeeding > 0 and round_one.kept == round_one.plans_succeeding
+    before = load_file(base / "model.safetensors")
+    after = load_file(settings.out / "model.safetensors")
+    assert any(not torch.equal(before[k], after[k]) for k in before if "proj" in k)
+    assert json.loads((settings.out / grpo_planner.SIDECAR).read_text())["rewards"][0]["kept"]
 
 
 def test_a_missing_model_is_one_line_and_exit_2(
