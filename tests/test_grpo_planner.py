@@ -110,11 +110,12 @@ def test_plans_are_judged_by_playing_them_success_first(tmp_path: Path) -> None:
     assert (short.success, short.achieved, short.played) == (0.0, 0.5, 0.5)
     assert (stone.success, stone.achieved, stone.played) == (0.0, 0.0, 0.0)
     assert (unread.success, unread.played, unread.episodes) == (0.0, 0.0, 0)
-    # The unread middle step counts against the plan, though the goal is met.
-    assert partly.success == 1.0
+    # A world where the goal was met counts the shaped parts whole, unread steps or not.
+    assert (partly.success, partly.achieved, partly.played) == (1.0, 1.0, 1.0)
     rewards = [v.reward(0.3, 0.2) for v in verdicts]
-    assert rewards[0] == pytest.approx(1.5) and rewards[1] == pytest.approx(0.25)
-    assert rewards[0] > rewards[4] > rewards[1] > rewards[2] == rewards[3] == 0.0
+    assert rewards[0] == rewards[4] == pytest.approx(1.5)
+    assert rewards[1] == pytest.approx(0.25)
+    assert rewards[0] > rewards[1] > rewards[2] == rewards[3] == 0.0
     # Played again in the same worlds, the verdicts repeat.
     assert grpo_planner.judge_plans(judge, plans[:2]) == verdicts[:2]
 
