@@ -287,3 +287,26 @@ def test_bad_settings_are_one_line_and_exit_2(
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"error: {message}") and "\n" not in err
     assert not out.exists()
+
+
+def test_the_shaped_part_counts_what_the_game_reached_and_what_played(tmp_path: Path) -> None:
+    from llm_agents.planning.execution import EpisodeOutcome
+
+    texts = grpo_planner.training_texts(_settings(tmp_path))
+    table = texts[TABLE][0]
+
+    def ended(**values: object) -> EpisodeOutcome:
+        return EpisodeOutcome.model_validate({"key": "k", "success": False, "steps": 9, **values})
+
+    wood_only = ended(failed_step=2, achieved=("COLLECT_WOOD",))
+    assert grpo_planner._achieved(table, wood_only) == 0.5
+    # A forbidden achievement unlocked earns nothing, whatever else was reached.
+    broke = ended(achieved=("COLLECT_WOOD", "PLACE_TABLE", "COLLECT_SAPLING"))
+    assert grpo_planner._achieved(table, broke) == 0.0
+    # Steps: 3 written, steps 1 and 3 read; step 3's skill failed, so only step 1 played.
+    skills = [(1, "collect wood"), (3, "place crafting_table")]
+    assert grpo_planner._played(3, skills, ended(failed_step=3)) == pytest.approx(1 / 3)
+    # Every read step played and the goal was still not met: the unread one never plays.
+    assert grpo_planner._played(3, skills, ended()) == pytest.approx(2 / 3)
+    assert grpo_planner._played(3, skills, ended(failed_step=1)) == 0.0
+    assert grpo_planner._played(3, skills, EpisodeOutcome(key="k", success=True, steps=9)) == 1.0
