@@ -280,6 +280,15 @@ def completion_text(completion: Any) -> str:
 # ---------------------------------------------------------------- records
 
 
+class JudgedPlan(BaseModel):
+    """One sampled plan and the game's verdict on it."""
+
+    instruction: str
+    plan: str
+    reward: float
+    verdict: PlanVerdict
+
+
 class StepRewards(BaseModel):
     """The plans of one GRPO step or one rejection-sampling round, as judged."""
 
@@ -296,6 +305,8 @@ class StepRewards(BaseModel):
     """Wall seconds since the run started, at the end of judging."""
     kept: int | None = None
     """rs: plans kept for SFT."""
+    judged: list[JudgedPlan] = Field(default_factory=list)
+    """Every plan judged, what the model wrote and what it earned."""
 
 
 class OnlineRecord(BaseModel):
@@ -328,14 +339,21 @@ class PlanReward:
     ) -> list[float | None]:
         plans = [completion_text(c) for c in completions]
         verdicts = judge_plans(self.judge, list(zip(instruction, plans, strict=True)))
-        self.steps.append(_summary(len(self.steps) + 1, verdicts, self.settings, self.started))
+        judged = list(zip(instruction, plans, strict=True))
+        self.steps.append(
+            _summary(len(self.steps) + 1, judged, verdicts, self.settings, self.started)
+        )
         return [
             v.reward(self.settings.achieved_weight, self.settings.played_weight) for v in verdicts
         ]
 
 
 def _summary(
-    step: int, verdicts: list[PlanVerdict], settings: OnlineSettings, started: float
+    step: int,
+    plans: list[tuple[str, str]],
+    verdicts: list[PlanVerdict],
+    settings: OnlineSettings,
+    started: float,
 ) -> StepRewards:
     rewards = [v.reward(settings.achieved_weight, settings.played_weight) for v in verdicts]
     return StepRewards(
@@ -348,6 +366,10 @@ def _summary(
         played_mean=fmean(v.played for v in verdicts),
         plans_succeeding=sum(v.success > 0 for v in verdicts),
         seconds=round(time.monotonic() - started, 1),
+        judged=[
+            JudgedPlan(instruction=text, plan=plan, reward=reward, verdict=verdict)
+            for (text, plan), reward, verdict in zip(plans, rewards, verdicts, strict=True)
+        ],
     )
 
 
@@ -365,6 +387,8 @@ def draw_curve(rewards: list[StepRewards], method: Method, path: Path) -> None:
     axis.plot(steps, [r.achieved_mean for r in rewards], linestyle="--", label="achievements")
     axis.set_xlabel("GRPO step" if method == "grpo" else "rejection-sampling round")
     axis.set_ylabel("per sampled plan")
+    axis.set_ylim(bottom=0)
+    axis.xaxis.get_major_locator().set_params(integer=True)
     axis.grid(alpha=0.3)
     axis.legend(fontsize=8)
     figure.tight_layout()
@@ -529,7 +553,7 @@ def _rejection_sampling(
             }
             for text, plan in sorted(kept)
         ]
-        summary = _summary(number, verdicts, settings, started)
+        summary = _summary(number, pairs, verdicts, settings, started)
         rounds.append(summary.model_copy(update={"kept": len(kept)}))
         if not kept_all:
             continue

@@ -195,6 +195,9 @@ def test_grpo_tunes_the_adapter_on_rewards_from_real_executions(tmp_path: Path) 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.json", "tiny", "tuned"]
     sidecar = json.loads((out / grpo_planner.SIDECAR).read_text())
     assert sidecar["settings"]["method"] == "grpo" and len(sidecar["rewards"]) == 2
+    # Every judged plan is kept with its verdict, in the order the reward saw them.
+    logged = [(p["instruction"], p["plan"]) for s in sidecar["rewards"] for p in s["judged"]]
+    assert logged == judged
     assert (out / grpo_planner.CURVE).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # The merged weights differ from the base: the adapter learned and was merged in.
     before, after = load_file(base / "model.safetensors"), load_file(out / "model.safetensors")
