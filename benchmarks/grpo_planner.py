@@ -379,6 +379,7 @@ def draw_curve(rewards: list[StepRewards], method: Method, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     steps = [r.step for r in rewards]
     figure, axis = plt.subplots(figsize=(6, 3.5), dpi=100)
@@ -388,7 +389,7 @@ def draw_curve(rewards: list[StepRewards], method: Method, path: Path) -> None:
     axis.set_xlabel("GRPO step" if method == "grpo" else "rejection-sampling round")
     axis.set_ylabel("per sampled plan")
     axis.set_ylim(bottom=0)
-    axis.xaxis.get_major_locator().set_params(integer=True)
+    axis.xaxis.set_major_locator(MaxNLocator(integer=True))
     axis.grid(alpha=0.3)
     axis.legend(fontsize=8)
     figure.tight_layout()
