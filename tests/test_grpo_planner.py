@@ -96,8 +96,9 @@ def test_plans_are_judged_by_playing_them_success_first(tmp_path: Path) -> None:
     works = "1. Collect 2 wood.\n2. Place crafting table."
     plans = [
         (TABLE, works),
-        # One wood: the table is refused at step 2; wood, one of two achievements, is reached.
-        (TABLE, "1. Collect wood.\n2. Place crafting table."),
+        # One wood, counted: the table is refused at step 2; wood, one of two achievements, is
+        # reached. (An uncounted "Collect wood." gathers the 2 the table spends.)
+        (TABLE, "1. Collect 1 wood.\n2. Place crafting table."),
         # Stone needs a pickaxe: the first step fails, nothing is reached.
         (TABLE, "1. Collect stone.\n2. Place crafting table."),
         (TABLE, "Sure! Here is a plan."),
