@@ -24,8 +24,10 @@ from llm_agents.evaluation.runner import run_eval
 @pytest.fixture(scope="module")
 def expert_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("runs") / "expert"
+    # The ninth episode of the schedule is EAT_PLANT_NO_EAT_COW, which no player meets in 250
+    # steps (a sapling ripens far later): the tamperings need a failure as well as winners.
     config = build_config(
-        {"protocol": "paper", "agent": "expert", "limit": 8, "output_dir": str(out)}
+        {"protocol": "paper", "agent": "expert", "limit": 9, "output_dir": str(out)}
     )
     run_eval(config, NoModel())
     return out
@@ -148,9 +150,9 @@ def test_the_untouched_run_replays_and_its_card_says_so(
     assert main(["card", str(run), "--no-progress"]) == 0
     card = json.loads((run / "card.json").read_text())
     assert card["schema_version"] == 3
-    assert card["replay"]["episodes"] == card["figures"]["episodes"] == 8
+    assert card["replay"]["episodes"] == card["figures"]["episodes"] == 9
     assert card["replay"]["answers"] == 0  # the expert's actions are not parsed answers
-    assert "Replayed**: 8 episodes" in (run / "card.md").read_text()
+    assert "Replayed**: 9 episodes" in (run / "card.md").read_text()
     # What the records cannot show is said: how the actions were chosen, and a step cap or a
     # success rule that no episode's end tested.
     unshown = card["protocol"]["unshown"]
@@ -200,7 +202,7 @@ def test_the_step_log_is_checked_in_step_order_whatever_its_line_order(
     run = _copy(expert_run, tmp_path)
     _write(run / "steps.jsonl", _lines(run / "steps.jsonl")[::-1])
     assert main(["card", str(run), "--no-progress"]) == 0
-    assert json.loads((run / "card.json").read_text())["replay"]["episodes"] == 8
+    assert json.loads((run / "card.json").read_text())["replay"]["episodes"] == 9
 
 
 def test_a_step_logged_twice_is_named(expert_run: Path, tmp_path: Path, capsys: Any) -> None:
@@ -299,4 +301,4 @@ def test_the_leaderboard_ranks_only_replayed_cards(
     assert f"[{run.name}](" in ranked and "card.md)" in ranked and "unreplayed" not in ranked
     assert "| unreplayed |" in unranked and "| none recorded |" in unranked
     # Departures are stated with their values.
-    assert "first 8 episodes of the schedule" in ranked
+    assert "first 9 episodes of the schedule" in ranked

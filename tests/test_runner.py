@@ -480,7 +480,7 @@ class JitteryModel(MockModel):
         self._lock = threading.Lock()
         self._in_flight = 0
 
-    def generate(self, conversations: Any, choices: Any = None) -> Any:
+    def generate(self, conversations: Any, choices: Any = None, schema: Any = None) -> Any:
         with self._lock:
             delay = self._rng.lognormvariate(-5.0, 1.0)
             self._in_flight += 1
@@ -488,7 +488,7 @@ class JitteryModel(MockModel):
             self.batch_sizes.append(len(conversations))
         time.sleep(delay)
         try:
-            return super().generate(conversations, choices)
+            return super().generate(conversations, choices, schema)
         finally:
             with self._lock:
                 self._in_flight -= 1
