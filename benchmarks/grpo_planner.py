@@ -42,7 +42,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from benchmarks.tune_planner import DEFAULT_MODEL, check_installed, model_folder
+from benchmarks.tune_planner import DEFAULT_MODEL, check_installed, model_folder, one_line_error
 from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import AnyGoal, Goal
@@ -700,16 +700,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             }
         )
         record = tune_online(settings)
-    except ValidationError as error:
-        first = error.errors()[0]
-        print(
-            f"error: --{'-'.join(map(str, first['loc'])).replace('_', '-')}: {first['msg']}",
-            file=sys.stderr,
-        )
-        return 2
-    except UserError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    except (ValidationError, UserError) as error:
+        return one_line_error(error)
     last = record.rewards[-1] if record.rewards else None
     print(
         f"tuned {settings.model} ({settings.method}, {record.texts} texts, {record.steps} "

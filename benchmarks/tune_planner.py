@@ -427,6 +427,17 @@ def _train_settings(args: argparse.Namespace) -> TuneSettings:
     )
 
 
+def one_line_error(error: ValidationError | UserError) -> int:
+    """A user mistake as one line on stderr (a bad setting named by its flag); exit code 2."""
+    if isinstance(error, ValidationError):
+        first = error.errors()[0]
+        flag = "-".join(map(str, first["loc"])).replace("_", "-")
+        print(f"error: --{flag}: {first['msg']}", file=sys.stderr)
+    else:
+        print(f"error: {error}", file=sys.stderr)
+    return 2
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -464,16 +475,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         else:
             print(compare(args.before, args.after))
-    except ValidationError as error:
-        first = error.errors()[0]
-        print(
-            f"error: --{'-'.join(map(str, first['loc'])).replace('_', '-')}: {first['msg']}",
-            file=sys.stderr,
-        )
-        return 2
-    except UserError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    except (ValidationError, UserError) as error:
+        return one_line_error(error)
     return 0
 
 

@@ -53,7 +53,7 @@ from llm_agents.backends.base import (
 )
 from llm_agents.backends.endpoints import Endpoint, EndpointPool, EndpointStats, takes_out
 from llm_agents.backends.reasoning import generate_with_followup, with_reasoning_split
-from llm_agents.backends.redaction import redact_secrets, split_urls
+from llm_agents.backends.redaction import REDACTED, redact_secrets, split_urls
 from llm_agents.backends.retry import (
     RetryPolicy,
     RetryWaits,
@@ -498,7 +498,7 @@ class OpenAIModel(ModelAPI):
                 json.dumps(value)[1:-1],
                 json.dumps(value, ensure_ascii=False)[1:-1],
             }:
-                text = text.replace(form, "***")
+                text = text.replace(form, REDACTED)
         return text
 
     def _excerpt(self, text: str, limit: int = ERROR_BODY_CHARS) -> str:

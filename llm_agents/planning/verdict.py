@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from llm_agents.agents.expert.plan import KILL_ACHIEVEMENT
 from llm_agents.agents.skills.catalogue import (
     AnySkill,
     Attack,
@@ -31,12 +32,6 @@ PLACED: dict[str, str] = {
     "stone": "PLACE_STONE",
     "plant": "PLACE_PLANT",
 }
-#: The achievement defeating (or, for a cow, eating) each creature earns.
-DEFEATED: dict[str, str] = {
-    "cow": "EAT_COW",
-    "zombie": "DEFEAT_ZOMBIE",
-    "skeleton": "DEFEAT_SKELETON",
-}
 #: The achievements the skills without parameters earn.
 SIMPLE: dict[str, str] = {"eat": "EAT_COW", "drink": "COLLECT_DRINK", "sleep": "WAKE_UP"}
 
@@ -51,7 +46,7 @@ def earned_by(skill: AnySkill) -> str | None:
     if isinstance(skill, Place | Build):
         return PLACED.get(skill.block)
     if isinstance(skill, Attack):
-        return DEFEATED.get(skill.creature)
+        return KILL_ACHIEVEMENT.get(skill.creature)
     return SIMPLE.get(skill.name)
 
 

@@ -25,6 +25,7 @@ from llm_agents.agents.expert.navigation import ExpertEpisode, neighbours
 from llm_agents.agents.expert.plan import (
     FURNACE_STONE,
     INVENTORY_CAP,
+    KILL_ACHIEVEMENT,
     MINING,
     PLACE_ACTION,
     RECIPES,
@@ -63,7 +64,6 @@ _HOSTILE = frozenset({"zombie", "skeleton", "gnome_warrior", "orc_soldier", "orc
                       "lizard", "knight", "troll", "pigman", "frost_troll", "archer",
                       "gnome_archer", "kobold", "deep_thing", "fire_elemental",
                       "ice_elemental"})  # fmt: skip
-_KILL = {"cow": "EAT_COW", "zombie": "DEFEAT_ZOMBIE", "skeleton": "DEFEAT_SKELETON"}
 #: How many of each material one placed block takes.
 _COST = {
     "crafting_table": ("wood", TABLE_WOOD),
@@ -301,7 +301,7 @@ class SkillRun:
         return pos in cells or any(n in cells for n in neighbours(pos))
 
     def _killed(self, obs: Observation, creature: str, new: set[str]) -> Finished | None:
-        if _KILL.get(creature) in new:
+        if KILL_ACHIEVEMENT.get(creature) in new:
             return Finished("succeeded")
         if creature == "cow" and obs.vitals.food > self.last.vitals.food:
             return Finished("succeeded")
