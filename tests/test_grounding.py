@@ -110,7 +110,6 @@ def test_a_goal_is_read_wherever_the_answer_puts_it(answer: str, stage: str) -> 
         ('{"required": ["BUILD_CASTLE"]}', "unknown achievement: 'BUILD_CASTLE'"),
         ('{"required": "PLACE_TABLE"}', "not a goal: required is not a list"),
         ('{"required": [], "forbidden": ["EAT_COW"]}', "at least one achievement"),
-        ('{"required": ["EAT_COW"], "forbidden": ["EAT_COW"]}', "both required and forbidden"),
         ('{"required": ["EAT_COW"], "avoid": []}', "unexpected keys avoid"),
     ],
 )
@@ -121,6 +120,19 @@ def test_anything_but_a_well_formed_goal_is_invalid_with_its_reason(
     assert grounding.outcome == "invalid" and grounding.reading is None
     assert reason in (grounding.reason or "")
     assert grounding.raw == answer
+
+
+def test_an_achievement_both_required_and_forbidden_is_read_as_required() -> None:
+    # The one reading of the two whose goal can be met; a schema cannot rule the answer out.
+    answer = '{"required": ["EAT_COW", "PLACE_TABLE"], "forbidden": ["EAT_COW", "COLLECT_WOOD"]}'
+    grounding = parse_grounding(answer, CLASSIC)
+    assert grounding.outcome == "valid" and grounding.reason is None
+    assert grounding.reading == EasyReading(
+        required=("EAT_COW", "PLACE_TABLE"), forbidden=("COLLECT_WOOD",)
+    )
+    # A record still cannot hold the contradiction: only the reader settles it.
+    with pytest.raises(ValueError, match="both required and forbidden"):
+        EasyReading(required=("EAT_COW",), forbidden=("EAT_COW",))
 
 
 @given(st.text(max_size=200))

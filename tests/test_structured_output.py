@@ -20,6 +20,7 @@ from env.dataset import load_dataset
 from env.errors import UserError
 from env.goals import DIFFICULTY_KINDS
 from llm_agents.agents.answer_schemas import (
+    READING_MAX,
     action_schema,
     agent_schema,
     answered_action,
@@ -65,6 +66,9 @@ def test_every_easy_goal_reads_under_the_schema_and_only_known_names_do(variant:
         {"required": ["EAT_COW"]},  # a field left out
         {"required": ["EAT_COW"], "forbidden": [], "kind": "achievements"},  # EASY asks no kind
         {"required": ["EAT_COW"], "forbidden": [], "avoid": []},
+        # Longer lists than any goal needs: a looping answer is closed, not cut off.
+        {"required": ["EAT_COW"] * (READING_MAX["required"] + 1), "forbidden": []},
+        {"required": ["EAT_COW"], "forbidden": ["PLACE_TABLE"] * (READING_MAX["forbidden"] + 1)},
     ):
         assert not check.is_valid(wrong), wrong
 

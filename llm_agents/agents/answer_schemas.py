@@ -4,9 +4,10 @@
 (`run_data.readings`: each kind's typed parameters, declared once in `env.goals`) with every name
 narrowed to the names the grounding parser reads in the variant (achievements, blocks, items), and
 laid out as the grounding prompt asks for it (`agents.grounding.reading_json`: EASY's achievements
-goal without its `kind`, every goal of Medium and Hard with it). An answer that follows it always
-parses as a reading; the one rule JSON Schema cannot state is that no achievement is both required
-and forbidden, which the parser still refuses.
+goal without its `kind`, every goal of Medium and Hard with it), each list of achievements at
+most `READING_MAX` long. An answer that follows it always parses as a reading: the one rule JSON
+Schema cannot state, that no achievement is both required and forbidden, the parser settles by
+reading such a name as required.
 
 `action_schema`: an action name, as `{"action": NAME}` over the variant's 43 or 17 names, with a
 `reasoning` string first for agents that reason before answering (`cot`); `answered_action`
@@ -27,6 +28,7 @@ from llm_agents.backends.base import OutputSchema
 from llm_agents.run_data.readings import READING_CLASSES
 
 __all__ = [
+    "READING_MAX",
     "STRUCTURED_AGENTS",
     "action_schema",
     "agent_schema",
@@ -41,6 +43,12 @@ STRUCTURED_AGENTS = {
     "guided": "a goal",
 }
 
+#: The most names a reading's list may hold. CrafText's goals name at most 3 required and 1
+#: forbidden achievement (tests check the data against these); one more of each leaves a reader
+#: room to over-read, while an answer looping through the whole vocabulary, as small models do,
+#: is closed by the grammar instead of being cut mid-name by `max_tokens`: the longest reading
+#: allowed is 55 Qwen2.5 tokens, within the 64 the guided runs give.
+READING_MAX = {"required": 4, "forbidden": 2}
 #: Schema keywords that describe rather than constrain: left out of what a backend compiles.
 _DESCRIPTIVE = ("title", "description", "default")
 #: The placing goals' fields that name a block or an inventory item (as the parser reads them).
@@ -57,7 +65,7 @@ def _kind_schema(kind: str, variant: Variant, difficulty: Difficulty) -> dict[st
             continue  # EASY's prompt offers no other kind and asks for none
         if field in ("required", "forbidden"):
             names = list(goal_vocabulary(variant))
-            spec = {"type": "array", "items": {"enum": names}, "maxItems": len(names)}
+            spec = {"type": "array", "items": {"enum": names}, "maxItems": READING_MAX[field]}
             if field == "required":
                 spec["minItems"] = 1
         elif field in _BLOCK_FIELDS:

@@ -313,6 +313,9 @@ def _achievements(parsed: dict[str, object], variant: Variant) -> AchievementsRe
         if isinstance(names, str):
             return names
         fields[field] = names
+    # A name in both lists is read as required: of the two readings, the only one whose goal
+    # can be met (no schema can keep a structured answer from naming it twice).
+    fields["forbidden"] = [name for name in fields["forbidden"] if name not in fields["required"]]
     return AchievementsReading(**fields)
 
 
@@ -351,8 +354,9 @@ def _placing(kind: GoalKind, parsed: dict[str, object], variant: Variant) -> Goa
 def parse_grounding(
     raw: str, variant: Variant, difficulty: Difficulty = DEFAULT_DIFFICULTY
 ) -> Grounding:
-    """The goal an answer states, or `invalid` with the reason (never a guess). The goal kinds
-    read are those the prompt of `difficulty` offers."""
+    """The goal an answer states, or `invalid` with the reason (never a guess at a name or a
+    field; an achievement named both required and forbidden is read as required). The goal
+    kinds read are those the prompt of `difficulty` offers."""
     stage, parsed = _located(raw)
     if parsed is None:
         return _invalid(stage, "no JSON object in the answer", raw)
