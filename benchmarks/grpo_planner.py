@@ -5,20 +5,21 @@ rejection-sampling rounds (sample plans, keep the ones that worked, SFT on them)
     python -m benchmarks.grpo_planner grpo --out TUNED [--model hf:qwen2.5-coder-0.5b]
         [--dataset D] [--splits easy_train] [--main-only] [--limit N] [--variant classic]
         [--max-steps N] [--max-minutes M] [--generations 4] [--prompts-per-step 2]
-        [--worlds 2] [--selection-seed 2] [--learning-rate 5e-5] [--lora-rank 16]
+        [--worlds 2] [--selection-seed 0] [--learning-rate 5e-5] [--lora-rank 16]
         [--temperature 1.0] [--max-tokens 64] [--beta 0.0]
     python -m benchmarks.grpo_planner rs --out TUNED [--rounds 2] [--samples 8]
         [--threshold 0.5] [--sft-steps 8] [...the same...]
 
-The reward of a plan is the game's verdict in `--worlds` selection worlds (world keys of
-`--selection-seed`, never the seed plan-score and eval report on): the share of worlds where the
-instruction's goal was met, plus a shaped part that teaches where no sample succeeds: the share
-of the goal's required achievements unlocked (nothing when a forbidden one was) and the share of
-the plan's steps that played. Success comes first: a success in a world is worth 1 plus both
-shaped parts whole, so any success outweighs any failure. The prompt is the planner's request
-rendered from `benchmarks/short_planner/` (a few lines, not the full planner's name lists), so a
-CPU step costs a short prompt; `plan --templates-dir benchmarks/short_planner` asks the tuned
-model the same way.
+The reward of a plan is plan-score's verdict (`planning.scoring.PlanJudge`, its batched execution)
+in `--worlds` of plan-score's selection worlds (`--selection-seed`, default plan-score's 0; their
+keys are never eval's or the held-out worlds'): the share of worlds where the instruction's goal
+was met, plus a shaped part that teaches where no sample succeeds: the share of the goal's required
+achievements unlocked and the share of the plan's read skills that played. Success comes first: a
+success in a world is worth 1 plus both shaped parts whole, so any success outweighs any failure. A
+plan with a step that would earn a forbidden achievement, played or not, earns 0. The prompt is the
+planner's request rendered from `benchmarks/short_planner/` (a few lines, not the full planner's
+name lists), so a CPU step costs a short prompt; `plan --templates-dir benchmarks/short_planner`
+asks the tuned model the same way.
 
 The tuned folder is the merged model, loadable by `plan --model hf:FOLDER`, with a `tuning.json`
 sidecar (settings, the reward of every step or round, seconds) and `reward_curve.png`.
@@ -28,14 +29,12 @@ trl, peft, datasets and torch are imported here only: `pip install -e '.[tune]'`
 from __future__ import annotations
 
 import argparse
-import json
 import random
 import shutil
 import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from statistics import fmean, pstdev
 from typing import Any, Literal
@@ -45,21 +44,21 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from benchmarks.tune_planner import DEFAULT_MODEL, check_installed, model_folder, one_line_error
 from env.dataset import load_dataset
 from env.errors import UserError
-from env.goals import AnyGoal, Goal
+from env.goals import AnyGoal
 from env.variant import DEFAULT_VARIANT, Variant
-from llm_agents.agents.skills.catalogue import SkillOffer, read_skill, skill_offer
-from llm_agents.planning.checks import PlanLimits, parse_plan
-from llm_agents.planning.execution import SKILL_STEPS, EpisodeOutcome, PlanEpisode
+from llm_agents.planning.checks import PlanLimits
+from llm_agents.planning.execution import SKILL_STEPS
 from llm_agents.planning.loop import planner_messages
-from llm_agents.planning.steps import read_plan
+from llm_agents.planning.scoring import PlanJudge
 
 SIDECAR = "tuning.json"
 CURVE = "reward_curve.png"
 #: The planner request the online runs train and are asked with: a few lines.
 SHORT_TEMPLATES = str(Path(__file__).with_name("short_planner"))
-#: The world seed rewards are played on: plan-score and eval report on seed 0 by default, and
-#: the tuning guide's held-out worlds are seed 1.
-SELECTION_SEED = 2
+#: The seed of the selection worlds rewards are played in: plan-score's default, so a reward
+#: is plan-score's verdict. Their keys are never those of eval's worlds or of plan-score's
+#: held-out worlds, where a tuned planner is reported.
+SELECTION_SEED = 0
 
 Method = Literal["grpo", "rs"]
 Chat = list[dict[str, str]]
@@ -94,7 +93,7 @@ class OnlineSettings(BaseModel):
     achieved_weight: float = Field(0.3, ge=0)
     """Reward per world for the share of the goal's required achievements unlocked."""
     played_weight: float = Field(0.2, ge=0)
-    """Reward per world for the share of the plan's steps that played."""
+    """Reward per world for the share of the plan's read skills that played."""
     temperature: float = Field(1.0, gt=0)
     max_tokens: int = Field(64, ge=1)
     """Tokens a sampled plan may take."""
@@ -133,111 +132,49 @@ class PlanVerdict(BaseModel):
     success: float
     """Share of worlds where the goal was met."""
     achieved: float
-    """Share of the goal's required achievements unlocked, averaged over worlds (0 in a world
-    where a forbidden one was, or for a goal kind without required achievements)."""
+    """Share of the goal's required achievements unlocked, averaged over worlds (a placing
+    goal: its success)."""
     played: float
-    """Share of the plan's steps whose every skill played, averaged over worlds."""
+    """Share of the plan's read skills that finished, averaged over worlds."""
     episodes: int
     """Episodes played on the env (0 when no step was read)."""
+    breaks: tuple[str, ...] = ()
+    """Steps that earn an achievement the instruction forbids, played or not."""
 
     def reward(self, achieved_weight: float, played_weight: float) -> float:
+        if self.breaks:
+            # A plan that would break its instruction earns nothing, even where its episodes
+            # ended at success before the breaking step: plan-score keeps it out of every export.
+            return 0.0
         # A world that succeeded counts both shaped parts whole (1 + both weights), a failed
         # one at most both weights: success comes first.
         return self.success + achieved_weight * self.achieved + played_weight * self.played
 
 
-@dataclass
-class PlanJudge:
-    """Plays plans for the dataset's texts in seeded worlds; one env for the whole run."""
-
-    texts: dict[str, tuple[AnyGoal, int]]
-    """Each text's goal and phrasing index."""
-    variant: Variant
-    worlds: int
-    seed: int
-    skill_steps: int = SKILL_STEPS
-    batch_size: int = 16
-    episodes_played: int = 0
-    _env: Any = field(default=None, repr=False)
-
-    def env(self) -> Any:
-        if self._env is None:
-            from env import EnvConfig, shared_env
-
-            self._env = shared_env(EnvConfig(variant=self.variant))
-        return self._env
+def plan_judge(settings: OnlineSettings) -> PlanJudge:
+    """plan-score's judge over the run's dataset, playing in its selection worlds."""
+    return PlanJudge(
+        dataset=settings.dataset,
+        variant=settings.variant,
+        worlds=settings.worlds,
+        seed=settings.selection_seed,
+        skill_steps=settings.skill_steps,
+    )
 
 
 def judge_plans(judge: PlanJudge, plans: Sequence[tuple[str, str]]) -> list[PlanVerdict]:
-    """The game's verdict on each (instruction text, plan text), played in the judge's worlds.
-
-    The one place plans meet the executor: a batched scoring function of plan-score's can take
-    its place here."""
-    from llm_agents.planning.execution import play_plan_episodes
-
-    offer_of: dict[str, SkillOffer] = {}
-    episodes: list[PlanEpisode] = []
-    step_counts: list[int] = []
-    skill_steps: list[list[tuple[int, str]]] = []
-    for index, (text, plan) in enumerate(plans):
-        goal, phrasing = judge.texts[text]
-        offer = offer_of.setdefault(goal.difficulty, skill_offer(judge.variant, goal.difficulty))
-        readings = read_plan(parse_plan(plan)[0], offer)
-        skills = tuple(
-            (step.number, read_skill(skill, offer)) for step in readings for skill in step.skills
+    """The game's verdict on each (instruction text, plan text): the one place plans are
+    played, by plan-score's batched execution in its selection worlds."""
+    return [
+        PlanVerdict(
+            success=played.success,
+            achieved=played.goal_reached,
+            played=played.played,
+            episodes=0 if played.empty else judge.worlds,
+            breaks=played.breaks,
         )
-        step_counts.append(len(readings))
-        skill_steps.append([(number, skill.text) for number, skill in skills])
-        episodes += [
-            PlanEpisode(json.dumps([index, world]), goal, phrasing, world, skills)
-            for world in range(judge.worlds)
-        ]
-    outcomes: dict[str, EpisodeOutcome] = {}
-    play_plan_episodes(
-        episodes,
-        judge.env() if any(ep.skills for ep in episodes) else None,
-        variant=judge.variant,
-        seed=judge.seed,
-        batch_size=judge.batch_size,
-        on_done=lambda done: outcomes.update((o.key, o) for o in done),
-        skill_steps=judge.skill_steps,
-    )
-    judge.episodes_played += sum(1 for ep in episodes if ep.skills)
-    verdicts = []
-    for index, (text, _) in enumerate(plans):
-        goal = judge.texts[text][0]
-        ended = [outcomes[json.dumps([index, world])] for world in range(judge.worlds)]
-        verdicts.append(
-            PlanVerdict(
-                success=fmean(o.success for o in ended),
-                achieved=fmean(_achieved(goal, o) for o in ended),
-                played=fmean(_played(step_counts[index], skill_steps[index], o) for o in ended),
-                episodes=len(ended) if skill_steps[index] else 0,
-            )
-        )
-    return verdicts
-
-
-def _achieved(goal: AnyGoal, outcome: EpisodeOutcome) -> float:
-    if outcome.success:
-        return 1.0
-    if not isinstance(goal, Goal) or set(goal.forbidden) & set(outcome.reached):
-        return 0.0
-    return len(set(goal.required) & set(outcome.reached)) / len(goal.required)
-
-
-def _played(steps: int, skills: list[tuple[int, str]], outcome: EpisodeOutcome) -> float:
-    """The share of the plan's steps (read or not) whose every skill played."""
-    if outcome.success:
-        return 1.0
-    if not steps or not skills:
-        return 0.0
-    read = {number for number, _ in skills}
-    if outcome.failed_step is None:
-        # Every skill played (or the game ended between skills): each read step played.
-        return len(read) / steps
-    played = {n for n in read if n < outcome.failed_step}
-    return len(played) / steps
+        for played in judge.score(plans)
+    ]
 
 
 # ---------------------------------------------------------------- texts and prompts
@@ -601,13 +538,7 @@ def tune_online(
     if tokenizer.pad_token is None:
         tokenizer.pad_token = tokenizer.eos_token
     model = transformers.AutoModelForCausalLM.from_pretrained(folder, dtype=torch.float32)
-    judge = PlanJudge(
-        texts=texts,
-        variant=settings.variant,
-        worlds=settings.worlds,
-        seed=settings.selection_seed,
-        skill_steps=settings.skill_steps,
-    )
+    judge = plan_judge(settings)
     settings.out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(
         dir=settings.out.parent, prefix=f".tuning-{settings.out.name}-"
@@ -632,7 +563,7 @@ def tune_online(
             steps=steps,
             stopped_by_time=stopped,
             rewards=rewards,
-            episodes=judge.episodes_played,
+            episodes=sum(plan.verdict.episodes for step in rewards for plan in step.judged),
             seconds=round(time.monotonic() - started, 1),
             packages={
                 name: sys.modules[name].__version__

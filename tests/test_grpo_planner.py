@@ -88,11 +88,13 @@ def test_the_short_prompt_is_the_planners_request_from_its_own_template(tmp_path
 
 
 @pytest.mark.slow
-def test_plans_are_judged_by_playing_them_success_first(tmp_path: Path) -> None:
-    settings = _settings(tmp_path)
-    judge = grpo_planner.PlanJudge(
-        texts=grpo_planner.training_texts(settings), variant=Variant.CLASSIC, worlds=2, seed=2
-    )
+def test_plans_are_judged_by_plan_score_in_its_selection_worlds_success_first(
+    tmp_path: Path,
+) -> None:
+    from llm_agents.planning.scoring import SELECTION_WORLDS
+
+    judge = grpo_planner.plan_judge(_settings(tmp_path, worlds=2))
+    assert (judge.stream, judge.seed, judge.worlds) == (SELECTION_WORLDS, 0, 2)
     works = "1. Collect 2 wood.\n2. Place crafting table."
     plans = [
         (TABLE, works),
@@ -103,21 +105,25 @@ def test_plans_are_judged_by_playing_them_success_first(tmp_path: Path) -> None:
         (TABLE, "1. Collect stone.\n2. Place crafting table."),
         (TABLE, "Sure! Here is a plan."),
         (TABLE, "1. Collect 2 wood.\n2. Dance a jig.\n3. Place crafting table."),
+        # Met before its last step plays, which collects the sapling the text forbids.
+        (TABLE, works + "\n3. Collect sapling."),
     ]
     verdicts = grpo_planner.judge_plans(judge, plans)
-    assert judge.episodes_played == 8
-    good, short, stone, unread, partly = verdicts
+    good, short, stone, unread, partly, breaking = verdicts
     assert (good.success, good.achieved, good.played, good.episodes) == (1.0, 1.0, 1.0, 2)
     assert (short.success, short.achieved, short.played) == (0.0, 0.5, 0.5)
     assert (stone.success, stone.achieved, stone.played) == (0.0, 0.0, 0.0)
     assert (unread.success, unread.played, unread.episodes) == (0.0, 0.0, 0)
     # A world where the goal was met counts the shaped parts whole, unread steps or not.
     assert (partly.success, partly.achieved, partly.played) == (1.0, 1.0, 1.0)
+    assert breaking.success == 1.0 and breaking.breaks
     rewards = [v.reward(0.3, 0.2) for v in verdicts]
     assert rewards[0] == rewards[4] == pytest.approx(1.5)
     assert rewards[1] == pytest.approx(0.25)
-    assert rewards[0] > rewards[1] > rewards[2] == rewards[3] == 0.0
-    # Played again in the same worlds, the verdicts repeat.
+    assert rewards[0] > rewards[1] > rewards[2] == rewards[3] == rewards[5] == 0.0
+    # The verdicts are plan-score's own, and played again in the same worlds they repeat.
+    played = judge.score(plans[:2])
+    assert [p.success for p in played] == [v.success for v in verdicts[:2]]
     assert grpo_planner.judge_plans(judge, plans[:2]) == verdicts[:2]
 
 
@@ -291,26 +297,3 @@ def test_bad_settings_are_one_line_and_exit_2(
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"error: {message}") and "\n" not in err
     assert not out.exists()
-
-
-def test_the_shaped_part_counts_what_the_game_reached_and_what_played(tmp_path: Path) -> None:
-    from llm_agents.planning.execution import EpisodeOutcome
-
-    texts = grpo_planner.training_texts(_settings(tmp_path))
-    table = texts[TABLE][0]
-
-    def ended(**values: object) -> EpisodeOutcome:
-        return EpisodeOutcome.model_validate({"key": "k", "success": False, "steps": 9, **values})
-
-    wood_only = ended(failed_step=2, reached=("COLLECT_WOOD",))
-    assert grpo_planner._achieved(table, wood_only) == 0.5
-    # A forbidden achievement unlocked earns nothing, whatever else was reached.
-    broke = ended(reached=("COLLECT_WOOD", "PLACE_TABLE", "COLLECT_SAPLING"))
-    assert grpo_planner._achieved(table, broke) == 0.0
-    # Steps: 3 written, steps 1 and 3 read; step 3's skill failed, so only step 1 played.
-    skills = [(1, "collect wood"), (3, "place crafting_table")]
-    assert grpo_planner._played(3, skills, ended(failed_step=3)) == pytest.approx(1 / 3)
-    # Every read step played and the goal was still not met: the unread one never plays.
-    assert grpo_planner._played(3, skills, ended()) == pytest.approx(2 / 3)
-    assert grpo_planner._played(3, skills, ended(failed_step=1)) == 0.0
-    assert grpo_planner._played(3, skills, EpisodeOutcome(key="k", success=True, steps=9)) == 1.0
