@@ -13,8 +13,8 @@ intervals; each row states its success rule, its departures from the protocol an
 source. The CrafText paper's rows (its zero-shot LLMs on EASY, its trained agents' Medium
 totals) sit in the `paper` tables of their difficulty, BALROG's Crafter rows beside the cards
 played under `--protocol balrog`; both marked as published. A `paper` run whose data, variant,
-step cap or success rule differ from the paper's is never set beside them: it has a table of its
-own. The site is self-contained: each row links a copy of its card and card.md and, where its
+step cap, way of reading answers (held to a schema) or success rule differ from the paper's is
+never set beside them: it has a table of its own. The site is self-contained: each row links a copy of its card and card.md and, where its
 run has a `view` report, a copy of that report.
 """
 
@@ -220,7 +220,8 @@ def _data_source(card: Card) -> str:
 
 def _comparable(card: Card) -> bool:
     """Whether a `paper` card may sit beside the paper's rows: nothing in it departs from the
-    paper's protocol where that changes the numbers (data, variant, step cap, success rule)."""
+    paper's protocol where that changes the numbers (data, variant, step cap, answers held to a
+    schema, success rule)."""
     return card.protocol.name != "paper" or not card.protocol.paper_differences
 
 
@@ -425,8 +426,8 @@ class _Table(BaseModel):
         if not self.comparable:
             return (
                 "Replayed here, under the paper protocol's name, but their data, variant, step "
-                "cap or success rule differ from the paper's (each row says how): not set "
-                "beside the published rows."
+                "cap, answers held to a schema or success rule differ from the paper's (each "
+                "row says how): not set beside the published rows."
             )
         return None
 
