@@ -4,11 +4,20 @@
 planner, `skill_demos.planned_skills`, in the catalogue's words), the ceiling a plan can reach
 by execution; goals no skill sequence expresses are left out and counted.
 
+`one-text`: write a dataset of one text per goal, the texts a before/after comparison plans
+for: each goal's instruction, except in the paraphrased splits, whose goals share their
+instruction with train goals and are new only in their paraphrases: there, the first paraphrase.
+
+`restrict`: write the plans of a plans file for the texts of a dataset only (another source's
+plans for the same texts).
+
 `table`: print the per-split table of one or more `plan-score` folders (first and best
 candidate, clustered by goal; steps read and unread), Markdown.
 
     python -m benchmarks.plan_figures expert DATASET.json OUT.json [--splits easy_train ...]
         [--variant classic]
+    python -m benchmarks.plan_figures one-text DATASET.json OUT.json
+    python -m benchmarks.plan_figures restrict PLANS.json DATASET.json OUT.json
     python -m benchmarks.plan_figures table LABEL=DIR [LABEL=DIR ...]
 """
 
@@ -20,6 +29,7 @@ from collections import Counter
 from pathlib import Path
 
 from env.dataset import load_dataset
+from env.goals import Dataset
 from env.variant import Variant
 from llm_agents.agents.skills.catalogue import skill_offer
 from llm_agents.agents.skills.demos import planned_skills
@@ -41,6 +51,22 @@ def expert_plans(
         plan = "\n".join(f"{i}. {skill}" for i, skill in enumerate(skills, 1))
         plans.update(dict.fromkeys(goal.texts, plan))
     return plans, missing
+
+
+def one_text_per_goal(dataset: str) -> Dataset:
+    """Each goal with one text: its instruction, or in a paraphrased split its first paraphrase."""
+    source = load_dataset(dataset)
+    goals = []
+    for goal in source.goals:
+        paraphrased = goal.split.endswith("_paraphrased") and goal.paraphrases
+        text = goal.paraphrases[0] if paraphrased else goal.instruction
+        goals.append(goal.model_copy(update={"instruction": text, "paraphrases": ()}))
+    return Dataset(source=source.source, goals=tuple(goals))
+
+
+def restricted(plans: dict[str, object], dataset: str) -> dict[str, object]:
+    texts = {text for goal in load_dataset(dataset).goals for text in goal.texts}
+    return {text: plan for text, plan in plans.items() if text in texts}
 
 
 def _cell(rate: dict[str, float]) -> str:
@@ -71,6 +97,13 @@ def main() -> None:
     expert.add_argument("out", type=Path)
     expert.add_argument("--splits", nargs="*", default=[])
     expert.add_argument("--variant", default="classic")
+    one = commands.add_parser("one-text")
+    one.add_argument("dataset")
+    one.add_argument("out", type=Path)
+    only = commands.add_parser("restrict")
+    only.add_argument("plans", type=Path)
+    only.add_argument("dataset")
+    only.add_argument("out", type=Path)
     shown = commands.add_parser("table")
     shown.add_argument("entries", nargs="+")
     args = parser.parse_args()
@@ -78,6 +111,14 @@ def main() -> None:
         plans, missing = expert_plans(args.dataset, args.splits, Variant(args.variant))
         args.out.write_text(json.dumps(plans, indent=2, ensure_ascii=False) + "\n")
         print(f"wrote {len(plans)} texts' plans to {args.out}; goals without one: {dict(missing)}")
+    elif args.command == "one-text":
+        written = one_text_per_goal(args.dataset)
+        written.save_json(args.out)
+        print(f"wrote {len(written.goals)} goals, one text each, to {args.out}")
+    elif args.command == "restrict":
+        kept = restricted(json.loads(args.plans.read_text(encoding="utf-8")), args.dataset)
+        args.out.write_text(json.dumps(kept, indent=2, ensure_ascii=False) + "\n")
+        print(f"wrote the plans of {len(kept)} texts to {args.out}")
     else:
         print(table(args.entries))
 

@@ -10,7 +10,7 @@ them, and
     python -m benchmarks.tune_planner train DATA/sft.jsonl --out TUNED
         [--model hf:qwen2.5-coder-0.5b] [--epochs 1] [--max-steps N] [--limit N]
         [--learning-rate 2e-4] [--lora-rank 16] [--batch-size 1] [--grad-accum 4] [--beta 0.1]
-    python -m benchmarks.tune_planner compare BEFORE_DIR AFTER_DIR [AFTER_DIR ...]
+    python -m benchmarks.tune_planner compare BEFORE_DIR AFTER_DIR [--held-out]
 
 An SFT conversation is handed to TRL as its prompt (the planner's messages) and its completion
 (the answer), so the loss falls on the answer alone. Lines in the standard form earlier exports
@@ -43,6 +43,7 @@ from env.errors import UserError
 from env.variant import Variant
 from llm_agents.backends import parse_model_spec
 from llm_agents.backends.base import local_model_path
+from llm_agents.planning.checks import PlanLimits
 from llm_agents.planning.loop import planner_messages
 from llm_agents.planning.records import PlanScore
 from llm_agents.run_data.metrics import SuccessRate, clustered_rate
@@ -90,6 +91,12 @@ class TuneSettings(BaseModel):
     """The variant whose names the planner's prompt lists (for bare-instruction prompts)."""
     templates_dir: str | None = None
     """The prompt templates the plans were asked with (None: the project's own)."""
+    max_plan_steps: int = Field(PlanLimits().max_steps, ge=1)
+    """The step limit the planner's prompt states, for the prompts this run builds."""
+    reprompt: bool = False
+    """Ask each line's instruction again with this run's prompt (`templates_dir`, `variant`,
+    `max_plan_steps`) instead of the chat it was exported with: plans exported under one prompt
+    tuned for another, as `plan --templates-dir` will ask."""
 
 
 class TuneRecord(BaseModel):
@@ -101,7 +108,8 @@ class TuneRecord(BaseModel):
     data_sha256: str
     examples: int
     prompts_rebuilt: int
-    """Lines whose prompt was a bare instruction, given the planner's prompt around it."""
+    """Lines given the planner's prompt around their instruction: bare instructions, and every
+    line under `reprompt`."""
     steps: int
     first_loss: float | None
     last_loss: float | None
@@ -159,12 +167,19 @@ class PlannerChats:
 
     _SENTINEL = "\x00instruction\x00"
 
-    def __init__(self, variant: Variant, templates_dir: str | None) -> None:
-        self.variant, self.templates_dir = variant, templates_dir
-        user = planner_messages(self._SENTINEL, None, variant, templates_dir)[-1].content
-        #: What the user block says before the instruction ("Instruction: ").
-        self.user_prefix = user.split(self._SENTINEL)[0]
+    def __init__(
+        self, variant: Variant, templates_dir: str | None, limits: PlanLimits | None = None
+    ) -> None:
+        self.variant, self.templates_dir, self.limits = variant, templates_dir, limits
+        #: What the user block says before the instruction ("Instruction: "), in this run's
+        #: prompt and in the project's own (the one `plan-score --export` writes by default).
+        self.user_prefix = self._user_prefix(templates_dir)
+        self.default_prefix = self._user_prefix(None)
         self.rebuilt = 0
+
+    def _user_prefix(self, templates_dir: str | None) -> str:
+        user = planner_messages(self._SENTINEL, None, self.variant, templates_dir)[-1].content
+        return user.split(self._SENTINEL)[0]
 
     def chat(self, prompt: str | Chat) -> Chat:
         if isinstance(prompt, list):
@@ -174,23 +189,47 @@ class PlannerChats:
             user = [{"role": "user", "content": f"{self.user_prefix}{instruction}".strip()}]
             head = [{"role": "system", "content": system.strip()}] if system.strip() else []
             return head + user
+        return self.asked(prompt.strip())
+
+    def asked(self, instruction: str) -> Chat:
+        """The chat this run's planner prompt makes of a bare instruction."""
         self.rebuilt += 1
-        messages = planner_messages(prompt.strip(), None, self.variant, self.templates_dir)
+        messages = planner_messages(instruction, self.limits, self.variant, self.templates_dir)
         return [{"role": m.role, "content": m.content} for m in messages]
+
+    def reprompted(self, prompt: str | Chat) -> Chat:
+        """The chat this run's prompt makes of the instruction an exported prompt asked about."""
+        if isinstance(prompt, str):
+            user = prompt
+        else:
+            user = next((m["content"] for m in reversed(prompt) if m["role"] == "user"), "")
+        for prefix in dict.fromkeys((self.user_prefix, self.default_prefix)):
+            if prefix and prefix in user:
+                return self.asked(user.rpartition(prefix)[2].strip())
+        if isinstance(prompt, str):
+            return self.asked(prompt.strip())
+        raise UserError(
+            f"--reprompt: a line's user message does not start with {self.user_prefix!r}, "
+            "so its instruction cannot be found"
+        )
 
 
 def answer(text: str | Chat) -> Chat:
     return text if isinstance(text, list) else [{"role": "assistant", "content": text.strip()}]
 
 
-def conversational(rows: list[dict[str, Any]], method: Method, chats: PlannerChats) -> list[dict]:
+def conversational(
+    rows: list[dict[str, Any]], method: Method, chats: PlannerChats, reprompt: bool = False
+) -> list[dict]:
     """TRL's conversational lines: the prompt as the planner's chat, each plan as the answer
-    (an SFT conversation split before its last message, the answer)."""
+    (an SFT conversation split before its last message, the answer); under `reprompt` every
+    prompt is this run's planner prompt around the line's instruction."""
     keys = METHOD_KEYS[method] - {"prompt"}
+    ask = chats.reprompted if reprompt else chats.chat
     return [
-        {"prompt": row["messages"][:-1], "completion": row["messages"][-1:]}
+        {"prompt": ask(row["messages"][:-1]), "completion": row["messages"][-1:]}
         if "messages" in row
-        else {"prompt": chats.chat(row["prompt"]), **{k: answer(row[k]) for k in keys}}
+        else {"prompt": ask(row["prompt"]), **{k: answer(row[k]) for k in keys}}
         for row in rows
     ]
 
@@ -219,8 +258,9 @@ def train(settings: TuneSettings) -> TuneRecord:
     if settings.out.exists():
         raise UserError(f"{settings.out} exists; choose a new folder for the tuned model")
     method, rows = read_lines(settings.data, settings.limit)
-    chats = PlannerChats(settings.variant, settings.templates_dir)
-    examples = conversational(rows, method, chats)
+    limits = PlanLimits(max_steps=settings.max_plan_steps)
+    chats = PlannerChats(settings.variant, settings.templates_dir, limits)
+    examples = conversational(rows, method, chats, settings.reprompt)
     folder = model_folder(settings.model)
 
     import datasets
@@ -335,18 +375,36 @@ class Difference(BaseModel):
     high: float
 
 
-def paired_difference(before: list[PlanScore], after: list[PlanScore]) -> Difference | None:
+def worlds_played(score: PlanScore, held_out: bool) -> SuccessRate:
+    """A plan's success in plan-score's selection worlds, or in its held-out worlds."""
+    if not held_out:
+        return score.success
+    if score.held_out is None:
+        raise UserError(
+            f"{score.instruction!r} was not played in held-out worlds: score it with "
+            "plan-score --held-out-worlds H"
+        )
+    return score.held_out
+
+
+def paired_difference(
+    before: list[PlanScore], after: list[PlanScore], held_out: bool = False
+) -> Difference | None:
     """The first candidates' success, after minus before, on the texts both files scored."""
     first_before = {s.instruction: s for s in before if s.candidate == 0}
-    pairs = [(first_before[s.instruction], s) for s in after if s.candidate == 0]
-    pairs = [(b, a) for b, a in pairs if b.success.episodes == a.success.episodes]
+    pairs = [
+        (worlds_played(first_before[s.instruction], held_out), worlds_played(s, held_out), s)
+        for s in after
+        if s.candidate == 0 and s.instruction in first_before
+    ]
+    pairs = [(b, a, s) for b, a, s in pairs if b.episodes == a.episodes]
     if not pairs:
         return None
     goals: dict[str, list[int]] = {}
-    for b, a in pairs:
-        goal = goals.setdefault(b.goal_id, [0, 0])
-        goal[0] += a.success.successes - b.success.successes
-        goal[1] += a.success.episodes
+    for b, a, score in pairs:
+        goal = goals.setdefault(score.goal_id, [0, 0])
+        goal[0] += a.successes - b.successes
+        goal[1] += a.episodes
     trials = sum(m for _, m in goals.values())
     rate = sum(d for d, _ in goals.values()) / trials
     variance = sum((d - rate * m) ** 2 for d, m in goals.values()) / trials**2
@@ -354,12 +412,18 @@ def paired_difference(before: list[PlanScore], after: list[PlanScore]) -> Differ
     return Difference(texts=len(pairs), rate=rate, low=rate - half, high=rate + half)
 
 
-def first_candidates(scores: list[PlanScore], split: str) -> SuccessRate | None:
+def first_candidates(
+    scores: list[PlanScore], split: str, held_out: bool = False
+) -> SuccessRate | None:
     """Best-of-1: each text's first candidate, clustered by goal."""
-    chosen = [s for s in scores if s.split == split and s.candidate == 0]
+    chosen = [
+        (s.goal_id, worlds_played(s, held_out))
+        for s in scores
+        if s.split == split and s.candidate == 0
+    ]
     if not chosen:
         return None
-    return clustered_rate((s.goal_id, s.success.successes, s.success.episodes) for s in chosen)
+    return clustered_rate((goal, rate.successes, rate.episodes) for goal, rate in chosen)
 
 
 def failure_reasons(scores: list[PlanScore], split: str, top: int = 4) -> list[str]:
@@ -374,16 +438,18 @@ def failure_reasons(scores: list[PlanScore], split: str, top: int = 4) -> list[s
     return [f"{n} x {key}" for key, n in ranked]
 
 
-def compare(before: Path, after: Path) -> str:
-    """Best-of-1 success per split, before and after, side by side, with the difference."""
+def compare(before: Path, after: Path, held_out: bool = False) -> str:
+    """Best-of-1 success per split, before and after, side by side, with the difference; in
+    plan-score's selection worlds, or with `held_out` in its held-out worlds."""
     old, new = read_scores(before), read_scores(after)
+    old, new = ([s for s in scores if s.candidate == 0] for scores in (old, new))
     lines = ["| split | before | after | after - before |", "|---|---|---|---|"]
     reasons = []
     for split in sorted({s.split for s in old} | {s.split for s in new}):
-        rates = [first_candidates(scores, split) for scores in (old, new)]
+        rates = [first_candidates(scores, split, held_out) for scores in (old, new)]
         cells = [rate.cell() if rate else "-" for rate in rates]
         diff = paired_difference(
-            [s for s in old if s.split == split], [s for s in new if s.split == split]
+            [s for s in old if s.split == split], [s for s in new if s.split == split], held_out
         )
         delta = (
             f"{diff.rate:+.2f} [{diff.low:+.2f}, {diff.high:+.2f}] n={diff.texts} texts"
@@ -400,6 +466,7 @@ def compare(before: Path, after: Path) -> str:
         f"steps unread: before {unread[0]} of {steps[0]}, after {unread[1]} of {steps[1]}",
         "commonest first failures (episodes):",
         *(f"  {line}" for line in reasons),
+        f"worlds: {'held-out' if held_out else 'selection'}",
         f"before: {before}\nafter: {after}",
     ]
     return "\n".join(lines)
@@ -424,6 +491,8 @@ def _train_settings(args: argparse.Namespace) -> TuneSettings:
         seed=args.seed,
         variant=Variant(args.variant),
         templates_dir=args.templates_dir,
+        max_plan_steps=args.max_plan_steps,
+        reprompt=args.reprompt,
     )
 
 
@@ -459,11 +528,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--variant", default=defaults.variant.value, choices=[v.value for v in Variant]
     )
     tune.add_argument("--templates-dir", default=None)
+    tune.add_argument(
+        "--max-plan-steps",
+        type=int,
+        default=defaults.max_plan_steps,
+        help="the step limit the prompts this run builds state (plan's --max-steps)",
+    )
+    tune.add_argument(
+        "--reprompt",
+        action="store_true",
+        help="ask each line's instruction again with this run's prompt (--templates-dir, "
+        "--variant, --max-plan-steps) instead of the chat it was exported with",
+    )
     side = commands.add_parser(
         "compare", help="best-of-1 success of two plan-score folders, side by side"
     )
     side.add_argument("before", type=Path, help="plan-score folder of the untuned model's plans")
     side.add_argument("after", type=Path, help="plan-score folder of the tuned model's plans")
+    side.add_argument(
+        "--held-out",
+        action="store_true",
+        help="the plans' held-out worlds (plan-score --held-out-worlds) instead of its selection "
+        "worlds",
+    )
     args = parser.parse_args(argv)
     try:
         if args.command == "train":
@@ -474,7 +561,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{record.seconds:.0f} s)\nmodel: {args.out} (plan with --model hf:{args.out})"
             )
         else:
-            print(compare(args.before, args.after))
+            print(compare(args.before, args.after, args.held_out))
     except (ValidationError, UserError) as error:
         return one_line_error(error)
     return 0

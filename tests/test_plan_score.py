@@ -13,6 +13,7 @@ from env.dataset import Dataset, DatasetSource, Goal
 from env.variant import Variant
 from llm_agents.agents.skills.catalogue import skill_offer
 from llm_agents.cli import main
+from llm_agents.planning.checks import PlanLimits
 from llm_agents.planning.export import numbered
 from llm_agents.planning.loop import planner_messages
 from llm_agents.planning.steps import read_plan, read_step
@@ -306,6 +307,40 @@ def test_candidates_are_sampled_distinct_with_duplicates_counted(
     assert sidecar["settings"]["generation"]["sampling_seed"] == 5
     journal = (tmp_path / "plans" / "candidates.journal.jsonl").read_text().splitlines()[1:]
     assert sorted(json.loads(line)["seed"] for line in journal) == [5, 5, 6, 6, 7, 7]
+
+
+def test_exports_ask_the_prompt_the_plans_were_asked_with(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    templates = tmp_path / "templates"
+    templates.mkdir()
+    (templates / "planner.j2").write_text(
+        "{% block system %}Plan in at most {{ max_steps }} steps.{% endblock %}\n"
+        "{% block user %}Instruction: {{ instruction }}{% endblock %}\n"
+    )
+    model = "mock:cycle:" + COMPLETE_TABLE
+    flags = ("--templates-dir", str(templates), "--max-steps", "9")
+    assert _plan(tmp_path, model, *flags) == 0
+    plans = tmp_path / "plans" / "candidates.json"
+    assert _score(tmp_path, plans, "--worlds", "2", "--export", "sft") == 0
+    sft = [json.loads(line) for line in (tmp_path / "out" / "sft.jsonl").read_text().splitlines()]
+    asked = [
+        {"role": m.role, "content": m.content}
+        for m in planner_messages(TABLE, PlanLimits(max_steps=9), Variant.CLASSIC, templates)
+    ]
+    assert asked[0]["content"] == "Plan in at most 9 steps."
+    assert sft[0]["messages"][:-1] == asked
+    # Another template in that folder now: the export would pair the plans with a prompt that
+    # never produced them, refused before anything is played.
+    (templates / "planner.j2").write_text(
+        "{% block system %}Plan briefly.{% endblock %}\n"
+        "{% block user %}Instruction: {{ instruction }}{% endblock %}\n"
+    )
+    capsys.readouterr()
+    assert _score(tmp_path, plans, "--export", "sft", out="again") == 2
+    err = capsys.readouterr().err
+    assert "planner.j2" in err and err.count("\n") == 1
+    assert not (tmp_path / "again").exists()
 
 
 @pytest.mark.parametrize(

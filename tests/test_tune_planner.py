@@ -90,6 +90,41 @@ def test_the_planner_prompt_is_put_back_into_its_chat() -> None:
     assert chats.chat(conversation) is conversation
 
 
+SHORT_PLANNER = Path(__file__).parents[1] / "benchmarks" / "short_planner"
+
+
+def test_reprompt_asks_each_exported_instruction_with_this_runs_prompt(tmp_path: Path) -> None:
+    # Exported under the project's prompt (plan-score's default), tuned for the short one.
+    exported = [
+        {"role": m.role, "content": m.content}
+        for m in planner_messages("Make a wooden pickaxe.", None, Variant.CLASSIC)
+    ]
+    plan = [{"role": "assistant", "content": "1. collect wood 3"}]
+    rows = [
+        {"messages": exported + plan},
+        {"prompt": exported, "chosen": plan, "rejected": plan},
+    ]
+    limits = tune_planner.PlanLimits(max_steps=12)
+    chats = tune_planner.PlannerChats(Variant.CLASSIC, str(SHORT_PLANNER), limits)
+    short = [
+        {"role": m.role, "content": m.content}
+        for m in planner_messages("Make a wooden pickaxe.", limits, Variant.CLASSIC, SHORT_PLANNER)
+    ]
+    assert short != exported and "at most 12 numbered steps" in short[0]["content"]
+    assert tune_planner.conversational(rows[:1], "sft", chats, reprompt=True) == [
+        {"prompt": short, "completion": plan}
+    ]
+    assert tune_planner.conversational(rows[1:], "dpo", chats, reprompt=True)[0]["prompt"] == short
+    assert chats.rebuilt == 2
+    # Without it the exported chat is kept as it was.
+    assert tune_planner.conversational(rows[:1], "sft", chats) == [
+        {"prompt": exported, "completion": plan}
+    ]
+    # A chat whose user message names no instruction the way a planner prompt does.
+    with pytest.raises(UserError, match="--reprompt"):
+        chats.reprompted([{"role": "user", "content": "Get wood."}])
+
+
 def test_a_bad_file_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     data = _write(tmp_path / "data.jsonl", [{"prompt": "a"}])
     assert tune_planner.main(["train", str(data), "--out", str(tmp_path / "out")]) == 2
@@ -206,3 +241,37 @@ def test_compare_puts_best_of_one_side_by_side(tmp_path: Path) -> None:
     assert "easy_test_other_params before: 11 x collect wood: no tree" in table
     assert "easy_test_other_params after: 5 x collect wood: no tree" in table
     assert tune_planner.main(["compare", str(before), str(tmp_path / "missing")]) == 2
+    assert "worlds: selection" in table
+    # Without held-out worlds in the files, --held-out is refused in one line.
+    with pytest.raises(UserError, match="--held-out-worlds"):
+        tune_planner.compare(before, after, held_out=True)
+
+
+def test_compare_reads_the_held_out_worlds_on_request(tmp_path: Path) -> None:
+    def held_out(score: dict, hits: int) -> dict:
+        return score | {"held_out": SuccessRate.of(hits, 4).model_dump(mode="json")}
+
+    before = _scores_dir(
+        tmp_path / "before",
+        [
+            held_out(_score("a", "g1", 0), 1),
+            held_out(_score("b", "g2", 1), 0),
+            _score("x", "g1", 4, candidate=1),
+        ],
+    )
+    after = _scores_dir(
+        tmp_path / "after",
+        # "c" was scored after only: it has no pair and is left out of the difference.
+        [
+            held_out(_score("a", "g1", 0), 4),
+            held_out(_score("b", "g2", 1), 2),
+            held_out(_score("c", "g3", 0), 0),
+        ],
+    )
+    old, new = tune_planner.read_scores(before), tune_planner.read_scores(after)
+    first = tune_planner.first_candidates(new, "easy_test_other_params", held_out=True)
+    assert first is not None and (first.successes, first.episodes) == (6, 12)
+    diff = tune_planner.paired_difference(old, new, held_out=True)
+    assert diff is not None and diff.texts == 2 and diff.rate == pytest.approx((3 + 2) / 8)
+    table = tune_planner.compare(before, after, held_out=True)
+    assert "worlds: held-out" in table and "+0.62" in table

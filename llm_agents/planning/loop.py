@@ -359,6 +359,11 @@ def plan_instructions(
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "model_info": model.info(),
         "settings": settings.model_dump(mode="json"),
+        # Where the templates whose digests `settings` holds were read, so that plan-score's
+        # exports ask the plans' own prompt (the digests are compared there).
+        "templates_dir": str(Path(config.templates_dir).resolve())
+        if config.templates_dir
+        else None,
         "instructions_from": provenance or {},
         "summary": summary.model_dump(mode="json", exclude={"failed_instructions"}),
     }

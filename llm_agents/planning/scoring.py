@@ -49,7 +49,7 @@ from llm_agents.planning.execution import (
     play_plan_episodes,
 )
 from llm_agents.planning.export import Prompter, dpo_rows, rank_key, sft_rows
-from llm_agents.planning.loop import planner_messages
+from llm_agents.planning.loop import PLANNER_TEMPLATE, planner_messages
 from llm_agents.planning.records import FirstFailure, PlanScore, StepReading
 from llm_agents.planning.steps import read_plan
 from llm_agents.planning.verdict import breaking_steps, goal_part_reached
@@ -63,6 +63,7 @@ from llm_agents.run_data.store import (
     complete_lines,
     make_output_dir,
 )
+from prompts import template_digests
 
 ExportKind = Literal["sft", "dpo"]
 JOURNAL = "episodes.jsonl"
@@ -258,6 +259,8 @@ def _check_exports(config: ScoreConfig, plans: dict[str, list[str]], texts: Sequ
             "--export dpo pairs candidates of one text, and no scored text has two: score a "
             "candidates file (craftext-llm plan --candidates N)"
         )
+    if config.export:
+        _planner_settings(config.plans, config.variant)  # refuses a changed prompt before playing
 
 
 def _plan_episodes(
@@ -579,17 +582,30 @@ def _write_exports(config: ScoreConfig, scores: list[PlanScore]) -> dict[str, in
 
 def _planner_settings(plans: Path, variant: Variant) -> tuple[PlanLimits, Variant, str | None]:
     """The limits, variant and templates folder the plans were asked with: from the sidecar
-    `plan` writes beside them, else `plan`'s defaults and the scored variant."""
+    `plan` writes beside them, else `plan`'s defaults and the scored variant. A templates folder
+    whose planner template is no longer the one the plans were asked with is refused: the
+    exports would pair the plans with a prompt that never produced them."""
     sidecar = plans.with_name(f"{plans.stem}.meta.json")
     try:
-        settings = json.loads(sidecar.read_text(encoding="utf-8"))["settings"]
-        return (
-            PlanLimits.model_validate(settings["limits"]),
-            Variant(settings["variant"]),
-            settings.get("templates_dir"),
-        )
-    except (OSError, ValueError, KeyError, TypeError, ValidationError):
+        written = json.loads(sidecar.read_text(encoding="utf-8"))
+        settings = written["settings"]
+        limits = PlanLimits.model_validate(settings["limits"])
+        asked_variant = Variant(settings["variant"])
+        templates_dir = written.get("templates_dir")
+        asked_digest = settings["templates"].get(PLANNER_TEMPLATE)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ValidationError):
         return PlanLimits(), variant, None
+    try:
+        digest = template_digests((PLANNER_TEMPLATE,), templates_dir)[PLANNER_TEMPLATE]
+    except (OSError, UserError):
+        digest = None
+    if asked_digest is not None and digest != asked_digest:
+        where = templates_dir or "the project's templates"
+        raise UserError(
+            f"{sidecar}: the plans were asked with another {PLANNER_TEMPLATE} than {where} "
+            "holds now, so their exported prompts would not be the ones that produced them"
+        )
+    return limits, asked_variant, templates_dir
 
 
 class PlanReward(BaseModel):
