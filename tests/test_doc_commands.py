@@ -64,6 +64,8 @@ def test_each_command_of_the_guides_parses_and_its_settings_hold(
     page: str, words: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
+    # The guides run from a checkout, where the benchmarks' prompt folders are.
+    (tmp_path / "benchmarks").symlink_to(ROOT / "benchmarks")
     if words[0] == "craftext-llm":
         args = build_parser().parse_args(words[1:])
         if words[1] == "plan-score":
