@@ -209,7 +209,7 @@ class PlannerChats:
         if isinstance(prompt, str):
             return self.asked(prompt.strip())
         raise UserError(
-            f"--reprompt: a line's user message does not start with {self.user_prefix!r}, "
+            f"--reprompt: a line's user message does not hold {self.user_prefix!r}, "
             "so its instruction cannot be found"
         )
 
@@ -442,7 +442,6 @@ def compare(before: Path, after: Path, held_out: bool = False) -> str:
     """Best-of-1 success per split, before and after, side by side, with the difference; in
     plan-score's selection worlds, or with `held_out` in its held-out worlds."""
     old, new = read_scores(before), read_scores(after)
-    old, new = ([s for s in scores if s.candidate == 0] for scores in (old, new))
     lines = ["| split | before | after | after - before |", "|---|---|---|---|"]
     reasons = []
     for split in sorted({s.split for s in old} | {s.split for s in new}):

@@ -11,6 +11,12 @@ import jax
 
 from env.downloads import cache_root
 
+#: A bound on the cache's size, far above what every variant's compiled steps take (a few
+#: hundred MB). Any bound turns on the cache's file lock: without one JAX writes an entry in place
+#: with no lock, so a second process compiling the same function (test workers, Ray workers) can
+#: read a half-written executable, and deserializing it crashes that process.
+MAX_CACHE_BYTES = 8 * 1024**3
+
 _enabled_dir: Path | None = None
 
 
@@ -32,5 +38,6 @@ def enable_compilation_cache(directory: Path | None = None) -> Path:
     # a second, and a second process should compile nothing at all.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    jax.config.update("jax_compilation_cache_max_size", MAX_CACHE_BYTES)
     _enabled_dir = directory
     return directory

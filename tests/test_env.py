@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -511,6 +512,7 @@ def test_a_second_process_compiles_nothing(tmp_path: Path) -> None:
     """Every env function a run compiles is loaded from the persistent cache the next time."""
     child = """
 import sys
+import time
 from collections import Counter
 from jax import monitoring
 events = Counter()
@@ -537,6 +539,39 @@ print(events["/jax/compilation_cache/cache_misses"], events["/jax/compilation_ca
     (first_misses, _), (second_misses, second_hits) = counts
     assert first_misses > 0
     assert second_misses == 0 and second_hits >= first_misses
+
+
+def test_the_cache_is_never_read_or_written_while_another_process_holds_its_lock(
+    tmp_path: Path,
+) -> None:
+    """A process compiling what another is writing waits for the whole entry: JAX writes an
+    entry in place, and a half-written executable crashes the process that loads it."""
+    from filelock import FileLock
+
+    child = f"""
+import time
+import jax, jax.numpy as jnp
+from pathlib import Path
+from env.jax_cache import enable_compilation_cache
+enable_compilation_cache(Path({str(tmp_path)!r}))
+print(time.time(), flush=True)
+jax.jit(lambda x: jnp.sin(x) * 3)(jnp.ones(3)).block_until_ready()
+print(time.time(), flush=True)
+"""
+    hold_s = 3.0
+    with FileLock(tmp_path / ".lockfile"):
+        child_process = subprocess.Popen(
+            [sys.executable, "-c", child], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        assert child_process.stdout is not None
+        compile_started = float(child_process.stdout.readline())
+        time.sleep(hold_s)
+        released = time.time()
+    out, err = child_process.communicate(timeout=120)
+    assert child_process.returncode == 0, err
+    compiled = float(out.split()[0])
+    assert compile_started < released <= compiled
+    assert list(tmp_path.glob("*-cache")), "the compiled function was not cached"
 
 
 def test_an_env_keeps_the_cache_directory_the_caller_chose(tmp_path: Path) -> None:

@@ -253,14 +253,21 @@ class ScoreSummary(BaseModel):
     every plan of theirs)."""
 
 
-def _check_exports(config: ScoreConfig, plans: dict[str, list[str]], texts: Sequence[str]) -> None:
+PlannerSettings = tuple[PlanLimits, Variant, str | None]
+"""The limits, variant and templates folder a plans file was asked with."""
+
+
+def _check_exports(
+    config: ScoreConfig, plans: dict[str, list[str]], texts: Sequence[str]
+) -> PlannerSettings | None:
+    """The settings the exports will be asked with, read before anything is played so that a
+    changed prompt or an export with nothing to pair is refused first; None without exports."""
     if "dpo" in config.export and not any(len(set(plans[t])) >= 2 for t in texts):
         raise UserError(
             "--export dpo pairs candidates of one text, and no scored text has two: score a "
             "candidates file (craftext-llm plan --candidates N)"
         )
-    if config.export:
-        _planner_settings(config.plans, config.variant)  # refuses a changed prompt before playing
+    return _planner_settings(config.plans, config.variant) if config.export else None
 
 
 def _plan_episodes(
@@ -345,7 +352,7 @@ def score_plans(
     started = time.perf_counter()
     plans = load_candidates(config.plans)
     texts = _texts(config, plans)
-    _check_exports(config, plans, list(texts))
+    export_settings = _check_exports(config, plans, list(texts))
     dataset = _load(config.dataset)
     settings = _Settings(
         plans_sha256=hashlib.sha256(config.plans.read_bytes()).hexdigest(),
@@ -417,7 +424,7 @@ def score_plans(
         },
     )
     atomic_write_json(config.out / BEST, {text: score.plan for text, score in best.items()})
-    exports = _write_exports(config, scores)
+    exports = _write_exports(config, scores, export_settings)
     return ScoreSummary(
         texts=len(texts),
         plans=len(scores),
@@ -549,10 +556,12 @@ def _clustered(scores: Sequence[PlanScore], held_out: bool = False) -> SuccessRa
     return clustered_rate((s.goal_id, rate(s).successes, rate(s).episodes) for s in scores)
 
 
-def _write_exports(config: ScoreConfig, scores: list[PlanScore]) -> dict[str, int]:
-    if not config.export:
+def _write_exports(
+    config: ScoreConfig, scores: list[PlanScore], settings: PlannerSettings | None
+) -> dict[str, int]:
+    if settings is None:
         return {}
-    limits, variant, templates = _planner_settings(config.plans, config.variant)
+    limits, variant, templates = settings
     cache: dict[str, list[dict[str, str]]] = {}
 
     def prompt(text: str) -> list[dict[str, str]]:
@@ -580,7 +589,7 @@ def _write_exports(config: ScoreConfig, scores: list[PlanScore]) -> dict[str, in
     return written
 
 
-def _planner_settings(plans: Path, variant: Variant) -> tuple[PlanLimits, Variant, str | None]:
+def _planner_settings(plans: Path, variant: Variant) -> PlannerSettings:
     """The limits, variant and templates folder the plans were asked with: from the sidecar
     `plan` writes beside them, else `plan`'s defaults and the scored variant. A templates folder
     whose planner template is no longer the one the plans were asked with is refused: the
