@@ -4,6 +4,7 @@ Compiling full Craftax takes ~30 s on a small CPU; with the cache a second proce
 compiled step in a second or two.
 """
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -16,6 +17,11 @@ from env.downloads import cache_root
 #: with no lock, so a second process compiling the same function (test workers, Ray workers) can
 #: read a half-written executable, and deserializing it crashes that process.
 MAX_CACHE_BYTES = 8 * 1024**3
+
+# How JAX's cache names an entry's files (jax/_src/lru_cache.py): the compiled executable, and
+# the last time it was read or written (nanoseconds, 8 bytes little-endian), which orders eviction.
+_ENTRY_SUFFIX = "-cache"
+_ACCESS_TIME_SUFFIX = "-atime"
 
 _enabled_dir: Path | None = None
 
@@ -33,6 +39,7 @@ def enable_compilation_cache(directory: Path | None = None) -> Path:
     if _enabled_dir == directory:
         return directory
     directory.mkdir(parents=True, exist_ok=True)
+    _date_undated_entries(directory)
     jax.config.update("jax_compilation_cache_dir", str(directory))
     # Every compile, the small eager ones too: on a GPU each of those takes a noticeable part of
     # a second, and a second process should compile nothing at all.
@@ -41,3 +48,17 @@ def enable_compilation_cache(directory: Path | None = None) -> Path:
     jax.config.update("jax_compilation_cache_max_size", MAX_CACHE_BYTES)
     _enabled_dir = directory
     return directory
+
+
+def _date_undated_entries(directory: Path) -> None:
+    """Give every entry without an access-time file one, from the entry's modification time.
+    A bounded cache reads every entry's access time before each write, and one missing makes
+    every later write fail: entries written while the cache was unbounded (by earlier versions,
+    or by JAX with only `JAX_COMPILATION_CACHE_DIR` set) have none, nor has an entry whose
+    writer was killed between its two files."""
+    for entry in directory.glob(f"*{_ENTRY_SUFFIX}"):
+        dated = entry.with_name(entry.name.removesuffix(_ENTRY_SUFFIX) + _ACCESS_TIME_SUFFIX)
+        # OSError: another process removed the entry, or the folder is read-only.
+        if not dated.exists():
+            with contextlib.suppress(OSError):
+                dated.write_bytes(entry.stat().st_mtime_ns.to_bytes(8, "little"))

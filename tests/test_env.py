@@ -574,6 +574,34 @@ print(time.time(), flush=True)
     assert list(tmp_path.glob("*-cache")), "the compiled function was not cached"
 
 
+def test_a_cache_written_unbounded_still_takes_new_entries(tmp_path: Path) -> None:
+    """Entries JAX wrote with no bound on the cache (earlier versions, or JAX alone) carry no
+    access time, which a bounded cache reads before every write."""
+    unbounded = f"""
+import jax, jax.numpy as jnp
+jax.config.update("jax_compilation_cache_dir", {str(tmp_path)!r})
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+jax.jit(lambda x: x + 1)(jnp.ones(2)).block_until_ready()
+"""
+    bounded = f"""
+import jax, jax.numpy as jnp
+from pathlib import Path
+from env.jax_cache import enable_compilation_cache
+enable_compilation_cache(Path({str(tmp_path)!r}))
+jax.jit(lambda x: x * 5 - 2)(jnp.ones(2)).block_until_ready()
+"""
+    entries = []
+    for child in (unbounded, bounded):
+        done = subprocess.run(
+            [sys.executable, "-W", "error::UserWarning", "-c", child],
+            capture_output=True,
+            text=True,
+        )
+        assert done.returncode == 0, done.stderr
+        entries.append({p.name for p in tmp_path.glob("jit__lambda-*-cache")})
+    assert len(entries[0]) == 1 and len(entries[1]) == 2, entries
+
+
 def test_an_env_keeps_the_cache_directory_the_caller_chose(tmp_path: Path) -> None:
     child = f"""
 import jax
