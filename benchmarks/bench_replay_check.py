@@ -6,8 +6,9 @@ the protocol, each re-simulated from its world key and actions, the answers pars
 
 Prints the seconds of the first check in a fresh process (compiling the replay included) and of
 a second one, what was checked, and the process's peak memory (the step log is read line by
-line, so it stays far below the log's size). Goal: a complete paper-protocol EASY run (every
-episode, 250 steps) in at most 2 minutes on a 2-core CPU.
+line, so it stays far below the log's size). Goals on a 2-core CPU: a complete paper-protocol
+EASY run (605 episodes) in at most 2 minutes, a Medium one (81,400 episodes) in at most 20; give
+a Medium run `--repeats 1`, its check is long enough that compiling is noise.
 """
 
 from __future__ import annotations
