@@ -30,7 +30,7 @@ def main() -> None:
         started = time.perf_counter()
         check = check_run(read_run(args.run_dir))
         seconds = time.perf_counter() - started
-        steps = sum(e.steps for e in read_run(args.run_dir).episodes)
+        steps = sum(episode.steps for episode in check.replayed)
         print(
             f"check {repeat + 1}: {seconds:.1f} s for {check.episodes} episodes ({steps} steps, "
             f"{check.answers} answers parsed again), {len(check.differences)} differences"
